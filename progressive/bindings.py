@@ -1,0 +1,32 @@
+"""Shader storage binding points: one enum, emitted into every shader as #defines,
+so Python and GLSL cannot disagree about where a buffer lives."""
+
+from __future__ import annotations
+
+import enum
+
+MAX_POINT_CHUNKS = 8
+"""Shuffled point buffers: each under 2^31 bytes and the GL limit; 8 hold > 1e9 points."""
+
+
+class Binding(enum.IntEnum):
+    POINTS_0 = 0
+    POINTS_1 = 1
+    POINTS_2 = 2
+    POINTS_3 = 3
+    POINTS_4 = 4
+    POINTS_5 = 5
+    POINTS_6 = 6
+    POINTS_7 = 7
+    DISTRIBUTE = 8
+    VISIBILITY = 9
+    IMAGE = 10
+    PALETTE = 11
+
+    @classmethod
+    def points(cls, chunk: int) -> Binding:
+        return cls(cls.POINTS_0 + chunk)
+
+
+def glsl_defines() -> str:
+    return "".join(f"#define BINDING_{b.name} {int(b)}\n" for b in Binding)

@@ -1,0 +1,19 @@
+"""Small GPU helpers shared by passes: dispatch grids within GL's guaranteed limits."""
+
+from __future__ import annotations
+
+GUARANTEED_GROUPS = 65535
+
+
+def grid(count: int, local_size: int = 256) -> tuple[int, int, int]:
+    """Groups covering `count` invocations as a 2-D grid (shaders use range_index)."""
+    groups = max(1, -(-count // local_size))
+    gx = min(groups, GUARANTEED_GROUPS)
+    gy = -(-groups // gx)
+    if gy > GUARANTEED_GROUPS:
+        raise ValueError(f"{count} invocations exceed the dispatch grid")
+    return gx, gy, 1
+
+
+def grid_2d(width: int, height: int, tile: int = 16) -> tuple[int, int, int]:
+    return -(-width // tile), -(-height // tile), 1

@@ -1,0 +1,58 @@
+"""Distribute: staged batches scattered to their permuted slots (paper 3.1, 3.3)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from progressive import shaderlib
+from progressive.bindings import Binding
+from progressive.context import GLContext
+from progressive.gpu import grid
+from progressive.loaders.types import BATCH_POINTS
+from progressive.packing import RECORD_BYTES
+from progressive.pointstore import PointStore
+
+
+class DistributePass:
+    def __init__(self, glc: GLContext, store: PointStore, batch_points: int = BATCH_POINTS):
+        self.glc = glc
+        self.store = store
+        self.batch_points = batch_points
+        self.stage = glc.ctx.buffer(reserve=batch_points * RECORD_BYTES)
+        self.stage.label = "distribute stage"
+        int64 = glc.caps.shader_int64
+        defines = dict(store.defines, PERMUTE_INT64=1) if int64 else dict(store.defines)
+        ext = ("GL_ARB_gpu_shader_int64",) if int64 else ()
+        self.records = shaderlib.compute(glc.ctx, "distribute.comp", dict(defines, ATTRIBUTE_ONLY=0), ext, "distribute")
+        self.words = shaderlib.compute(glc.ctx, "distribute.comp", dict(defines, ATTRIBUTE_ONLY=1), ext, "distribute words")
+        self.points_distributed = 0
+
+    def upload(self, records: np.ndarray, start: int) -> None:
+        """Scatter (n, 4) uint32 records whose first has file-order index `start`."""
+        self._scatter(self.records, np.ascontiguousarray(records, dtype=np.uint32), start)
+
+    def upload_words(self, words: np.ndarray, start: int) -> None:
+        """Replace only the attribute word of n points (attribute switching, paper 3.5)."""
+        self._scatter(self.words, np.ascontiguousarray(words, dtype=np.uint32), start)
+
+    def _scatter(self, program, data: np.ndarray, start: int) -> None:
+        n = data.shape[0]
+        if start < 0 or start + n > self.store.count:
+            raise ValueError(f"batch [{start}, {start + n}) outside the cloud of {self.store.count} points")
+        perm = self.store.permutation
+        program["u_prime"] = perm.prime
+        program["u_rotation"] = perm.offset
+        self.store.bind()
+        self.stage.bind_to_storage_buffer(Binding.DISTRIBUTE)
+        for off in range(0, n, self.batch_points):
+            part = data[off: off + self.batch_points]
+            self.stage.write(part.tobytes())
+            program["u_start"] = start + off
+            program["u_count"] = part.shape[0]
+            program.run(*grid(part.shape[0]))
+            self.glc.ctx.memory_barrier()
+        self.points_distributed += n
+
+    def release(self) -> None:
+        for obj in (self.stage, self.records, self.words):
+            obj.release()

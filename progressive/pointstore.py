@@ -1,0 +1,67 @@
+"""The shuffled point buffer on the GPU: one 16-byte record per slot, split into
+chunks so no GL buffer exceeds the driver's storage-block limit or 2^31 bytes."""
+
+from __future__ import annotations
+
+from progressive.bindings import MAX_POINT_CHUNKS, Binding
+from progressive.context import GLContext
+from progressive.errors import ProgressiveError
+from progressive.permutation import Permutation
+from progressive.packing import RECORD_BYTES
+
+EMPTY_WORD = 0xFFFFFFFF
+"""Every slot starts as NaN coordinates, which no pass draws: unloaded slots stay dark."""
+
+
+def chunk_capacity(max_ssbo_bytes: int) -> int:
+    return min(max_ssbo_bytes, 2**31 - 1) // RECORD_BYTES
+
+
+class PointStore:
+    def __init__(self, glc: GLContext, count: int, *, chunk_points: int | None = None, rotate: bool = True):
+        limit = chunk_capacity(glc.caps.max_ssbo_bytes)
+        self.chunk_points = min(chunk_points or limit, limit)
+        self.count = count
+        chunks = max(1, -(-count // self.chunk_points))
+        if chunks > MAX_POINT_CHUNKS:
+            raise ProgressiveError(
+                f"{count:,} points need {chunks} GPU buffers of {self.chunk_points:,} points; at most {MAX_POINT_CHUNKS} are supported")
+        self.permutation = Permutation.for_count(count, rotate=rotate)
+        self._glc = glc
+        self.buffers = []
+        for c in range(chunks):
+            n = max(1, min(self.chunk_points, count - c * self.chunk_points))
+            buf = glc.ctx.buffer(reserve=n * RECORD_BYTES)
+            buf.label = f"points[{c}]"
+            glc.gl.clear_u32(buf.glo, EMPTY_WORD, total=buf.size)
+            self.buffers.append(buf)
+
+    @property
+    def defines(self) -> dict[str, int]:
+        return {"POINT_CHUNKS": len(self.buffers), "CHUNK_POINTS": self.chunk_points}
+
+    def bind(self) -> None:
+        for c, buf in enumerate(self.buffers):
+            buf.bind_to_storage_buffer(Binding.points(c))
+
+    def chunk_ranges(self, first: int, count: int):
+        """(chunk, local first, local count) pieces of the slot range [first, first+count)."""
+        end = min(first + count, self.count)
+        while first < end:
+            c = first // self.chunk_points
+            local = first - c * self.chunk_points
+            n = min(end - first, self.chunk_points - local)
+            yield c, local, n
+            first += n
+
+    def read_records(self):
+        """All slots as (count, 4) uint32 (tests and debugging only)."""
+        import numpy as np
+
+        parts = [np.frombuffer(b.read(), dtype=np.uint32).reshape(-1, 4) for b in self.buffers]
+        return np.concatenate(parts)[: self.count]
+
+    def release(self) -> None:
+        for buf in self.buffers:
+            buf.release()
+        self.buffers = []

@@ -1,0 +1,47 @@
+// Shared helpers: dispatch indexing, the exact prime permutation, sentinels.
+
+const uint EMPTY = 0xFFFFFFFFu;
+
+// Invocation i of a 1-D range spread over a 2-D grid of 1-D work groups (GL only
+// guarantees 65535 groups per dimension). False past `count`; never overflows.
+bool range_index(uint count, out uint i) {
+    uint group = gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x;
+    if (count == 0u || group > (count - 1u) / gl_WorkGroupSize.x) return false;
+    uint base = group * gl_WorkGroupSize.x;
+    if (gl_LocalInvocationID.x >= count - base) return false;
+    i = base + gl_LocalInvocationID.x;
+    return true;
+}
+
+#ifdef PERMUTE_INT64
+uint mulmod(uint a, uint b, uint p) {
+    return uint((uint64_t(a) * uint64_t(b)) % uint64_t(p));
+}
+#else
+// a*b mod p with 32-bit words only: the high word is < p because a, b < p, then the
+// low word is shifted in one bit at a time, subtracting p whenever the value reaches it.
+uint mulmod(uint a, uint b, uint p) {
+    uint hi, lo;
+    umulExtended(a, b, hi, lo);
+    uint r = hi;
+    for (int bit = 31; bit >= 0; --bit) {
+        uint carry = r >> 31;
+        r = (r << 1) | ((lo >> uint(bit)) & 1u);
+        if (carry != 0u || r >= p) r -= p;
+    }
+    return r;
+}
+#endif
+
+uint quadratic_residue(uint x, uint p) {
+    uint r = mulmod(x, x, p);
+    return x <= p / 2u ? r : p - r;
+}
+
+// File-order index -> shuffled slot; indices >= prime stay (progressive/permutation.py).
+uint permute(uint i, uint prime, uint rotation) {
+    if (i >= prime) return i;
+    uint x = quadratic_residue(i, prime);
+    x = x >= prime - rotation ? x - (prime - rotation) : x + rotation;
+    return quadratic_residue(x, prime);
+}

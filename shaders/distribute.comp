@@ -1,0 +1,27 @@
+// Scatter a staged batch into its permuted slots (paper section 3.3). With
+// ATTRIBUTE_ONLY the stage holds one word per point and only word 3 is replaced.
+layout(local_size_x = 256) in;
+#include "common.glsl"
+#include "points.glsl"
+
+#if ATTRIBUTE_ONLY
+layout(std430, binding = BINDING_DISTRIBUTE) readonly buffer Stage { uint staged[]; };
+#else
+layout(std430, binding = BINDING_DISTRIBUTE) readonly buffer Stage { uvec4 staged[]; };
+#endif
+
+uniform uint u_start;       // file-order index of staged[0]
+uniform uint u_count;
+uniform uint u_prime;
+uniform uint u_rotation;
+
+void main() {
+    uint i;
+    if (!range_index(u_count, i)) return;
+    uint slot = permute(u_start + i, u_prime, u_rotation);
+#if ATTRIBUTE_ONLY
+    store_point(slot, uvec4(0u, 0u, 0u, staged[i]), 3);
+#else
+    store_point(slot, staged[i], -1);
+#endif
+}

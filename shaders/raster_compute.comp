@@ -1,0 +1,40 @@
+// Compute rasterization of a range of shuffled slots into the visibility buffer.
+// Each pixel keeps the point of least depth, ties to the least slot, as the 64-bit
+// key (depth bits << 32 | slot): with ATOMIC64 one atomicMin per point, otherwise
+// DEPTH_PASS (atomicMin of depth bits) then the index pass (least slot among points
+// at exactly that depth). Positive float bits sort like the floats.
+layout(local_size_x = 256) in;
+#include "common.glsl"
+#include "points.glsl"
+#include "camera.glsl"
+
+#if ATOMIC64
+layout(std430, binding = BINDING_VISIBILITY) buffer Visibility { uint64_t visibility[]; };
+#else
+// word 2p: slot, word 2p+1: depth bits; byte-identical to the 64-bit key.
+layout(std430, binding = BINDING_VISIBILITY) buffer Visibility { uint visibility[]; };
+#endif
+
+uniform uint u_first;
+uniform uint u_count;
+
+void main() {
+    uint i;
+    if (!range_index(u_count, i)) return;
+    uint slot = u_first + i;
+    uvec4 record = load_point(slot);
+    if (!finite_position(record)) return;
+    uint pixel;
+    float depth;
+    if (!project(uintBitsToFloat(record.xyz), pixel, depth)) return;
+    uint depth_bits = floatBitsToUint(depth);
+#if ATOMIC64
+    uint64_t key = (uint64_t(depth_bits) << 32) | uint64_t(slot);
+    if (key < visibility[pixel]) atomicMin(visibility[pixel], key);
+#elif DEPTH_PASS
+    if (depth_bits < visibility[2u * pixel + 1u]) atomicMin(visibility[2u * pixel + 1u], depth_bits);
+#else
+    if (depth_bits == visibility[2u * pixel + 1u] && slot < visibility[2u * pixel])
+        atomicMin(visibility[2u * pixel], slot);
+#endif
+}

@@ -1,0 +1,42 @@
+"""Shared fixtures: the real data folder beside the checkout and one headless GL context."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED_DATA = Path(os.environ.get("PROGRESSIVE_SHARED_DATA", REPO.parent / "shared" / "data"))
+SAMPLE = REPO / "progressive" / "data" / "autzen_trim.las"
+LAS_SUFFIXES = (".las", ".laz")
+
+
+def shared_files() -> list[Path]:
+    """Every LAS/LAZ file in ../shared/data (empty when the folder is absent)."""
+    if not SHARED_DATA.is_dir():
+        return []
+    return sorted(p for p in SHARED_DATA.iterdir() if p.suffix.lower() in LAS_SUFFIXES)
+
+
+def shared_file(name: str) -> Path:
+    path = SHARED_DATA / name
+    if not path.is_file():
+        pytest.skip(f"{path} not available")
+    return path
+
+
+@pytest.fixture(scope="session")
+def sample_path() -> Path:
+    return SAMPLE
+
+
+@pytest.fixture(scope="session")
+def gl():
+    """One headless context for the whole run (creating one costs ~0.1 s on llvmpipe)."""
+    from progressive.context import create_context
+
+    handle = create_context()
+    yield handle
+    handle.release()
