@@ -14,7 +14,7 @@ import numpy as np
 from progressive.errors import ProgressiveError
 
 Vec3 = tuple[float, float, float]
-AUTO_AZIMUTH_DEG = -60.0
+AUTO_AZIMUTH_OFFSET_DEG = 25.0
 AUTO_ELEVATION_DEG = 35.0
 
 
@@ -117,20 +117,28 @@ def view_uniforms(camera: Camera, origin: np.ndarray, width: int, height: int) -
 
 
 def auto_camera(bounds_min: np.ndarray, bounds_max: np.ndarray, aspect: float, fov_y_deg: float = 60.0) -> Camera:
-    """Frame the bounding box from an oblique view (south-west, looking down)."""
+    """Frame the bounding box from an oblique view across its longer horizontal side
+    (so strips fill the width): the nearest distance at which all 8 corners fit."""
     lo = np.asarray(bounds_min, dtype=np.float64)
     hi = np.asarray(bounds_max, dtype=np.float64)
     centre = (lo + hi) / 2.0
-    radius = max(float(np.linalg.norm(hi - lo)) / 2.0, 1e-3)
-    half_fov = math.radians(fov_y_deg) / 2.0
-    half_fov_x = math.atan(math.tan(half_fov) * aspect)
-    distance = radius / math.sin(min(half_fov, half_fov_x))
-    az, el = math.radians(AUTO_AZIMUTH_DEG), math.radians(AUTO_ELEVATION_DEG)
-    direction = np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
-    position = centre + distance * direction
-    near = max(distance - radius, 0.0) * 0.5 or radius * 1e-3
-    return Camera(tuple(position.tolist()), tuple(centre.tolist()), (0.0, 0.0, 1.0), fov_y_deg,
-                  near, (distance + radius) * 1.5)
+    half = np.maximum((hi - lo) / 2.0, 1e-3)
+    side = -90.0 if half[0] >= half[1] else 180.0
+    az, el = math.radians(side + AUTO_AZIMUTH_OFFSET_DEG), math.radians(AUTO_ELEVATION_DEG)
+    back = np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
+    right = np.cross(-back, (0.0, 0.0, 1.0))
+    right /= np.linalg.norm(right)
+    up = np.cross(right, -back)
+    tan_y = math.tan(math.radians(fov_y_deg) / 2.0)
+    tan_x = tan_y * aspect
+    corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * half
+    toward = corners @ back
+    distance = 1.05 * float(np.max(np.maximum(toward + np.abs(corners @ right) / tan_x,
+                                              toward + np.abs(corners @ up) / tan_y)))
+    radius = float(np.linalg.norm(half))
+    near = max(distance - radius, radius * 1e-3) * 0.5
+    return Camera(tuple((centre + distance * back).tolist()), tuple(centre.tolist()), (0.0, 0.0, 1.0),
+                  fov_y_deg, near, (distance + radius) * 1.5)
 
 
 def project(camera: Camera, xyz: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:

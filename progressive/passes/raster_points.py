@@ -43,6 +43,7 @@ class PointsRaster:
         depth = ctx.depth_texture(size)
         for t, name in ((slots, "points slots"), (depths, "points depth bits"), (depth, "points depth")):
             t.label = name
+            t.filter = (moderngl.NEAREST, moderngl.NEAREST)
         self.fbo = ctx.framebuffer(color_attachments=[slots, depths], depth_attachment=depth)
         self._targets = [self.fbo, slots, depths, depth]
         self.size = size
@@ -53,11 +54,11 @@ class PointsRaster:
         self._ensure_targets()
         ctx = self.glc.ctx
         _, slots, depths, _ = self._targets
-        self.glc.gl.clear_texture_u32(slots.glo, EMPTY)
-        self.glc.gl.clear_texture_u32(depths.glo, EMPTY)
         previous = ctx.fbo or ctx.detect_framebuffer()
         self.fbo.use()
         self.fbo.clear(depth=1.0)
+        self.glc.gl.clear_texture_u32(slots.glo, EMPTY)
+        self.glc.gl.clear_texture_u32(depths.glo, EMPTY)
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.depth_func = "<"
         set_view(self.program, view)
