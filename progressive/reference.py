@@ -1,0 +1,38 @@
+"""The render contract evaluated in float64 on the CPU: the ground truth for tests,
+`--reference` comparisons and benchmarks of accuracy."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from progressive.camera import Camera, project
+
+EMPTY = 0xFFFFFFFF
+
+
+def reference_ids(xyz: np.ndarray, camera: Camera, width: int, height: int,
+                  tie_key: np.ndarray | None = None) -> np.ndarray:
+    """(H, W) uint32 file-order index of the nearest point per pixel, EMPTY elsewhere.
+
+    Ties in depth go to the least `tie_key` (the GPU uses the shuffled slot), else
+    to the least index."""
+    pixel, depth = project(camera, xyz, width, height)
+    hit = np.nonzero(pixel >= 0)[0]
+    key = hit if tie_key is None else np.asarray(tie_key)[hit]
+    order = np.lexsort((key, depth[hit], pixel[hit]))
+    p = pixel[hit][order]
+    first = np.r_[True, p[1:] != p[:-1]] if p.size else np.zeros(0, dtype=bool)
+    ids = np.full(width * height, EMPTY, dtype=np.uint32)
+    ids[p[first]] = hit[order][first]
+    return ids.reshape(height, width)
+
+
+def agreement(a: np.ndarray, b: np.ndarray) -> float:
+    """Fraction of pixels whose ids are equal (empty counts as a value)."""
+    return float(np.mean(a == b))
+
+
+def covered_agreement(a: np.ndarray, b: np.ndarray) -> float:
+    """Fraction of pixels covered in either image whose ids are equal."""
+    covered = (a != EMPTY) | (b != EMPTY)
+    return float(np.mean(a[covered] == b[covered])) if covered.any() else 1.0

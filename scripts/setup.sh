@@ -1,0 +1,18 @@
+#!/usr/bin/env bash
+# Installs what progressive needs on a fresh Debian/Ubuntu machine: Mesa's EGL and
+# software OpenGL (llvmpipe) when no OpenGL driver is present, then a virtual
+# environment with the package. Sourced by run.sh and test.sh.
+set -euo pipefail
+cd "$(dirname "${BASH_SOURCE[0]}")/.."
+
+if ! ldconfig -p 2>/dev/null | grep -q 'libEGL.so.1' || ! ls /usr/lib/*/dri/swrast_dri.so >/dev/null 2>&1; then
+    if command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
+        apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends \
+            libegl1 libegl-mesa0 libgl1-mesa-dri libgl1 >/dev/null
+    else
+        echo "progressive: OpenGL 4.5 through EGL is needed (Debian: apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri)" >&2
+    fi
+fi
+
+[ -x .venv/bin/python ] || python3 -m venv .venv
+.venv/bin/python -m pip install -q --disable-pip-version-check -e ".[${PROGRESSIVE_EXTRAS:-test}]"

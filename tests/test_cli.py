@@ -1,0 +1,167 @@
+"""The command line: outputs, the camera contract, and one-line errors for bad input."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from conftest import SAMPLE
+from progressive.cli import main
+
+SMALL = ["--width", "160", "--height", "120"]
+
+
+def run(capsys, *argv):
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_render_writes_png_ids_stats_and_camera(tmp_path, capsys):
+    png, ids, stats, cam = (tmp_path / n for n in ("a.png", "a.npy", "a.json", "cam.json"))
+    code, _, err = run(capsys, "render", *SMALL, "--out", png, "--ids", ids, "--stats", stats, "--save-camera", cam)
+    assert code == 0, err
+    from PIL import Image
+
+    image = np.asarray(Image.open(png))
+    assert image.shape == (120, 160, 3)
+    ids_a = np.load(ids)
+    assert ids_a.shape == (120, 160) and ids_a.dtype == np.uint32
+    assert 0.05 < np.mean(ids_a != 0xFFFFFFFF) < 1.0
+    covered = ids_a != 0xFFFFFFFF
+    assert np.array_equal(image[covered].any(axis=1), np.ones(covered.sum(), bool)) or image[covered].any()
+    s = json.loads(stats.read_text())
+    assert s["points"] == 110_000 and s["points_loaded"] == 110_000
+    assert {"device", "load_seconds", "load_points_per_second", "gpu_ms"} <= set(s)
+    assert {"raster", "resolve"} <= set(s["gpu_ms"])
+    ids_b = tmp_path / "b.npy"
+    code, _, err = run(capsys, "render", *SMALL, "--camera", cam, "--ids", ids_b)
+    assert code == 0, err
+    assert np.array_equal(np.load(ids_b), ids_a)
+
+
+def test_camera_as_json_text_and_raster_choices(tmp_path, capsys):
+    cam = {"position": [637000.0, 848500.0, 1500.0], "target": [636800.0, 849000.0, 450.0],
+           "up": [0, 0, 1], "fov_y_deg": 50, "near": 10, "far": 5000}
+    outs = {}
+    for raster in ("compute", "compute32", "points"):
+        path = tmp_path / f"{raster}.npy"
+        code, _, err = run(capsys, "render", *SMALL, "--camera", json.dumps(cam), "--raster", raster, "--ids", path)
+        assert code == 0, err
+        outs[raster] = np.load(path)
+    assert np.array_equal(outs["compute"], outs["compute32"])
+    covered = (outs["compute"] != 0xFFFFFFFF) | (outs["points"] != 0xFFFFFFFF)
+    assert covered.sum() > 100
+    assert np.mean(outs["compute"][covered] == outs["points"][covered]) >= 0.99
+
+
+@pytest.mark.parametrize("name", ["classification", "Intensity", "GpsTime", "elevation", "ReturnNumber", "z"])
+def test_color_by_names(tmp_path, capsys, name):
+    code, _, err = run(capsys, "render", *SMALL, "--color-by", name, "--out", tmp_path / "x.png")
+    assert code == 0, err
+
+
+def test_info_json(capsys):
+    code, out, _ = run(capsys, "info", "--json", SAMPLE)
+    assert code == 0
+    d = json.loads(out)
+    assert d["points"] == 110_000 and d["point_format"] == 3 and d["version"] == "1.2"
+    assert set(d["bounds"]) == {"min", "max"} and len(d["bounds"]["min"]) == 3
+    assert "intensity" in d["attributes"]
+
+
+def test_convert_then_render_fast_format_gives_same_ids(tmp_path, capsys):
+    fast = tmp_path / "sample.prgs"
+    code, _, err = run(capsys, "convert", SAMPLE, fast)
+    assert code == 0, err
+    a, b = tmp_path / "a.npy", tmp_path / "b.npy"
+    assert run(capsys, "render", *SMALL, SAMPLE, "--ids", a)[0] == 0
+    assert run(capsys, "render", *SMALL, fast, "--ids", b)[0] == 0
+    assert np.array_equal(np.load(a), np.load(b))
+
+
+def broken_files(tmp_path):
+    data = SAMPLE.read_bytes()
+    offset = int.from_bytes(data[96:100], "little")
+    record = int.from_bytes(data[105:107], "little")
+    cases = {
+        "missing": tmp_path / "missing.las",
+        "directory": tmp_path,
+        "random": tmp_path / "random.las",
+        "empty": tmp_path / "empty.las",
+        "signature": tmp_path / "signature.las",
+        "truncated": tmp_path / "truncated.las",
+        "zero_points": tmp_path / "zero.las",
+        "count_larger": tmp_path / "larger.las",
+    }
+    cases["random"].write_bytes(np.random.default_rng(0).bytes(5000))
+    cases["empty"].write_bytes(b"")
+    cases["signature"].write_bytes(b"XXXX" + data[4:])
+    cases["truncated"].write_bytes(data[: offset + record * 5000 + 7])
+    header_only = bytearray(data[:offset])
+    header_only[107:111] = (0).to_bytes(4, "little")
+    header_only[111:131] = bytes(20)
+    cases["zero_points"].write_bytes(bytes(header_only))
+    larger = bytearray(data)
+    larger[107:111] = (200_000).to_bytes(4, "little")
+    cases["count_larger"].write_bytes(bytes(larger))
+    return cases
+
+
+@pytest.mark.parametrize("case", ["missing", "directory", "random", "empty", "signature", "truncated",
+                                  "zero_points", "count_larger"])
+def test_bad_files_one_line_error(tmp_path, capsys, case):
+    bad = broken_files(tmp_path)[case]
+    out = tmp_path / "out" / "x.png"
+    out.parent.mkdir()
+    code, _, err = run(capsys, "render", *SMALL, bad, "--out", out)
+    assert code == 2
+    assert err.startswith("progressive: error: ") and err.count("\n") == 1, err
+    assert not any(out.parent.iterdir()), "nothing may be written"
+
+
+def test_partial_renders_truncated_with_warning(tmp_path, capsys):
+    bad = broken_files(tmp_path)["truncated"]
+    out = tmp_path / "x.npy"
+    code, _, err = run(capsys, "render", *SMALL, bad, "--partial", "--ids", out)
+    assert code == 0, err
+    assert "warning" in err
+    ids = np.load(out)
+    assert ids[ids != 0xFFFFFFFF].max() < 5000
+
+
+@pytest.mark.parametrize("argv", [
+    ["--color-by", "nonexistent"],
+    ["--camera", "{not json"],
+    ["--camera", '{"position": [0, 0, 0], "target": [0, 0, 0]}'],
+    ["--camera", '{"position": [0, 0, 1], "target": [0, 0, 0], "near": -1}'],
+    ["--camera", "/no/such/camera.json"],
+    ["--width", "0"],
+    ["--width", "100000"],
+    ["--raster", "bogus"],
+    ["--colormap", "nope"],
+])
+def test_bad_options_one_line_error(tmp_path, capsys, argv):
+    out = tmp_path / "x.png"
+    code, _, err = run(capsys, "render", *argv, "--out", out)
+    assert code == 2
+    assert err.startswith("progressive: error: ") and err.count("\n") == 1, err
+    assert not out.exists()
+
+
+def test_output_folder_missing(tmp_path, capsys):
+    code, _, err = run(capsys, "render", *SMALL, "--out", tmp_path / "no" / "x.png")
+    assert code == 2 and "does not exist" in err
+
+
+def test_console_script_no_traceback(tmp_path):
+    bad = tmp_path / "bad.las"
+    bad.write_bytes(b"LASF" + bytes(50))
+    proc = subprocess.run([sys.executable, "-m", "progressive", "render", str(bad), "--out", str(tmp_path / "x.png")],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    assert "Traceback" not in proc.stderr and proc.stderr.count("\n") == 1, proc.stderr
