@@ -48,6 +48,12 @@ class Capabilities:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
 
 
+def _positive_limit(value: int) -> int:
+    """Drivers report 2 GiB and more as a wrapped GLint; anything not positive means 'at least 2^31 - 1'."""
+    value = int(value)
+    return value if value > 0 else 2**31 - 1
+
+
 def read_capabilities(ctx: moderngl.Context, gl: GLFunctions) -> Capabilities:
     ext = ctx.extensions
     info = ctx.info
@@ -60,7 +66,7 @@ def read_capabilities(ctx: moderngl.Context, gl: GLFunctions) -> Capabilities:
         shader_int64="GL_ARB_gpu_shader_int64" in ext,
         query_buffer="GL_ARB_query_buffer_object" in ext or ctx.version_code >= 440,
         timer_query="GL_ARB_timer_query" in ext or ctx.version_code >= 330,
-        max_ssbo_bytes=int(info["GL_MAX_SHADER_STORAGE_BLOCK_SIZE"]) & 0xFFFFFFFF,
+        max_ssbo_bytes=_positive_limit(info["GL_MAX_SHADER_STORAGE_BLOCK_SIZE"]),
         max_compute_groups=tuple(int(v) for v in info["GL_MAX_COMPUTE_WORK_GROUP_COUNT"]),
         max_compute_invocations=int(info["GL_MAX_COMPUTE_WORK_GROUP_INVOCATIONS"]),
         max_compute_ssbo_blocks=int(info["GL_MAX_COMPUTE_SHADER_STORAGE_BLOCKS"]),
