@@ -22,6 +22,13 @@ class Binding(enum.IntEnum):
     VISIBILITY = 9
     IMAGE = 10
     PALETTE = 11
+    FILL_STATE = 12
+    FILL_ARGS = 13
+    TIMESTAMPS = 14
+    SLOT_LIST = 15
+    SLOT_LIST_META = 16
+    REFERENCE = 17
+    COUNTERS = 18
 
     @classmethod
     def points(cls, chunk: int) -> Binding:

@@ -16,6 +16,10 @@ GL_TIMESTAMP = 0x8E28
 GL_QUERY_RESULT = 0x8866
 GL_QUERY_RESULT_AVAILABLE = 0x8867
 GL_QUERY_BUFFER = 0x9192
+GL_SYNC_GPU_COMMANDS_COMPLETE = 0x9117
+GL_SYNC_FLUSH_COMMANDS_BIT = 0x1
+GL_ALREADY_SIGNALED = 0x911A
+GL_CONDITION_SATISFIED = 0x911C
 GL_GPU_MEMORY_INFO_TOTAL_AVAILABLE_MEMORY_NVX = 0x9048
 GL_GPU_MEMORY_INFO_CURRENT_AVAILABLE_VIDMEM_NVX = 0x9049
 
@@ -47,14 +51,18 @@ class GLFunctions:
     get_integerv: Callable
     bind_buffer: Callable
     clear_tex_image: Callable
+    fence_sync: Callable
+    client_wait_sync: Callable
+    delete_sync: Callable
+    copy_named_buffer_sub_data: Callable
 
     @classmethod
     def load(cls, loader: ProcLoader) -> GLFunctions:
-        def fn(name: str, *argtypes):
+        def fn(name: str, *argtypes, restype=None):
             address = loader(name)
             if not address:
                 raise RuntimeError(f"OpenGL entry point {name} not found")
-            return ctypes.CFUNCTYPE(None, *argtypes)(address)
+            return ctypes.CFUNCTYPE(restype, *argtypes)(address)
 
         return cls(
             clear_named_buffer_sub_data=fn("glClearNamedBufferSubData", _u, _u, _iptr, _iptr, _u, _u, _vp),
@@ -66,6 +74,10 @@ class GLFunctions:
             get_integerv=fn("glGetIntegerv", _u, ctypes.POINTER(_i)),
             bind_buffer=fn("glBindBuffer", _u, _u),
             clear_tex_image=fn("glClearTexImage", _u, _i, _u, _u, _vp),
+            fence_sync=fn("glFenceSync", _u, _u, restype=_vp),
+            client_wait_sync=fn("glClientWaitSync", _vp, _u, ctypes.c_uint64, restype=_u),
+            delete_sync=fn("glDeleteSync", _vp),
+            copy_named_buffer_sub_data=fn("glCopyNamedBufferSubData", _u, _u, _iptr, _iptr, _iptr),
         )
 
     def clear_u32(self, glo: int, value: int, offset: int = 0, size: int | None = None, *, total: int) -> None:
@@ -73,6 +85,14 @@ class GLFunctions:
         word = ctypes.c_uint32(value & 0xFFFFFFFF)
         length = total - offset if size is None else size
         self.clear_named_buffer_sub_data(glo, GL_R32UI, offset, length, GL_RED_INTEGER, GL_UNSIGNED_INT, ctypes.byref(word))
+
+    def fence(self) -> int:
+        return self.fence_sync(GL_SYNC_GPU_COMMANDS_COMPLETE, 0)
+
+    def signaled(self, sync: int) -> bool:
+        """Non-blocking: has the GPU passed this fence? (flushes so it eventually will)"""
+        status = self.client_wait_sync(sync, GL_SYNC_FLUSH_COMMANDS_BIT, 0)
+        return status in (GL_ALREADY_SIGNALED, GL_CONDITION_SATISFIED)
 
     def clear_texture_u32(self, glo: int, value: int) -> None:
         word = ctypes.c_uint32(value & 0xFFFFFFFF)

@@ -1,0 +1,124 @@
+"""The GPU side of the adaptive fill budget: timestamps land in a buffer through
+GL_QUERY_BUFFER and a 1x1x1 compute shader turns them into the next fill's range
+and indirect dispatch arguments. The CPU never waits for any of it."""
+
+from __future__ import annotations
+
+import ctypes
+import enum
+
+import numpy as np
+
+from progressive import shaderlib
+from progressive.bindings import Binding
+from progressive.budget import GAIN_ONE, BudgetParams
+from progressive.context import GLContext
+from progressive.glext import GL_QUERY_BUFFER, GL_QUERY_RESULT, GL_TIMESTAMP
+
+FILL_PIECES = 4            # first fill and adaptive fill, each possibly wrapped in two
+TIMESTAMP_SLOTS = 8
+ARGS_BYTES = 12            # one DispatchIndirectCommand
+
+
+class Stage(enum.IntEnum):
+    BEGIN = 0
+    ADAPT = 1
+
+
+class StateWord(enum.IntEnum):
+    OFFSET = 0
+    RATE_POINTS = 1
+    RATE_NS = 2
+    GAIN = 3
+    FILLED = 4          # ring slots filled since the last reset, saturating at the cloud size
+    BUDGET = 5          # the adaptive part of this frame
+    FIRST = 6           # the fixed first part of this frame
+    PIECES = 8          # FILL_PIECES x (first slot, count)
+    WORDS = 16
+
+
+class Stamp(enum.IntEnum):
+    FRAME = 0
+    FILL = 1
+    FIRST_END = 2
+    FILL_END = 3
+    PREPARE_END = 4
+    END = 5
+
+
+def layout_defines() -> dict[str, int]:
+    d = {f"STATE_{w.name}": int(w) for w in StateWord}
+    d.update({f"TS_{s.name}": int(s) for s in Stamp})
+    d.update({f"STAGE_{s.name}": int(s) for s in Stage})
+    d["TIMESTAMP_SLOTS"] = TIMESTAMP_SLOTS
+    return d
+
+
+class BudgetPass:
+    def __init__(self, glc: GLContext, points: int, params: BudgetParams):
+        if not glc.caps.shader_int64:
+            raise ValueError("the GPU budget needs GL_ARB_gpu_shader_int64")
+        self.glc, self.points, self.params = glc, points, params
+        ctx = glc.ctx
+        initial = np.zeros(StateWord.WORDS, dtype=np.uint32)
+        initial[StateWord.GAIN] = GAIN_ONE
+        self.state = ctx.buffer(initial.tobytes())
+        self.state.label = "fill state"
+        self.args = ctx.buffer(reserve=FILL_PIECES * ARGS_BYTES)
+        self.args.label = "fill dispatch args"
+        self.stamps = ctx.buffer(reserve=2 * TIMESTAMP_SLOTS * 8)
+        self.stamps.label = "timestamps"
+        self.queries = (ctypes.c_uint * (2 * TIMESTAMP_SLOTS))()
+        glc.gl.gen_queries(len(self.queries), self.queries)
+        self.program = shaderlib.compute(ctx, "budget.comp", layout_defines(), ("GL_ARB_gpu_shader_int64",), "budget")
+        self.parity = 0
+        self.have_prev = False
+
+    def bind(self) -> None:
+        self.state.bind_to_storage_buffer(Binding.FILL_STATE)
+        self.args.bind_to_storage_buffer(Binding.FILL_ARGS)
+        self.stamps.bind_to_storage_buffer(Binding.TIMESTAMPS)
+
+    def stamp(self, which: Stamp) -> None:
+        """A GPU timestamp written into this frame's block of the timestamp buffer."""
+        gl = self.glc.gl
+        slot = self.parity * TIMESTAMP_SLOTS + int(which)
+        gl.query_counter(self.queries[slot], GL_TIMESTAMP)
+        gl.bind_buffer(GL_QUERY_BUFFER, self.stamps.glo)
+        gl.get_query_object_ui64v(self.queries[slot], GL_QUERY_RESULT, ctypes.c_void_p(slot * 8))
+        gl.bind_buffer(GL_QUERY_BUFFER, 0)
+
+    def _run(self, stage: Stage, reset: bool = False) -> None:
+        p, params = self.program, self.params
+        p["u_stage"] = int(stage)
+        p["u_points"] = self.points
+        p["u_first_fill"] = params.first(self.points)
+        p["u_reset"] = reset
+        p["u_fixed"] = params.fixed is not None
+        p["u_parity"] = self.parity
+        p["u_have_prev"] = self.have_prev
+        p["u_goal_ns"] = min(params.goal_ns, 2**32 - 1)
+        p["u_min_budget"] = params.min_budget
+        p["u_max_budget"] = min(params.max_budget, 2**32 - 1)
+        self.glc.ctx.memory_barrier()
+        self.bind()
+        p.run(1, 1, 1)
+        self.glc.ctx.memory_barrier()
+
+    def begin(self, reset: bool) -> None:
+        """Place the fixed first fill (pieces 0, 1) at the ring offset."""
+        self._run(Stage.BEGIN, reset)
+
+    def adapt(self) -> None:
+        """From the first fill's timestamps, place what still fits (pieces 2, 3)."""
+        self._run(Stage.ADAPT)
+
+    def end_frame(self, complete: bool) -> None:
+        """Flip timestamp blocks; a frame that skipped its passes gives no previous time."""
+        self.have_prev = complete
+        self.parity ^= 1
+
+    def release(self) -> None:
+        self.glc.gl.delete_queries(len(self.queries), self.queries)
+        for obj in (self.state, self.args, self.stamps, self.program):
+            obj.release()

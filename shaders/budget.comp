@@ -1,0 +1,99 @@
+// The fill budget on the GPU (progressive/budget.py is the tested twin): stage
+// BEGIN places the fixed first fill on the ring; stage ADAPT turns this frame's
+// timestamps into the points that still fit and places them. Both write the range
+// of each fill piece and its indirect dispatch arguments. No CPU readback.
+layout(local_size_x = 1) in;
+
+layout(std430, binding = BINDING_FILL_STATE) buffer FillState { uint state[]; };
+layout(std430, binding = BINDING_FILL_ARGS) writeonly buffer FillArgs { uint args[]; };
+layout(std430, binding = BINDING_TIMESTAMPS) readonly buffer Timestamps { uint64_t stamps[]; };
+
+uniform int u_stage;
+uniform uint u_points;        // ring size: slots of the cloud
+uniform uint u_first_fill;
+uniform bool u_reset;         // the camera moved or points were added: count fills anew
+uniform bool u_fixed;
+uniform uint u_parity;        // this frame's timestamp block
+uniform bool u_have_prev;     // the other block holds the previous frame
+uniform uint u_goal_ns;
+uniform uint u_min_budget;
+uniform uint u_max_budget;
+
+const uint64_t VALID_NS = 4294967296ul;
+
+// Not the clamp()/min() builtins: Mesa 22.3 crashes compiling them for uint64_t.
+uint64_t clamp64(uint64_t v, uint64_t lo, uint64_t hi) {
+    return v < lo ? lo : (v > hi ? hi : v);
+}
+
+void write_piece(uint piece, uint first, uint count) {
+    state[STATE_PIECES + 2u * piece] = first;
+    state[STATE_PIECES + 2u * piece + 1u] = count;
+    uint groups = (count + 255u) / 256u;
+    uint gx = min(groups, 65535u);
+    uint gy = gx == 0u ? 0u : (groups + gx - 1u) / gx;
+    args[3u * piece] = gx;
+    args[3u * piece + 1u] = gy;
+    args[3u * piece + 2u] = 1u;
+}
+
+// split_ring(): two contiguous pieces of [offset, offset+count) on the ring.
+void place(uint piece, uint count) {
+    uint n = u_points;
+    uint offset = state[STATE_OFFSET];
+    count = min(count, n);
+    uint first = min(count, n - offset);
+    write_piece(piece, offset, first);
+    write_piece(piece + 1u, 0u, count - first);
+    uint next = offset + count;          // < 2n; n < 2^32 but the sum may not be
+    state[STATE_OFFSET] = (next < offset || next >= n) ? next - n : next;
+    uint filled = state[STATE_FILLED];
+    state[STATE_FILLED] = n - filled > count ? filled + count : n;
+}
+
+bool elapsed(uint64_t later, uint64_t earlier, out uint64_t d) {
+    d = later - earlier;
+    return d < VALID_NS;
+}
+
+void main() {
+    uint base = u_parity * TIMESTAMP_SLOTS;
+    if (u_stage == STAGE_BEGIN) {
+        if (u_reset) state[STATE_FILLED] = 0u;
+        uint first = min(u_first_fill, u_points);
+        state[STATE_FIRST] = first;
+        place(0u, first);
+        return;
+    }
+    uint budget = 0u;
+    if (!u_fixed) {
+        uint first_points = state[STATE_FIRST];
+        uint64_t fill_ns;
+        if (first_points > 0u && elapsed(stamps[base + TS_FIRST_END], stamps[base + TS_FILL], fill_ns) && fill_ns > 0ul) {
+            state[STATE_RATE_POINTS] = first_points;
+            state[STATE_RATE_NS] = uint(fill_ns);
+        }
+        uint64_t goal = uint64_t(u_goal_ns);
+        uint prev_base = (1u - u_parity) * TIMESTAMP_SLOTS;
+        uint64_t prev_ns;
+        if (u_have_prev && elapsed(stamps[prev_base + TS_END], stamps[prev_base + TS_FRAME], prev_ns) && prev_ns > 0ul) {
+            uint64_t ratio = clamp64(goal * 1024ul / prev_ns, 820ul, 1250ul);
+            uint64_t half_step = (1024ul + ratio) / 2ul;
+            uint64_t gain = clamp64(uint64_t(state[STATE_GAIN]) * half_step / 1024ul, 128ul, 8192ul);
+            state[STATE_GAIN] = uint(gain);
+        }
+        uint64_t spent;
+        bool valid = elapsed(stamps[base + TS_FIRST_END], stamps[base + TS_FRAME], spent);
+        uint64_t left = valid && spent < goal ? goal - spent : 0ul;
+        uint64_t raw = uint64_t(u_min_budget);
+        if (state[STATE_RATE_NS] != 0u) {
+            raw = clamp64(uint64_t(state[STATE_RATE_POINTS]) * left / uint64_t(state[STATE_RATE_NS]), 0ul, 281474976710656ul);
+            raw = raw * uint64_t(state[STATE_GAIN]) / 1024ul;
+        }
+        budget = uint(clamp64(raw, uint64_t(u_min_budget), uint64_t(u_max_budget)));
+        uint first = state[STATE_FIRST];
+        budget = min(budget, u_points > first ? u_points - first : 0u);
+    }
+    state[STATE_BUDGET] = budget;
+    place(2u, budget);
+}

@@ -1,0 +1,164 @@
+"""The adaptive budget: pure arithmetic, its behaviour on a timing model, and the
+GPU shader agreeing with it exactly."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from progressive.budget import (GAIN_ONE, U64, BudgetParams, BudgetState, elapsed, frame_fill,
+                                split_ring, step)
+
+MS = 1_000_000
+
+
+def test_rate_and_time_left():
+    p = BudgetParams(target_ns=20 * MS, margin_q10=0, first_fill=1000)
+    # first 1000 points took 1 ms, 3 ms spent so far: 17 ms left -> 17,000 points
+    budget, state = step(0, 2 * MS, 3 * MS, None, 1000, BudgetState(), p)
+    assert budget == 17_000 and (state.rate_points, state.rate_ns) == (1000, MS)
+
+
+def test_clamps():
+    p = BudgetParams(target_ns=20 * MS, margin_q10=0, min_budget=5000, max_budget=10_000)
+    assert step(0, 0, MS, None, 1000, BudgetState(), p)[0] == 10_000
+    assert step(0, 0, 19 * MS, None, 10, BudgetState(), p)[0] == 5000
+
+
+def test_first_fill_longer_than_target_gives_minimum():
+    p = BudgetParams(target_ns=10 * MS, margin_q10=0, min_budget=0)
+    assert step(0, MS, 30 * MS, None, 1000, BudgetState(), p)[0] == 0
+
+
+@pytest.mark.parametrize("t_fill,t_first", [(5 * MS, 5 * MS), (5 * MS, 4 * MS), (U64 - 10, 2**40)])
+def test_zero_negative_or_absurd_fill_time_keeps_previous_rate(t_fill, t_first):
+    p = BudgetParams(target_ns=20 * MS, margin_q10=0)
+    prev = BudgetState(rate_points=2000, rate_ns=MS)
+    budget, state = step(0, t_fill, t_first, None, 1000, prev, p)
+    assert (state.rate_points, state.rate_ns) == (2000, MS)
+    assert budget >= 0
+
+
+def test_timer_wrap():
+    p = BudgetParams(target_ns=20 * MS, margin_q10=0)
+    base = U64 - MS // 2      # the 64-bit counter wraps between frame start and fill end
+    wrapped = step(base, (base + 2 * MS) % U64, (base + 3 * MS) % U64, None, 1000, BudgetState(), p)
+    plain = step(0, 2 * MS, 3 * MS, None, 1000, BudgetState(), p)
+    assert wrapped == plain
+    assert elapsed(5, U64 - 5) == 10 and elapsed(5, 10) is None
+
+
+def test_no_rate_yet_gives_minimum():
+    p = BudgetParams(min_budget=123)
+    assert step(0, 0, 0, None, 0, BudgetState(), p)[0] == 123
+
+
+def test_fixed_budget_has_no_adaptive_part():
+    p = BudgetParams(fixed=5000)
+    assert p.first(100_000) == 5000 and p.first(10) == 10
+    assert step(0, 0, MS, 10 * MS, 5000, BudgetState(), p)[0] == 0
+
+
+def test_one_point_cloud_and_budget_larger_than_cloud():
+    assert frame_fill(10**9, 1, 1) == 0
+    assert frame_fill(10**9, 100, 1000) == 900
+    assert split_ring(0, 5, 1) == ((0, 1), (0, 0), 0)
+
+
+@pytest.mark.parametrize("n", [1, 2, 7, 1000, 2**32 - 1])
+def test_split_ring_covers_each_slot_once(n):
+    rng = np.random.default_rng(n % 97)
+    for _ in range(200):
+        offset = int(rng.integers(0, n))
+        count = int(rng.integers(0, 2 * n + 2)) if n < 10_000 else int(rng.integers(0, n))
+        (f1, c1), (f2, c2), nxt = split_ring(offset, count, n)
+        assert c1 + c2 == min(count, n)
+        assert f1 == offset and f1 + c1 <= n and f2 == 0 and c2 <= offset
+        assert nxt == (offset + min(count, n)) % n
+
+
+def simulate(rate_per_ms, overhead_ms, target_ms, frames=300, first=100_000):
+    """GPU time = overhead + points / true rate; the first fill sees only part of the
+    overhead (as on a real GPU, where prepare and resolve come later)."""
+    p = BudgetParams(target_ns=int(target_ms * MS), margin_q10=0, first_fill=first)
+    state, prev, times = BudgetState(), None, []
+    for _ in range(frames):
+        t_fill = int(overhead_ms / 3 * MS)
+        t_first = t_fill + int(first / rate_per_ms * MS)
+        budget, state = step(0, t_fill, t_first, prev, first, state, p)
+        total = overhead_ms + (first + budget) / rate_per_ms
+        prev = int(total * MS)
+        times.append(total)
+    return np.array(times), p
+
+
+@pytest.mark.parametrize("rate,overhead", [(10_000, 2.0), (100_000, 6.0), (1_000_000, 1.0)])
+def test_converges_to_target_without_oscillation(rate, overhead):
+    times, p = simulate(rate, overhead, 16.0)
+    tail = times[-50:]
+    assert abs(np.median(tail) - 16.0) < 0.5
+    assert np.ptp(tail) < 0.2, "oscillates"
+    errors = np.diff(np.sign(times[-50:] - 16.0))
+    assert np.count_nonzero(errors) <= 2
+
+
+def test_grows_when_under_and_shrinks_when_over():
+    p = BudgetParams(target_ns=16 * MS, margin_q10=0, first_fill=1000)
+    state = BudgetState(rate_points=1000, rate_ns=MS)
+    under, s_under = step(0, MS, 2 * MS, 8 * MS, 1000, state, p)
+    over, s_over = step(0, MS, 2 * MS, 32 * MS, 1000, state, p)
+    same, _ = step(0, MS, 2 * MS, None, 1000, state, p)
+    assert under > same > over
+    assert s_under.gain_q10 > GAIN_ONE > s_over.gain_q10
+
+
+CASES = [
+    # t_frame, t_fill, t_first, prev_frame_start, prev_frame_end, first, state(rate_pts, rate_ns, gain)
+    (0, 2 * MS, 3 * MS, None, None, 1000, (0, 0, 1024)),
+    (10, 2 * MS, 2 * MS, 0, 20 * MS, 1000, (500, MS, 1024)),
+    (U64 - 100, 50, 7000, U64 - 30 * MS, U64 - 200, 70, (0, 0, 2000)),
+    (0, 5 * MS, 4 * MS, 0, 8 * MS, 1000, (3000, 2 * MS, 900)),
+    (123456789, 123456789 + 10**6, 123456789 + 25 * 10**6, 0, 9 * MS, 1_000_000, (0, 0, 1024)),
+    (0, 1, 2, 5, 4, 4_000_000_000, (7, 3, 8192)),
+]
+
+
+@pytest.mark.parametrize("case", CASES)
+@pytest.mark.parametrize("points", [1, 1000, 3_000_000, 2**32 - 1])
+def test_gpu_budget_equals_pure_function(gl, case, points):
+    from progressive.passes.budget import TIMESTAMP_SLOTS, BudgetPass, Stamp, StateWord
+
+    t_frame, t_fill, t_first, prev_start, prev_end, first, (rp, rn, gain) = case
+    params = BudgetParams(target_ns=16_666_667, first_fill=first, min_budget=100, max_budget=50_000_000)
+    bp = BudgetPass(gl, points, params)
+    offset = points // 3
+    st = np.zeros(StateWord.WORDS, dtype=np.uint32)
+    st[[StateWord.OFFSET, StateWord.RATE_POINTS, StateWord.RATE_NS, StateWord.GAIN]] = [offset, rp, rn, gain]
+    bp.state.write(st.tobytes())
+    bp.begin(reset=True)
+    stamps = np.zeros(2 * TIMESTAMP_SLOTS, dtype=np.uint64)
+    stamps[[Stamp.FRAME, Stamp.FILL, Stamp.FIRST_END]] = [t_frame, t_fill, t_first]
+    if prev_start is not None:
+        stamps[TIMESTAMP_SLOTS + Stamp.FRAME] = prev_start
+        stamps[TIMESTAMP_SLOTS + Stamp.END] = prev_end
+    bp.stamps.write(stamps.tobytes())
+    bp.have_prev = prev_start is not None
+    bp.adapt()
+    gl.check()
+    got = np.frombuffer(bp.state.read(), dtype=np.uint32)
+    first_points = params.first(points)
+    prev_ns = elapsed(prev_end, prev_start) if prev_start is not None else None
+    budget, state = step(t_frame, t_fill, t_first, prev_ns, first_points, BudgetState(rp, rn, gain), params)
+    budget = frame_fill(budget, first_points, points)
+    assert got[StateWord.BUDGET] == budget
+    assert (got[StateWord.RATE_POINTS], got[StateWord.RATE_NS], got[StateWord.GAIN]) == \
+        (state.rate_points, state.rate_ns, state.gain_q10)
+    piece0, piece1, after_first = split_ring(offset, first_points, points)
+    piece2, piece3, after = split_ring(after_first, budget, points)
+    pieces = got[StateWord.PIECES: StateWord.PIECES + 8].reshape(4, 2)
+    assert [tuple(x) for x in pieces.tolist()] == [piece0, piece1, piece2, piece3]
+    assert got[StateWord.OFFSET] == after
+    args = np.frombuffer(bp.args.read(), dtype=np.uint32).reshape(4, 3)
+    for (first_slot, count), (gx, gy, gz) in zip([piece0, piece1, piece2, piece3], args):
+        assert gx * gy * 256 >= count and gz == 1 and gx <= 65535
+    bp.release()
