@@ -1,0 +1,152 @@
+"""The fast format: a 256-byte header and the GPU's 16-byte records, so loading is one
+large sequential read per batch with no per-point work.
+
+Header (little-endian): magic, version, header size, count, origin, bounds min/max,
+attribute kind, reserved, attribute offset, attribute name (64 bytes, NUL-padded).
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterable, Iterator
+
+import numpy as np
+
+from progressive.errors import InputError
+from progressive.loaders.las import fail, open_binary
+from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, CloudInfo, FileInfo
+from progressive.packing import RECORD_BYTES, pack_records
+
+MAGIC = b"PRGSPC\x00\x01"
+VERSION = 1
+HEADER_BYTES = 256
+NAME_BYTES = 64
+HEADER = struct.Struct("<8sIIQ3d3d3dIId64s")
+KIND_CODES = {AttributeKind.RGB: 0, AttributeKind.SCALAR: 1, AttributeKind.CATEGORY: 2}
+KIND_DTYPES = {AttributeKind.RGB: np.uint8, AttributeKind.SCALAR: np.float64, AttributeKind.CATEGORY: np.uint32}
+
+
+MAGIC_STEM = MAGIC[:6]
+"""Files starting with this are meant to be fast-format, so a wrong rest is 'bad magic'."""
+
+
+def is_fast(path: str | os.PathLike) -> bool:
+    """Decided by magic, not extension; unreadable paths are left to the LAS checks."""
+    try:
+        with open(path, "rb") as stream:
+            return stream.read(len(MAGIC_STEM)) == MAGIC_STEM
+    except OSError:
+        return False
+
+
+@dataclass(frozen=True)
+class FastSource:
+    """One fast-format file: its header facts and its single pre-packed attribute."""
+
+    info: FileInfo
+    attribute: AttributeInfo
+    origin: np.ndarray
+    warnings: tuple[str, ...] = ()
+
+    def batches(self, batch_points: int, start: int) -> Iterator[Batch]:
+        """Batches straight from disk; positions view the records' xyz."""
+        with open_binary(self.info.path) as stream:
+            stream.seek(HEADER_BYTES)
+            for first in range(0, self.info.points, batch_points):
+                records = np.empty((min(batch_points, self.info.points - first), 4), dtype=np.uint32)
+                _read_exactly(self.info.path, stream, memoryview(records).cast("B"))
+                yield Batch(start=start + first, positions=records[:, :3].view(np.float32), records=records)
+
+
+def _read_exactly(path: str, stream, buffer: memoryview) -> None:
+    done = 0
+    while done < len(buffer):
+        n = stream.readinto(buffer[done:])
+        if not n:
+            raise fail(path, f"ended early while reading records ({done} of {len(buffer)} bytes)")
+        done += n
+
+
+def open_fast(path: str | os.PathLike, *, partial: bool = False) -> FastSource:
+    """Validate the header and the file length against the count."""
+    path = os.fspath(path)
+    with open_binary(path) as stream:
+        size = os.fstat(stream.fileno()).st_size
+        head = stream.read(HEADER_BYTES)
+    if len(head) < HEADER_BYTES:
+        raise fail(path, f"is too short for a fast-format header ({len(head)} bytes)")
+    (magic, version, header_size, count, *floats, kind_code, _, attr_offset, raw_name) = \
+        HEADER.unpack_from(head)
+    if magic != MAGIC:
+        raise fail(path, f"has a bad fast-format magic {magic!r} (expected {MAGIC!r})")
+    if version != VERSION:
+        raise fail(path, f"unsupported fast-format version {version} (expected {VERSION})")
+    if header_size != HEADER_BYTES:
+        raise fail(path, f"bad fast-format header size {header_size} (expected {HEADER_BYTES})")
+    kinds = {code: kind for kind, code in KIND_CODES.items()}
+    if kind_code not in kinds:
+        raise fail(path, f"unknown attribute kind {kind_code}")
+    if count == 0:
+        raise fail(path, "has no points")
+    warnings = []
+    expected = HEADER_BYTES + RECORD_BYTES * count
+    if size != expected:
+        problem = f"length {size} bytes does not match its {count} points ({expected} bytes expected)"
+        complete = (size - HEADER_BYTES) // RECORD_BYTES
+        if not (partial and 0 < complete < count):
+            raise fail(path, problem)
+        warnings.append(f"{path}: {problem}; read the first {complete} points")
+        count = complete
+    origin, lo, hi = (tuple(floats[i:i + 3]) for i in (0, 3, 6))
+    kind = kinds[kind_code]
+    name = raw_name.rstrip(b"\x00").decode("utf-8", errors="replace")
+    info = FileInfo(path=path, format="PRGS", version=str(version), point_format=-1, points=count,
+                    scale=(1.0, 1.0, 1.0), offset=(0.0, 0.0, 0.0), bounds_min=lo, bounds_max=hi,
+                    rgb_16bit=None)
+    attribute = AttributeInfo(name, kind, np.dtype(KIND_DTYPES[kind]), attr_offset)
+    return FastSource(info, attribute, np.array(origin, dtype=np.float64), tuple(warnings))
+
+
+def fast_header(count: int, info: CloudInfo, attr: AttributeInfo) -> bytes:
+    name = attr.name.encode("utf-8")
+    if len(name) > NAME_BYTES:
+        raise InputError(f"attribute name {attr.name!r} is longer than {NAME_BYTES} bytes")
+    head = HEADER.pack(MAGIC, VERSION, HEADER_BYTES, count, *info.origin, *info.bounds_min,
+                       *info.bounds_max, KIND_CODES[attr.kind], 0, attr.offset, name)
+    return head.ljust(HEADER_BYTES, b"\x00")
+
+
+def write_fast(out_path: str | os.PathLike, loader_or_batches: Iterable[Batch], info: CloudInfo,
+               attr: AttributeInfo) -> int:
+    """Write every batch at its offset (they may arrive out of order) into a temporary file
+    beside out_path, replaced into place only when complete. A contiguous prefix, as a
+    partial load of a truncated file gives, is written with its own count."""
+    out_path = Path(out_path)
+    origin_z = float(info.origin[2])
+    fd, tmp = tempfile.mkstemp(prefix=f".{out_path.name}.", suffix=".tmp", dir=out_path.parent)
+    try:
+        os.fchmod(fd, 0o644)
+        written = end = 0
+        with os.fdopen(fd, "wb") as stream:
+            stream.write(fast_header(info.points, info, attr))
+            for batch in loader_or_batches:
+                stream.seek(HEADER_BYTES + RECORD_BYTES * batch.start)
+                stream.write(np.ascontiguousarray(pack_records(batch, attr, origin_z)).data)
+                written += batch.count
+                end = max(end, batch.start + batch.count)
+            if written != info.points:
+                if written == 0 or written != end:
+                    raise InputError(f"{out_path}: only {written} of {info.points} points were read, "
+                                     f"not a contiguous run from the first; not written")
+                stream.seek(0)
+                stream.write(fast_header(written, info, attr))
+                stream.truncate(HEADER_BYTES + RECORD_BYTES * written)
+        os.replace(tmp, out_path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return written

@@ -1,0 +1,476 @@
+"""LAS/LAZ input: header facts, raw point chunks, and chunk -> Batch parsing.
+
+laspy decodes; this module adds the checks laspy does not make (size against the header
+count, LAS version, empty files) so that every bad file fails with one clear line, and a
+way to read what is left of a damaged LAZ when the caller asks for partial input.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import math
+import os
+import re
+import struct
+from dataclasses import dataclass
+from typing import Iterator
+
+import laspy
+import lazrs
+import numpy as np
+
+from progressive.errors import InputError
+from progressive.loaders.types import BATCH_POINTS, AttributeInfo, AttributeKind, Batch, FileInfo
+
+SIGNATURE = b"LASF"
+MAX_POINT_FORMAT = 10
+MAX_MINOR_VERSION = 4
+HEADER_PREFIX = 375                     # the LAS 1.4 header; older ones are shorter
+MIN_HEADER = {0: 227, 1: 227, 2: 227, 3: 235, 4: 375}
+SCAN_ANGLE_STEP = 0.006                 # degrees per unit of the PF 6-10 scan_angle
+PROBE_PIECE = 65_536                    # points per read while looking for 16-bit colour
+SALVAGE_PIECE = 1_000                   # points per read while salvaging a damaged LAZ
+LAZ_POINTWISE = 1                       # LASzip compressor without chunks or chunk table
+STANDARD = (
+    "rgb", "intensity", "classification", "elevation", "return_number",
+    "number_of_returns", "gps_time", "point_source_id", "user_data", "scan_angle",
+)
+"""Standard attributes in the order a cloud lists them; extra bytes follow."""
+PLAIN = ("intensity", "classification", "return_number", "number_of_returns",
+         "gps_time", "point_source_id", "user_data")
+"""Standard attributes copied from the laspy dimension of the same name."""
+
+
+class TruncatedInput(InputError):
+    """Points stop before the header count; with partial=True the loader keeps what it read."""
+
+    def __init__(self, message: str, read: int):
+        super().__init__(message)
+        self.read = read
+
+
+def one_line(problem: object) -> str:
+    return " ".join(str(problem).split())
+
+
+def fail(path: str | os.PathLike, problem: object) -> InputError:
+    """One line naming the file, as the CLI prints it."""
+    return InputError(f"{os.fspath(path)}: {one_line(problem)}")
+
+
+def is_decode_error(exc: BaseException) -> bool:
+    """Anything laspy/lazrs raise on bad data, including lazrs panics (BaseExceptions)."""
+    return isinstance(exc, Exception) or type(exc).__name__ == "PanicException"
+
+
+def open_binary(path: str | os.PathLike):
+    if os.path.isdir(path):
+        raise fail(path, "is a directory, not a point-cloud file")
+    try:
+        return open(path, "rb")
+    except OSError as exc:
+        raise fail(path, f"cannot open: {exc.strerror or exc}") from exc
+
+
+@dataclass(frozen=True)
+class RawHeader:
+    """The few fixed-header fields needed before trusting laspy with the file."""
+
+    version: tuple[int, int]
+    point_data: int
+    point_format: int
+    compressed: bool
+    record_length: int
+    count: int
+    waveform_start: int
+    evlr_start: int
+    evlr_count: int
+    internal_waveform: bool
+
+    @classmethod
+    def parse(cls, path: str, data: bytes) -> RawHeader:
+        if not data:
+            raise fail(path, "is empty")
+        if data[:4] != SIGNATURE:
+            raise fail(path, f"is not a LAS/LAZ or fast-format file (it starts with {data[:4]!r}, not b'LASF')")
+        if len(data) < 26:
+            raise fail(path, f"is too short for a LAS header ({len(data)} bytes)")
+        major, minor = data[24], data[25]
+        if major != 1 or minor > MAX_MINOR_VERSION:
+            raise fail(path, f"unsupported LAS version {major}.{minor}")
+        if len(data) < MIN_HEADER[minor]:
+            raise fail(path, f"is too short for a LAS {major}.{minor} header ({len(data)} bytes)")
+        (encoding,) = struct.unpack_from("<H", data, 6)
+        point_data, _, pf, record_length, legacy = struct.unpack_from("<IIBHI", data, 96)
+        waveform = struct.unpack_from("<Q", data, 227)[0] if minor >= 3 else 0
+        evlr_start, evlr_count, count64 = struct.unpack_from("<QIQ", data, 235) if minor >= 4 else (0, 0, 0)
+        if pf & 0x3F > MAX_POINT_FORMAT:
+            raise fail(path, f"unsupported point format {pf & 0x3F}")
+        return cls(
+            version=(major, minor), point_data=point_data, point_format=pf & 0x3F,
+            compressed=bool(pf & 0x80), record_length=record_length,
+            count=(count64 or legacy) if minor >= 4 else legacy, waveform_start=waveform,
+            evlr_start=evlr_start, evlr_count=evlr_count, internal_waveform=bool(encoding & 2),
+        )
+
+    def data_end(self, file_size: int) -> int:
+        """Where uncompressed point records must end: at the EVLRs, internal waveforms or EOF."""
+        ends = [file_size]
+        if self.evlr_count and self.evlr_start:
+            ends.append(self.evlr_start)
+        if self.internal_waveform and self.waveform_start:
+            ends.append(self.waveform_start)
+        return min(ends)
+
+
+@dataclass(frozen=True)
+class LazLayout:
+    """How to decode a LAZ: the backend, and what salvaging a damaged file needs."""
+
+    backend: laspy.LazBackend
+    vlr_data: bytes
+    point_data: int
+    points: int
+    chunk_size: int | None      # fixed-size chunks; None: pointwise or variable-size
+    table_ok: bool
+
+    def salvage_stream(self, path: str):
+        """A stream the sequential decoder can start on, or None when nothing can be read.
+        A truncated chunked LAZ has lost its chunk table (stored last); with fixed-size
+        chunks a stand-in table of full chunks lets decoding start again."""
+        pointwise = struct.unpack_from("<H", self.vlr_data, 0)[0] == LAZ_POINTWISE
+        if pointwise or self.table_ok:
+            return open_binary(path)
+        if self.chunk_size is None:
+            return None
+        table = io.BytesIO()
+        entries = [(self.chunk_size, 1)] * math.ceil(self.points / self.chunk_size)
+        lazrs.write_chunk_table(table, entries, lazrs.LazVlr(self.vlr_data))
+        return io.BufferedReader(StandInTable(open_binary(path), self.point_data, table.getvalue()), 1 << 20)
+
+
+class StandInTable(io.RawIOBase):
+    """A file as stored, with `table` appended after its last byte and the chunk-table
+    offset at the start of its point data pointing there."""
+
+    def __init__(self, stream, point_data: int, table: bytes):
+        super().__init__()
+        self._stream = stream
+        self._size = os.fstat(stream.fileno()).st_size
+        self._patch_at = point_data
+        self._patch = struct.pack("<q", self._size)
+        self._table = table
+        self._pos = 0
+
+    def readable(self) -> bool:
+        return True
+
+    def seekable(self) -> bool:
+        return True
+
+    def tell(self) -> int:
+        return self._pos
+
+    def seek(self, pos: int, whence: int = io.SEEK_SET) -> int:
+        base = {io.SEEK_SET: 0, io.SEEK_CUR: self._pos, io.SEEK_END: self._size + len(self._table)}[whence]
+        self._pos = base + pos
+        return self._pos
+
+    def readinto(self, buffer) -> int:
+        want = len(buffer)
+        self._stream.seek(self._pos)
+        data = bytearray(self._stream.read(max(0, min(want, self._size - self._pos))))
+        tail = max(0, self._pos + len(data) - self._size)
+        data += self._table[tail:tail + want - len(data)]
+        for i, byte in enumerate(self._patch):
+            if 0 <= self._patch_at + i - self._pos < len(data):
+                data[self._patch_at + i - self._pos] = byte
+        buffer[:len(data)] = data
+        self._pos += len(data)
+        return len(data)
+
+    def close(self) -> None:
+        self._stream.close()
+        super().close()
+
+
+@dataclass(frozen=True)
+class Column:
+    """Where one attribute comes from in a laspy record: a dimension and, for array-typed
+    extra bytes, one element of it."""
+
+    dimension: str
+    index: int | None = None
+
+
+@dataclass(frozen=True)
+class LasSource:
+    """One checked LAS/LAZ file: its facts and how to read and parse its points."""
+
+    info: FileInfo
+    attributes: tuple[AttributeInfo, ...]   # offsets 0; the cloud sets them
+    columns: dict[str, Column]
+    first_gps_time: float | None
+    laz: LazLayout | None
+    warnings: tuple[str, ...] = ()
+
+    def chunks(self, batch_points: int, *, salvage: bool = False) -> Iterator[laspy.ScaleAwarePointRecord]:
+        """Raw laspy chunks of at most batch_points, info.points in total, else TruncatedInput;
+        with salvage, a damaged LAZ first yields what still decodes."""
+        return decode(self.info.path, self.laz, self.info.points, batch_points, salvage=salvage)
+
+    def parse(self, chunk: laspy.ScaleAwarePointRecord, start: int, origin: np.ndarray,
+              names: tuple[str, ...]) -> Batch:
+        """A Batch of the named attributes; positions are computed in float64 from laspy's
+        scaled coordinates so that float32 rounding happens only once."""
+        positions = np.empty((len(chunk), 3), dtype=np.float32)
+        for axis, dim in enumerate("xyz"):
+            positions[:, axis] = np.asarray(getattr(chunk, dim)) - origin[axis]
+        attributes = {name: self._values(chunk, name) for name in names if name != "elevation"}
+        return Batch(start=start, positions=positions, attributes=attributes)
+
+    def _values(self, chunk: laspy.ScaleAwarePointRecord, name: str) -> np.ndarray:
+        if name == "rgb":
+            # The depth is decided on the first batch; later values past 8 bits are clipped.
+            shift = 8 if self.info.rgb_16bit else 0
+            rgb = np.empty((len(chunk), 3), dtype=np.uint8)
+            for i, dim in enumerate(("red", "green", "blue")):
+                rgb[:, i] = np.minimum(np.asarray(chunk[dim]) >> shift, 255)
+            return rgb
+        if name == "scan_angle":
+            if self.info.point_format < 6:
+                return np.asarray(chunk["scan_angle_rank"], dtype=np.float32)
+            return (np.asarray(chunk["scan_angle"], dtype=np.float64) * SCAN_ANGLE_STEP).astype(np.float32)
+        column = self.columns[name]
+        values = np.asarray(chunk[column.dimension])
+        if column.index is not None:
+            values = values[:, column.index]
+        return np.ascontiguousarray(values)
+
+
+def decode(path: str, laz: LazLayout | None, count: int, piece: int, *,
+           salvage: bool = False) -> Iterator[laspy.ScaleAwarePointRecord]:
+    """Chunks of at most `piece` points, `count` in total, else TruncatedInput."""
+    read = 0
+    try:
+        with _reader(open_binary(path), path, laz.backend if laz else None, count) as reader:
+            for chunk in reader.chunk_iterator(piece):
+                read += len(chunk)
+                yield chunk
+    except BaseException as exc:
+        if not is_decode_error(exc) or isinstance(exc, InputError):
+            raise
+        if salvage and laz is not None:
+            for chunk in _salvage(path, laz, count, read, piece):
+                read += len(chunk)
+                yield chunk
+        raise TruncatedInput(f"{path}: point data is truncated or corrupt after {read} of "
+                             f"{count} points ({one_line(exc)})", read) from exc
+    if read != count:
+        raise TruncatedInput(f"{path}: header says {count} points but only {read} could be read", read)
+
+
+def _salvage(path: str, laz: LazLayout, count: int, start: int,
+             piece: int) -> Iterator[laspy.ScaleAwarePointRecord]:
+    """Decode again from the start with the sequential decoder, in small reads merged into
+    chunks of `piece`, yielding from `start` on all that still decodes."""
+    stream = laz.salvage_stream(path)
+    if stream is None:
+        return
+    kept: list[laspy.ScaleAwarePointRecord] = []
+    try:
+        with _reader(stream, path, laspy.LazBackend.Lazrs, count) as reader:
+            skipped = 0
+            while skipped < start:
+                skipped += len(reader.read_points(min(piece, start - skipped)))
+            for small in reader.chunk_iterator(min(piece, SALVAGE_PIECE)):
+                kept.append(small)
+                if sum(map(len, kept)) >= piece:
+                    yield _merged(kept)
+                    kept = []
+    except BaseException as exc:
+        if not is_decode_error(exc):
+            raise
+    if kept:
+        yield _merged(kept)
+
+
+def _merged(records: list[laspy.ScaleAwarePointRecord]) -> laspy.ScaleAwarePointRecord:
+    first = records[0]
+    return laspy.ScaleAwarePointRecord(np.concatenate([r.array for r in records]),
+                                       first.point_format, first.scales, first.offsets)
+
+
+def _reader(stream, path: str, backend: laspy.LazBackend | None, count: int) -> laspy.LasReader:
+    """A laspy reader on `stream` that stops at `count` (the checked count, not laspy's)."""
+    try:
+        reader = laspy.LasReader(stream, laz_backend=backend or (), read_evlrs=False)
+    except Exception as exc:
+        stream.close()
+        raise fail(path, f"invalid LAS header: {exc}") from exc
+    reader.header.point_count = count
+    return reader
+
+
+def open_las(path: str | os.PathLike, *, partial: bool = False) -> LasSource:
+    """Check and describe one LAS/LAZ file, reading at most its first batch of points."""
+    path = os.fspath(path)
+    warnings: list[str] = []
+    with open_binary(path) as stream:
+        try:
+            size = os.fstat(stream.fileno()).st_size
+            raw = RawHeader.parse(path, stream.read(HEADER_PREFIX))
+            if raw.count == 0:
+                raise fail(path, "has no points")
+            stream.seek(0)
+            header = laspy.LasHeader.read_from(stream, read_evlrs=False)
+        except InputError:
+            raise
+        except Exception as exc:
+            raise fail(path, f"invalid LAS header: {exc}") from exc
+        count, laz = raw.count, None
+        if raw.compressed:
+            laz = _laz_layout(path, stream, header, count)
+        else:
+            count = _checked_count(path, raw, size, partial, warnings)
+    pf = header.point_format
+    has_rgb = "red" in pf.dimension_names
+    max_rgb, first = _probe(path, laz, count, has_rgb, partial)
+    columns = _columns(pf)
+    info = FileInfo(
+        path=path,
+        format="LAZ" if raw.compressed else "LAS",
+        version=f"{raw.version[0]}.{raw.version[1]}",
+        point_format=raw.point_format,
+        points=count,
+        scale=tuple(float(v) for v in header.scales),
+        offset=tuple(float(v) for v in header.offsets),
+        bounds_min=tuple(float(v) for v in header.mins),
+        bounds_max=tuple(float(v) for v in header.maxs),
+        rgb_16bit=max_rgb > 255 if has_rgb else None,
+        crs=crs_name(header),
+    )
+    names = tuple(n for n in STANDARD if n in columns or n in ("scan_angle", "elevation")
+                  or (n == "rgb" and has_rgb)) + tuple(n for n in columns if n not in STANDARD)
+    first_gps = float(first["gps_time"][0]) if "gps_time" in columns else None
+    source = LasSource(info, (), columns, first_gps, laz, tuple(warnings))
+    sample = source.parse(first, 0, np.zeros(3), names).attributes
+    attributes = tuple(
+        AttributeInfo(n, _kind(n), np.dtype(np.float64) if n == "elevation" else sample[n].dtype)
+        for n in names
+    )
+    return dataclasses.replace(source, attributes=attributes)
+
+
+def _kind(name: str) -> AttributeKind:
+    return {"rgb": AttributeKind.RGB, "classification": AttributeKind.CATEGORY}.get(name, AttributeKind.SCALAR)
+
+
+def _columns(pf: laspy.PointFormat) -> dict[str, Column]:
+    """Plain standard dimensions plus every numeric extra-bytes element."""
+    standard = set(pf.dimension_names)
+    columns = {n: Column(n) for n in PLAIN if n in standard}
+    for dim in pf.extra_dimensions:
+        if not np.issubdtype(dim.dtype.base, np.number):
+            continue
+        if dim.num_elements == 1:
+            columns[dim.name] = Column(dim.name)
+        else:
+            columns.update({f"{dim.name}[{i}]": Column(dim.name, i) for i in range(dim.num_elements)})
+    return columns
+
+
+def _checked_count(path: str, raw: RawHeader, size: int, partial: bool, warnings: list[str]) -> int:
+    """The header count, checked against the bytes the point records occupy."""
+    if raw.record_length <= 0:
+        raise fail(path, "has a point record length of 0")
+    available = max(raw.data_end(size) - raw.point_data, 0)
+    expected = raw.count * raw.record_length
+    if available == expected:
+        return raw.count
+    complete = available // raw.record_length
+    if available < expected:
+        problem = (f"is truncated: header says {raw.count} points but the file holds "
+                   f"{complete} ({available} of {expected} bytes of point data)")
+        if partial and complete > 0:
+            warnings.append(f"{path}: {problem}; read the first {complete} points")
+            return complete
+    else:
+        problem = (f"header says {raw.count} points but the file holds more point data "
+                   f"({available} bytes, {expected} expected)")
+        if partial:
+            warnings.append(f"{path}: {problem}; read the first {raw.count} points")
+            return raw.count
+    raise fail(path, problem)
+
+
+def _laz_layout(path: str, stream, header: laspy.LasHeader, count: int) -> LazLayout:
+    """LazrsParallel where a readable chunk table allows it (and then the count is checked
+    against the table); the sequential decoder otherwise, which fails on a short read."""
+    try:
+        vlr_data = bytes(header.vlrs.get("LasZipVlr")[0].record_data)
+        vlr = lazrs.LazVlr(vlr_data)
+    except Exception:
+        raise fail(path, "is compressed but has no valid LASzip VLR") from None
+    variable = vlr.uses_variable_size_chunks()
+    chunked = struct.unpack_from("<H", vlr_data, 0)[0] != LAZ_POINTWISE
+    layout = LazLayout(laspy.LazBackend.Lazrs, vlr_data, header.offset_to_point_data, count,
+                       None if variable or not chunked else vlr.chunk_size(), table_ok=False)
+    if not chunked:
+        return layout
+    try:
+        stream.seek(header.offset_to_point_data)
+        table = lazrs.read_chunk_table(stream, vlr)
+    except Exception:
+        return layout
+    if variable and sum(points for points, _ in table) != count:
+        raise fail(path, f"header says {count} points but the LAZ chunk table holds "
+                         f"{sum(points for points, _ in table)}")
+    if not variable and len(table) != math.ceil(count / vlr.chunk_size()):
+        raise fail(path, f"header says {count} points but the LAZ chunk table has {len(table)} "
+                         f"chunks of {vlr.chunk_size()}")
+    parallel = laspy.LazBackend.LazrsParallel
+    return dataclasses.replace(layout, table_ok=True,
+                               backend=parallel if parallel.is_available() else layout.backend)
+
+
+def _probe(path: str, laz: LazLayout | None, count: int, has_rgb: bool,
+           partial: bool) -> tuple[int, laspy.ScaleAwarePointRecord]:
+    """Max of R, G, B over the first BATCH_POINTS points (so 8- vs 16-bit colour does not
+    depend on the loader's batch size), read in pieces that stop once it exceeds 255,
+    and the first point."""
+    wanted = min(count, BATCH_POINTS if has_rgb else 1)
+    max_rgb, first = 0, None
+    try:
+        for chunk in decode(path, laz, wanted, min(wanted, PROBE_PIECE), salvage=partial):
+            first = chunk[:1] if first is None else first
+            if has_rgb:
+                max_rgb = max(max_rgb, *(int(np.max(chunk[c])) for c in ("red", "green", "blue")))
+                if max_rgb > 255:
+                    break
+    except TruncatedInput as exc:
+        if not (partial and first is not None):
+            raise fail(path, f"point data is truncated or corrupt "
+                             f"({one_line(exc.__cause__ or 'fewer points than the header says')})") from exc
+    return max_rgb, first
+
+
+def crs_name(header: laspy.LasHeader) -> str | None:
+    """A short CRS label without pyproj: the WKT name and/or the EPSG code."""
+    name = code = None
+    for vlr in header.vlrs:
+        kind = type(vlr).__name__
+        if kind == "WktCoordinateSystemVlr":
+            wkt = (vlr.string or "").strip().rstrip("\x00")
+            match = re.match(r'\w+\s*\[\s*"([^"]*)"', wkt)
+            name = match.group(1) if match else None
+            top_id = re.search(r'(?:AUTHORITY|ID)\["EPSG",\s*"?(\d+)"?\]\]$', wkt)
+            code = f"EPSG:{top_id.group(1)}" if top_id else code
+        elif kind == "GeoKeyDirectoryVlr":
+            keys = {k.id: k.value_offset for k in vlr.geo_keys}
+            epsg = keys.get(3072) or keys.get(2048)      # projected, else geographic CRS
+            code = f"EPSG:{epsg}" if epsg and epsg != 32767 else code
+    if name and code:
+        return f"{name} ({code})"
+    return name or code

@@ -1,0 +1,266 @@
+"""Several files as one cloud, loaded by background threads while the renderer draws.
+
+One reader thread does the I/O (and LAZ decoding, which lazrs parallelises itself) and
+hands raw chunks to parser threads through a one-slot queue; parsed batches wait in a
+queue of parser_threads slots. So at most about 2 x parser_threads + 2 batches are in
+memory at once, however large the cloud is.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import math
+import os
+import queue
+import threading
+from typing import Callable, Iterable, Iterator
+
+import numpy as np
+
+from progressive.errors import InputError
+from progressive.loaders.fastformat import FastSource, is_fast, open_fast
+from progressive.loaders.las import LasSource, TruncatedInput, fail, open_las
+from progressive.loaders.types import BATCH_POINTS, AttributeInfo, Batch, CloudInfo
+
+Source = LasSource | FastSource
+Task = tuple[str, Callable[[], Batch]]
+WAIT_S = 0.05
+"""How long a blocked thread waits before it looks at the stop flag again."""
+JOIN_S = 5.0
+_END = object()
+"""Sentinel: no more tasks (to parsers) or this parser has finished (to the consumer)."""
+
+
+def open_cloud(paths: Iterable[str | os.PathLike] | str | os.PathLike, *, partial: bool = False) -> CloudInfo:
+    """The cloud's description from the file headers (and each file's first batch)."""
+    return open_sources(paths, partial=partial)[0]
+
+
+def open_sources(paths, *, partial: bool = False) -> tuple[CloudInfo, tuple[Source, ...]]:
+    paths = [paths] if isinstance(paths, (str, os.PathLike)) else list(paths)
+    if not paths:
+        raise InputError("no input files given")
+    sources = tuple(open_fast(p, partial=partial) if is_fast(p) else open_las(p, partial=partial)
+                    for p in paths)
+    files = tuple(s.info for s in sources)
+    lo = np.min([f.bounds_min for f in files], axis=0).astype(np.float64)
+    hi = np.max([f.bounds_max for f in files], axis=0).astype(np.float64)
+    if all(isinstance(s, FastSource) for s in sources):
+        origin, attributes = _fast_cloud(sources)
+    elif any(isinstance(s, FastSource) for s in sources):
+        first = next(s for s in sources if isinstance(s, FastSource))
+        raise fail(first.info.path, "is in the fast format; it cannot be mixed with LAS/LAZ files")
+    else:
+        origin = (lo + hi) / 2
+        attributes = _common_attributes(sources, origin)
+    info = CloudInfo(files=files, points=sum(f.points for f in files), origin=origin,
+                     bounds_min=lo, bounds_max=hi, attributes=attributes)
+    return info, sources
+
+
+def _fast_cloud(sources: tuple[FastSource, ...]) -> tuple[np.ndarray, tuple[AttributeInfo, ...]]:
+    """Fast files are packed already, so they must share the origin and the attribute."""
+    first = sources[0]
+    for s in sources[1:]:
+        if not np.array_equal(s.origin, first.origin) or s.attribute != first.attribute:
+            raise fail(s.info.path, f"has a different origin or attribute than {first.info.path}")
+    return first.origin.copy(), (first.attribute,)
+
+
+def _common_attributes(sources: tuple[LasSource, ...], origin: np.ndarray) -> tuple[AttributeInfo, ...]:
+    """Attributes every file has, in the first file's order (standard ones, then extra
+    bytes), with the offsets that keep float32 detail on the GPU."""
+    by_file = [{a.name: a for a in s.attributes} for s in sources]
+    common = [a for a in sources[0].attributes if all(a.name in f for f in by_file)]
+    first_gps = sources[0].first_gps_time
+    offsets = {
+        "elevation": float(origin[2]),
+        "gps_time": float(math.floor(first_gps)) if first_gps is not None and math.isfinite(first_gps) else 0.0,
+    }
+    return tuple(
+        AttributeInfo(a.name, a.kind, np.result_type(*(f[a.name].dtype for f in by_file)),
+                      offsets.get(a.name, 0.0))
+        for a in common
+    )
+
+
+def _ready(batch: Batch) -> Batch:
+    return batch
+
+
+def _tasks(source: Source, start: int, batch_points: int, origin: np.ndarray,
+           names: tuple[str, ...], partial: bool) -> Iterator[Task]:
+    """Per batch, the work a parser thread does: parsing LAS chunks, nothing for fast files."""
+    path = source.info.path
+    if isinstance(source, FastSource):
+        for batch in source.batches(batch_points, start):
+            yield path, functools.partial(_ready, batch)
+        return
+    for chunk in source.chunks(batch_points, salvage=partial):
+        yield path, functools.partial(source.parse, chunk, start, origin, names)
+        start += len(chunk)
+
+
+def _as_input_error(path: str, exc: BaseException) -> InputError:
+    if isinstance(exc, InputError):
+        return exc
+    if isinstance(exc, OSError):
+        return fail(path, f"cannot read: {exc.strerror or exc}")
+    return fail(path, f"cannot be loaded: {type(exc).__name__}: {exc}")
+
+
+class CloudLoader:
+    """Loads a cloud in the background; poll() from a render loop or iterate to block.
+
+    Batches arrive in any order, each with its global file-order `start`.
+    """
+
+    def __init__(self, paths, *, batch_points: int = BATCH_POINTS,
+                 parser_threads: int | None = None, partial: bool = False):
+        parser_threads = min(4, os.cpu_count() or 1) if parser_threads is None else parser_threads
+        if batch_points < 1 or parser_threads < 1:
+            raise ValueError("batch_points and parser_threads must be at least 1")
+        self.info, self._sources = open_sources(paths, partial=partial)
+        self.batch_points = batch_points
+        self.parser_threads = parser_threads
+        self.partial = partial
+        self.warnings: list[str] = [w for s in self._sources for w in s.warnings]
+        self.loaded = 0
+        self._finished = 0
+        self._tasks: queue.Queue = queue.Queue(maxsize=1)
+        self._results: queue.Queue = queue.Queue(maxsize=self.parser_threads)
+        self._stop = threading.Event()
+        self._error: InputError | None = None
+        self._threads: list[threading.Thread] = []
+
+    @property
+    def total(self) -> int:
+        return self.info.points
+
+    @property
+    def done(self) -> bool:
+        """Every batch has been handed to the consumer."""
+        return self._finished == self.parser_threads
+
+    def start(self) -> CloudLoader:
+        if not self._threads:
+            self._threads = [threading.Thread(target=self._read, name="progressive-reader", daemon=True)]
+            self._threads += [threading.Thread(target=self._parse, name=f"progressive-parser-{i}", daemon=True)
+                              for i in range(self.parser_threads)]
+            for thread in self._threads:
+                thread.start()
+        return self
+
+    def poll(self, max_batches: int | None = None) -> list[Batch]:
+        """The batches ready now, without waiting."""
+        self.start()
+        batches: list[Batch] = []
+        while not self.done and (max_batches is None or len(batches) < max_batches):
+            self._raise_failure()
+            try:
+                item = self._results.get_nowait()
+            except queue.Empty:
+                break
+            self._take(item, batches)
+        self._raise_failure()
+        return batches
+
+    def __iter__(self) -> Iterator[Batch]:
+        self.start()
+        while not self.done:
+            self._raise_failure()
+            if self._stop.is_set():
+                return
+            try:
+                item = self._results.get(timeout=WAIT_S)
+            except queue.Empty:
+                continue
+            batches: list[Batch] = []
+            self._take(item, batches)
+            yield from batches
+
+    def close(self) -> None:
+        """Stop the threads; they notice within WAIT_S or after the chunk being decoded."""
+        self._stop.set()
+        for thread in self._threads:
+            if thread is not threading.current_thread():
+                thread.join(JOIN_S)
+
+    def __enter__(self) -> CloudLoader:
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.close()
+
+    def _take(self, item, batches: list[Batch]) -> None:
+        if item is _END:
+            self._finished += 1
+        else:
+            self.loaded += item.count
+            batches.append(item)
+
+    def _raise_failure(self) -> None:
+        if self._error is not None:
+            self.close()
+            raise self._error
+
+    def _fail(self, path: str, exc: BaseException) -> None:
+        if self._error is None:
+            self._error = _as_input_error(path, exc)
+        self._stop.set()
+
+    def _put(self, q: queue.Queue, item) -> bool:
+        """Blocking put that gives up once the loader is stopped."""
+        while not self._stop.is_set():
+            try:
+                q.put(item, timeout=WAIT_S)
+                return True
+            except queue.Full:
+                pass
+        return False
+
+    def _get(self, q: queue.Queue):
+        while not self._stop.is_set():
+            try:
+                return q.get(timeout=WAIT_S)
+            except queue.Empty:
+                pass
+        return _END
+
+    def _read(self) -> None:
+        names = tuple(a.name for a in self.info.attributes)
+        start, path = 0, ""
+        try:
+            for source in self._sources:
+                path = source.info.path
+                try:
+                    tasks = _tasks(source, start, self.batch_points, self.info.origin, names, self.partial)
+                    with contextlib.closing(tasks):
+                        for task in tasks:
+                            if not self._put(self._tasks, task):
+                                return
+                except TruncatedInput as exc:
+                    if not self.partial:
+                        raise
+                    self.warnings.append(str(exc))
+                start += source.info.points
+        except BaseException as exc:
+            self._fail(path, exc)
+        finally:
+            for _ in range(self.parser_threads):
+                self._put(self._tasks, _END)
+
+    def _parse(self) -> None:
+        try:
+            while (task := self._get(self._tasks)) is not _END:
+                path, make = task
+                try:
+                    batch = make()
+                except BaseException as exc:
+                    self._fail(path, exc)
+                    return
+                if not self._put(self._results, batch):
+                    return
+        finally:
+            self._put(self._results, _END)
