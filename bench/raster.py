@@ -23,7 +23,7 @@ def measure(glc, cloud, raster, width, height, repeats):
     r = Renderer(glc, cloud.info, cloud.attribute, raster=raster, width=width, height=height)
     t0 = time.perf_counter()
     for start, rec in cloud.batches():
-        r.distribute.upload(rec, start)
+        r.scene.distribute.upload(rec, start)
     glc.ctx.finish()
     upload_s = time.perf_counter() - t0
     cam = auto_camera(cloud.info.bounds_min, cloud.info.bounds_max, width / height)

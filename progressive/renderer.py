@@ -4,25 +4,21 @@
 from __future__ import annotations
 
 import enum
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from progressive.camera import Camera, view_uniforms
-from progressive.colors import ColorStyle, Colormap, robust_range
+from progressive.colors import ColorStyle, Colormap
 from progressive.context import GLContext
-from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, CloudInfo
-from progressive.packing import pack_records
-from progressive.passes.distribute import DistributePass
+from progressive.loaders.types import AttributeInfo, Batch, CloudInfo
 from progressive.passes.raster_compute import ComputeRaster
 from progressive.passes.raster_points import PointsRaster
 from progressive.passes.resolve import ResolvePass
 from progressive.passes.visibility import EMPTY, VisibilityBuffer
 from progressive.pointstore import PointStore
+from progressive.scene import Scene
 from progressive.timing import Timestamps
-
-RANGE_SAMPLE_PER_BATCH = 20_000
 
 
 class Raster(enum.Enum):
@@ -40,49 +36,37 @@ class Frame:
 
 
 class Renderer:
+    """Every loaded point in one frame: the exact image, and the baseline's cost."""
+
     def __init__(self, glc: GLContext, info: CloudInfo, attribute: AttributeInfo, *,
                  raster: Raster = Raster.COMPUTE, width: int = 1280, height: int = 720,
                  chunk_points: int | None = None):
         self.glc, self.info, self.attribute = glc, info, attribute
-        self.store = PointStore(glc, info.points, chunk_points=chunk_points)
-        self.distribute = DistributePass(glc, self.store)
+        self.scene = Scene(glc, info, attribute, chunk_points=chunk_points)
+        self.store = self.scene.store
         self.vis = VisibilityBuffer(glc, width, height)
         self.raster_kind = raster
-        if raster is Raster.POINTS:
-            self.raster = PointsRaster(glc, self.store, self.vis)
-        else:
-            self.raster = ComputeRaster(glc, self.store, self.vis,
-                                        atomic64=raster is Raster.COMPUTE and glc.caps.atomic_int64)
+        self.raster = make_raster(glc, self.store, self.vis, raster)
         self.resolve = ResolvePass(glc, self.store, self.vis)
         self.timestamps = Timestamps(glc)
-        self.loaded = 0
-        self._samples: list[np.ndarray] = []
-        self.upload_seconds = 0.0
 
     @property
     def raster_path(self) -> str:
-        if self.raster_kind is Raster.POINTS:
-            return "GL_POINTS"
-        return "compute 64-bit atomicMin" if self.raster.atomic64 else "compute 32-bit two-pass"
+        return raster_path(self.raster_kind, self.raster)
+
+    @property
+    def loaded(self) -> int:
+        return self.scene.loaded
+
+    @property
+    def upload_seconds(self) -> float:
+        return self.scene.upload_seconds
 
     def add_batch(self, batch: Batch) -> None:
-        t0 = time.perf_counter()
-        records = pack_records(batch, self.attribute, float(self.info.origin[2]))
-        self.distribute.upload(records, batch.start)
-        if self.attribute.kind is AttributeKind.SCALAR:
-            step = max(1, batch.count // RANGE_SAMPLE_PER_BATCH)
-            self._samples.append(records[::step, 3].view(np.float32))
-        self.loaded += batch.count
-        self.upload_seconds += time.perf_counter() - t0
-
-    def value_range(self) -> tuple[float, float]:
-        """Robust (1-99 %) range of the packed scalar values seen so far."""
-        if not self._samples:
-            return (0.0, 1.0)
-        return robust_range(np.concatenate(self._samples))
+        self.scene.add_batch(batch)
 
     def style(self, colormap: Colormap = Colormap.VIRIDIS, background=(0, 0, 0)) -> ColorStyle:
-        return ColorStyle.for_attribute(self.attribute, self.value_range(), colormap, background)
+        return self.scene.style(colormap, background)
 
     def render(self, camera: Camera, width: int, height: int, style: ColorStyle) -> Frame:
         self.vis.resize(width, height)
@@ -98,15 +82,28 @@ class Renderer:
         t.stamp("resolve")
         image = self.resolve.read()
         slots = self.vis.read()[:, :, 0].copy()
-        return Frame(image=image, slots=slots, ids=self.ids_for(slots), gpu_ms=t.durations_ms())
-
-    def ids_for(self, slots: np.ndarray) -> np.ndarray:
-        """File-order indices of shuffled slots (the inverse permutation, exact)."""
-        ids = np.full(slots.shape, EMPTY, dtype=np.uint32)
-        hit = slots != EMPTY
-        ids[hit] = self.store.permutation.inverse(slots[hit]).astype(np.uint32)
-        return ids
+        return Frame(image=image, slots=slots, ids=ids_for(self.store, slots), gpu_ms=t.durations_ms())
 
     def release(self) -> None:
-        for obj in (self.raster, self.resolve, self.distribute, self.vis, self.store, self.timestamps):
+        for obj in (self.raster, self.resolve, self.vis, self.scene, self.timestamps):
             obj.release()
+
+
+def make_raster(glc: GLContext, store: PointStore, vis: VisibilityBuffer, raster: Raster):
+    if raster is Raster.POINTS:
+        return PointsRaster(glc, store, vis)
+    return ComputeRaster(glc, store, vis, atomic64=raster is Raster.COMPUTE and glc.caps.atomic_int64)
+
+
+def raster_path(kind: Raster, raster) -> str:
+    if kind is Raster.POINTS:
+        return "GL_POINTS"
+    return "compute 64-bit atomicMin" if raster.atomic64 else "compute 32-bit two-pass"
+
+
+def ids_for(store: PointStore, slots: np.ndarray) -> np.ndarray:
+    """File-order indices of shuffled slots (the inverse permutation, exact)."""
+    ids = np.full(slots.shape, EMPTY, dtype=np.uint32)
+    hit = slots != EMPTY
+    ids[hit] = store.permutation.inverse(slots[hit]).astype(np.uint32)
+    return ids

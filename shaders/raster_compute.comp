@@ -7,6 +7,7 @@ layout(local_size_x = 256) in;
 #include "common.glsl"
 #include "points.glsl"
 #include "camera.glsl"
+#include "sources.glsl"
 
 #if ATOMIC64
 layout(std430, binding = BINDING_VISIBILITY) buffer Visibility { uint64_t visibility[]; };
@@ -15,13 +16,10 @@ layout(std430, binding = BINDING_VISIBILITY) buffer Visibility { uint64_t visibi
 layout(std430, binding = BINDING_VISIBILITY) buffer Visibility { uint visibility[]; };
 #endif
 
-uniform uint u_first;
-uniform uint u_count;
-
 void main() {
     uint i;
-    if (!range_index(u_count, i)) return;
-    uint slot = u_first + i;
+    if (!range_index(source_count(), i)) return;
+    uint slot = source_slot(i);
     uvec4 record = load_point(slot);
     if (!finite_position(record)) return;
     uint pixel;

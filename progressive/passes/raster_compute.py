@@ -7,6 +7,9 @@ from progressive import shaderlib
 from progressive.camera import ViewUniforms
 from progressive.context import GLContext
 from progressive.gpu import grid
+from progressive.passes.budget import ARGS_BYTES, BudgetPass, layout_defines
+from progressive.passes.prepare import SlotList
+from progressive.passes.sources import Source
 from progressive.passes.visibility import VisibilityBuffer
 from progressive.pointstore import PointStore
 
@@ -21,33 +24,65 @@ def set_view(program, view: ViewUniforms) -> None:
 
 
 class ComputeRaster:
+    """`passes` is 1 (64-bit) or 2 (depth, then index): a frame runs pass 0 over all
+    its sources before pass 1, so the index pass sees the final depths."""
+
     def __init__(self, glc: GLContext, store: PointStore, vis: VisibilityBuffer, *, atomic64: bool):
         if atomic64 and not glc.caps.atomic_int64:
             raise ValueError("64-bit atomics requested but GL_NV_shader_atomic_int64 is missing")
         self.glc, self.store, self.vis = glc, store, vis
         self.atomic64 = atomic64
-        if atomic64:
-            ext = ("GL_ARB_gpu_shader_int64", "GL_NV_shader_atomic_int64")
-            self.programs = [shaderlib.compute(glc.ctx, "raster_compute.comp", dict(store.defines, ATOMIC64=1), ext, "raster64")]
-        else:
-            self.programs = [
-                shaderlib.compute(glc.ctx, "raster_compute.comp", dict(store.defines, ATOMIC64=0, DEPTH_PASS=1), (), "raster32 depth"),
-                shaderlib.compute(glc.ctx, "raster_compute.comp", dict(store.defines, ATOMIC64=0, DEPTH_PASS=0), (), "raster32 index"),
-            ]
+        self.passes = 1 if atomic64 else 2
+        self._programs: dict[tuple[Source, int], object] = {}
 
-    def draw(self, view: ViewUniforms, first: int, count: int) -> None:
-        """Rasterize slots [first, first+count) into the (already cleared) visibility buffer."""
-        if count <= 0:
-            return
+    def program(self, source: Source, pass_index: int):
+        key = (source, pass_index)
+        if key not in self._programs:
+            defines = dict(self.store.defines, **Source.defines(source), **layout_defines())
+            if self.atomic64:
+                defines["ATOMIC64"] = 1
+                ext = ("GL_ARB_gpu_shader_int64", "GL_NV_shader_atomic_int64")
+                label = f"raster64 {source.name.lower()}"
+            else:
+                defines.update(ATOMIC64=0, DEPTH_PASS=int(pass_index == 0))
+                ext = ()
+                label = f"raster32 {('depth', 'index')[pass_index]} {source.name.lower()}"
+            self._programs[key] = shaderlib.compute(self.glc.ctx, "raster_compute.comp", defines, ext, label)
+        return self._programs[key]
+
+    def _prepare(self, source: Source, pass_index: int, view: ViewUniforms):
+        program = self.program(source, pass_index)
+        set_view(program, view)
         self.store.bind()
         self.vis.bind()
-        for program in self.programs:
-            set_view(program, view)
+        return program
+
+    def draw(self, view: ViewUniforms, first: int, count: int) -> None:
+        """All passes over slots [first, first+count) (brute force)."""
+        if count <= 0:
+            return
+        for pass_index in range(self.passes):
+            program = self._prepare(Source.RANGE, pass_index, view)
             program["u_first"] = first
             program["u_count"] = count
             program.run(*grid(count))
             self.glc.ctx.memory_barrier()
 
+    def draw_piece(self, view: ViewUniforms, budget: BudgetPass, piece: int, pass_index: int) -> None:
+        program = self._prepare(Source.PIECE, pass_index, view)
+        program["u_piece"] = piece
+        budget.bind()
+        program.run_indirect(budget.args, offset=piece * ARGS_BYTES)
+        self.glc.ctx.memory_barrier()
+
+    def draw_list(self, view: ViewUniforms, slots: SlotList, pass_index: int) -> None:
+        program = self._prepare(Source.LIST, pass_index, view)
+        program["u_capacity"] = slots.capacity
+        slots.bind()
+        program.run_indirect(slots.meta, offset=slots.DISPATCH_OFFSET)
+        self.glc.ctx.memory_barrier()
+
     def release(self) -> None:
-        for p in self.programs:
+        for p in self._programs.values():
             p.release()
+        self._programs = {}

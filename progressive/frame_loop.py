@@ -1,0 +1,212 @@
+"""Progressive rendering (paper 3.4): each frame reprojects what was visible, fills
+holes with the next range of shuffled points within a GPU-measured budget, and
+prepares the next reprojection. A still camera converges to the brute-force image;
+once it has, frames do no GPU work at all. The CPU never waits for the GPU here."""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from progressive.budget import BudgetParams
+from progressive.camera import Camera, view_uniforms
+from progressive.colors import ColorStyle
+from progressive.context import GLContext
+from progressive.errors import ProgressiveError
+from progressive.loaders.types import AttributeInfo, Batch, CloudInfo
+from progressive.passes.budget import TIMESTAMP_SLOTS, BudgetPass, Stamp, StateWord
+from progressive.passes.compare import ComparePass
+from progressive.passes.prepare import PreparePass
+from progressive.passes.resolve import ResolvePass
+from progressive.passes.stats import GPURecord, StatsRing
+from progressive.passes.visibility import VisibilityBuffer
+from progressive.renderer import Raster, ids_for, make_raster, raster_path
+from progressive.scene import Scene
+
+PASS_TIMES = {"reproject": (Stamp.FRAME, Stamp.FILL), "fill": (Stamp.FILL, Stamp.FILL_END),
+              "prepare": (Stamp.FILL_END, Stamp.PREPARE_END), "resolve": (Stamp.PREPARE_END, Stamp.END),
+              "frame": (Stamp.FRAME, Stamp.END)}
+
+
+@dataclass(frozen=True)
+class ProgressiveOptions:
+    width: int = 1280
+    height: int = 720
+    raster: Raster = Raster.COMPUTE
+    budget: BudgetParams = field(default_factory=BudgetParams)
+    batches_per_frame: int = 2          # loading never holds a frame longer than this many distributes
+    reference: bool = False             # count pixels equal to the brute-force render (costs a brute render a frame)
+    chunk_points: int | None = None
+
+
+@dataclass(frozen=True)
+class FrameTag:
+    """What the CPU knew when it issued a frame."""
+
+    frame: int
+    change: int
+    passes: tuple[str, ...]
+    points_loaded: int
+    pixels: int
+    reference: bool
+
+
+@dataclass(frozen=True)
+class FrameStats:
+    frame: int
+    passes: tuple[str, ...]
+    points_loaded: int
+    first_fill: int
+    budget: int
+    filled_since_change: int
+    covered_pixels: int
+    gpu_ms: dict[str, float]
+    equal_fraction: float | None
+
+    def as_dict(self) -> dict:
+        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+
+
+class ProgressiveRenderer:
+    def __init__(self, glc: GLContext, info: CloudInfo, attribute: AttributeInfo,
+                 options: ProgressiveOptions = ProgressiveOptions()):
+        if options.raster is Raster.POINTS:
+            raise ProgressiveError("progressive rendering runs on the compute rasterizers; GL_POINTS is brute-force only")
+        self.glc, self.info, self.options = glc, info, options
+        self.scene = Scene(glc, info, attribute, chunk_points=options.chunk_points)
+        self.store = self.scene.store
+        self.vis = VisibilityBuffer(glc, options.width, options.height)
+        self.raster = make_raster(glc, self.store, self.vis, options.raster)
+        self.budget = BudgetPass(glc, info.points, options.budget)
+        self.prepare = PreparePass(glc, self.vis)
+        self.resolve = ResolvePass(glc, self.store, self.vis)
+        self.compare = ComparePass(glc, self.store, self.vis, atomic64=self.raster.atomic64) if options.reference else None
+        self.stats_ring = StatsRing(glc)
+        self.pending: deque[Batch] = deque()
+        self.frame_index = 0
+        self.change = 0
+        self.converged_change = -1
+        self.history: list[FrameStats] = []
+        self._camera: Camera | None = None
+        self._style: ColorStyle | None = None
+        self._has_visible = False
+
+    @property
+    def raster_path(self) -> str:
+        return raster_path(self.options.raster, self.raster)
+
+    @property
+    def converged(self) -> bool:
+        """The GPU reported a full ring of fills since the last change (known a few frames late)."""
+        return self.converged_change == self.change
+
+    def add_batch(self, batch: Batch) -> None:
+        """Queue a loaded batch; frames distribute a bounded number each."""
+        self.pending.append(batch)
+
+    def resize(self, width: int, height: int) -> None:
+        if (width, height) != (self.vis.width, self.vis.height):
+            self.vis.resize(width, height)
+            self.prepare.invalidate()
+            self._has_visible = False
+            self._camera = None
+
+    def frame(self, camera: Camera, style: ColorStyle) -> tuple[str, ...]:
+        """Issue one frame's GPU work; returns the passes that ran."""
+        self._take(self.stats_ring.collect())
+        passes: list[str] = []
+        for _ in range(min(self.options.batches_per_frame, len(self.pending))):
+            self.scene.add_batch(self.pending.popleft())
+            passes.append("distribute")
+        moved = camera != self._camera
+        if passes or moved:
+            self.change += 1
+        restyled = style != self._style
+        self._camera, self._style = camera, style
+        if self.converged and not passes:
+            if restyled:
+                self.resolve.run(style)
+                passes.append("resolve")
+            self.budget.end_frame(complete=False)
+            self._finish_frame(tuple(passes), gpu=False)
+            return tuple(passes)
+        passes += self._render(camera, style, reset=bool(passes) or moved)
+        return tuple(passes)
+
+    def _render(self, camera: Camera, style: ColorStyle, reset: bool) -> list[str]:
+        view = view_uniforms(camera, self.info.origin, self.vis.width, self.vis.height)
+        b, raster = self.budget, self.raster
+        passes = ["reproject"] if self._has_visible else []
+        b.stamp(Stamp.FRAME)
+        self.vis.clear()
+        for p in range(raster.passes):
+            if self._has_visible:
+                raster.draw_list(view, self.prepare.previous, p)
+            if p == 0:
+                b.stamp(Stamp.FILL)
+                b.begin(reset)
+            raster.draw_piece(view, b, 0, p)
+            raster.draw_piece(view, b, 1, p)
+            if p == 0:
+                b.stamp(Stamp.FIRST_END)
+                b.adapt()
+            raster.draw_piece(view, b, 2, p)
+            raster.draw_piece(view, b, 3, p)
+        b.stamp(Stamp.FILL_END)
+        self.prepare.run()
+        self._has_visible = True
+        b.stamp(Stamp.PREPARE_END)
+        self.resolve.run(style)
+        b.stamp(Stamp.END)
+        passes += ["fill", "prepare", "resolve"]
+        reference = self.compare is not None and self.scene.complete
+        if reference:
+            self.compare.run(view)
+            passes.append("reference")
+        tag = FrameTag(self.frame_index, self.change, tuple(passes), self.scene.loaded, self.vis.pixels, reference)
+        self.stats_ring.record(tag, b.state, b.stamps, b.parity * TIMESTAMP_SLOTS * 8, self.prepare.previous.meta,
+                               self.compare.counter if reference else None)
+        b.end_frame(complete=True)
+        self.frame_index += 1
+        return passes
+
+    def _finish_frame(self, passes: tuple[str, ...], gpu: bool) -> None:
+        self.history.append(FrameStats(self.frame_index, passes, self.scene.loaded, 0, 0, self.info.points, 0, {}, None))
+        self.frame_index += 1
+
+    def _take(self, records: list[GPURecord]) -> None:
+        for r in records:
+            tag: FrameTag = r.tag
+            filled = int(r.state[StateWord.FILLED])
+            if tag.change == self.change and tag.points_loaded == self.info.points and filled >= self.info.points:
+                self.converged_change = tag.change
+            t = r.stamps.astype(np.int64)
+            gpu_ms = {name: (t[b] - t[a]) / 1e6 for name, (a, b) in PASS_TIMES.items()}
+            equal = r.equal / tag.pixels if tag.reference else None
+            self.history.append(FrameStats(tag.frame, tag.passes, tag.points_loaded, int(r.state[StateWord.FIRST]),
+                                           int(r.state[StateWord.BUDGET]), filled, r.visible, gpu_ms, equal))
+        self.history.sort(key=lambda s: s.frame)
+
+    def flush(self) -> list[FrameStats]:
+        """Wait for every issued frame and return all statistics (after the loop)."""
+        self._take(self.stats_ring.collect(wait=True))
+        return self.history
+
+    def read_slots(self) -> np.ndarray:
+        """(H, W) visible slots of the last frame (waits for the GPU)."""
+        return self.vis.read()[:, :, 0].copy()
+
+    def read_ids(self) -> np.ndarray:
+        return ids_for(self.store, self.read_slots())
+
+    def read_image(self) -> np.ndarray:
+        return self.resolve.read()
+
+    def release(self) -> None:
+        parts = [self.stats_ring, self.raster, self.budget, self.prepare, self.resolve, self.vis, self.scene]
+        if self.compare is not None:
+            parts.append(self.compare)
+        for obj in parts:
+            obj.release()
