@@ -1,0 +1,176 @@
+"""Progressive rendering on a real cloud: exact convergence, reprojection under
+motion, rendering while loading, and a frame loop that never waits for the GPU."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from conftest import SAMPLE
+from progressive.attributes import default_attribute
+from progressive.budget import BudgetParams
+from progressive.camera import Camera, auto_camera
+from progressive.frame_loop import ProgressiveOptions, ProgressiveRenderer
+from progressive.loaders import CloudLoader
+from progressive.reference import EMPTY
+from progressive.renderer import Renderer
+
+W, H = 200, 150
+B = 12_000
+
+
+@pytest.fixture(scope="module")
+def cloud():
+    with CloudLoader([SAMPLE], batch_points=20_000) as loader:
+        info = loader.info
+        loader.start()
+        batches = sorted(loader, key=lambda b: b.start)
+    return info, batches
+
+
+@pytest.fixture(scope="module")
+def brute(gl, cloud):
+    info, batches = cloud
+    r = Renderer(gl, info, default_attribute(info), width=W, height=H)
+    for b in batches:
+        r.add_batch(b)
+    yield lambda cam: r.render(cam, W, H, r.style()).ids
+    r.release()
+
+
+def make(gl, cloud, *, budget=BudgetParams(fixed=B), batches_per_frame=100, reference=False, load=True):
+    info, batches = cloud
+    pr = ProgressiveRenderer(gl, info, default_attribute(info),
+                             ProgressiveOptions(W, H, budget=budget, batches_per_frame=batches_per_frame, reference=reference))
+    if load:
+        for b in batches:
+            pr.add_batch(b)
+    return pr
+
+
+def orbit(cam: Camera, degrees: float) -> Camera:
+    c, s = math.cos(math.radians(degrees)), math.sin(math.radians(degrees))
+    rel = np.subtract(cam.position, cam.target)
+    rotated = np.array([c * rel[0] - s * rel[1], s * rel[0] + c * rel[1], rel[2]]) + cam.target
+    return Camera(tuple(rotated.tolist()), cam.target, cam.up, cam.fov_y_deg, cam.near, cam.far)
+
+
+def frames_until_equal(gl, pr, cam, style, expected, limit):
+    for k in range(1, limit + 1):
+        pr.frame(cam, style)
+        gl.check()
+        if np.array_equal(pr.read_ids(), expected):
+            return k
+    return None
+
+
+def test_still_camera_converges_exactly_when_every_point_was_filled(gl, cloud, brute):
+    info, _ = cloud
+    cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
+    expected = brute(cam)
+    pr = make(gl, cloud)
+    need = math.ceil(info.points / B)
+    k = frames_until_equal(gl, pr, cam, pr.scene.style(), expected, need + 1)
+    assert k is not None, "did not converge"
+    assert k >= need, f"equal at frame {k}, before every point could be filled ({need})"
+    pr.release()
+
+
+def test_converges_while_loading(gl, cloud, brute):
+    info, batches = cloud
+    cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
+    pr = make(gl, cloud, batches_per_frame=1)
+    style = pr.scene.style()
+    first = pr.frame(cam, style)
+    assert "distribute" in first and pr.scene.loaded == batches[0].count
+    shown = pr.read_ids()
+    assert (shown != EMPTY).any() and shown[shown != EMPTY].max() < batches[0].count
+    limit = len(batches) + math.ceil(info.points / B) + 1
+    k = frames_until_equal(gl, pr, cam, style, brute(cam), limit)
+    assert k is not None and pr.scene.complete
+    pr.release()
+
+
+def test_motion_keeps_most_of_the_image_and_converges_again(gl, cloud, brute):
+    info, _ = cloud
+    cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
+    pr = make(gl, cloud)
+    style = pr.scene.style()
+    need = math.ceil(info.points / B)
+    assert frames_until_equal(gl, pr, cam, style, brute(cam), need + 1)
+    moved = orbit(cam, 3.0)
+    expected = brute(moved)
+    passes = pr.frame(moved, style)
+    assert "reproject" in passes
+    covered = np.count_nonzero(pr.read_ids() != EMPTY)
+    assert covered >= 0.8 * np.count_nonzero(expected != EMPTY)
+    assert frames_until_equal(gl, pr, moved, style, expected, need + 1)
+    pr.release()
+
+
+def test_only_needed_passes_run(gl, cloud):
+    info, _ = cloud
+    cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
+    pr = make(gl, cloud, budget=BudgetParams(fixed=info.points // 2 + 1), batches_per_frame=100)
+    style = pr.scene.style()
+    first = pr.frame(cam, style)
+    assert "reproject" not in first and "distribute" in first and "fill" in first
+    second = pr.frame(cam, style)
+    assert "distribute" not in second and "reproject" in second and "fill" in second
+    pr.flush()
+    assert pr.converged
+    assert pr.frame(cam, style) == ()
+    assert pr.frame(cam, pr.scene.style(background=(9, 9, 9))) == ("resolve",)
+    assert "fill" in pr.frame(orbit(cam, 1.0), style)
+    pr.release()
+
+
+def test_frame_loop_never_waits_for_the_gpu(gl, cloud, monkeypatch):
+    """A GPU that never finishes: frames still go on, read nothing and never sync."""
+    import moderngl
+
+    info, _ = cloud
+    cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
+    pr = make(gl, cloud, budget=BudgetParams(), batches_per_frame=1)
+    reads = []
+    monkeypatch.setattr(moderngl.Buffer, "read", lambda self, *a, **k: reads.append(self.label))
+    monkeypatch.setattr(type(gl.ctx), "finish", lambda self: pytest.fail("finish() in the frame loop"))
+    monkeypatch.setattr(type(gl.gl), "signaled", lambda self, sync: False)
+    for k in range(12):
+        pr.frame(orbit(cam, k), pr.scene.style())
+    assert reads == []
+    assert pr.stats_ring.dropped > 0, "stats are dropped rather than waited for"
+    monkeypatch.undo()
+    pr.release()
+
+
+def test_adaptive_budget_fills_beyond_the_first_fill(gl, cloud):
+    info, _ = cloud
+    cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
+    params = BudgetParams(target_ns=200_000_000, first_fill=2000)
+    pr = make(gl, cloud, budget=params)
+    style = pr.scene.style()
+    for _ in range(4):
+        pr.frame(cam, style)
+    stats = [s for s in pr.flush() if s.gpu_ms]
+    assert all(s.first_fill == 2000 for s in stats)
+    assert max(s.budget for s in stats) > 2000
+    assert all(s.gpu_ms["frame"] > 0 and s.gpu_ms["fill"] > 0 for s in stats)
+    pr.release()
+
+
+def test_gpu_equal_fraction_matches_cpu(gl, cloud, brute):
+    info, _ = cloud
+    cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
+    pr = make(gl, cloud, reference=True)
+    style = pr.scene.style()
+    expected = brute(cam)
+    fractions = []
+    for _ in range(3):
+        pr.frame(cam, style)
+        fractions.append(float(np.mean(pr.read_ids() == expected)))
+    stats = pr.flush()
+    assert [s.equal_fraction for s in stats[:3]] == pytest.approx(fractions)
+    pr.release()
