@@ -5,11 +5,12 @@ from __future__ import annotations
 
 import argparse
 import enum
-import os
 import sys
 import time
 from importlib import resources
 from pathlib import Path
+
+import numpy as np
 
 from progressive.errors import ProgressiveError
 
@@ -92,61 +93,151 @@ def cmd_info(args) -> int:
     return 0
 
 
-def cmd_render(args) -> int:
-    from progressive.attributes import default_attribute, find_attribute
-    from progressive.camera import auto_camera
-    from progressive.context import create_context
-    from progressive.loaders import CloudLoader
-    from progressive.output import check_writable, write_json, write_npy, write_png
-    from progressive.renderer import Renderer
+def budget_arg(text: str) -> int | None:
+    """A fixed number of points per frame, or None for 'auto' (the adaptive budget)."""
+    if text.lower() == "auto":
+        return None
+    try:
+        value = int(text.replace("_", ""))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a number of points or 'auto'") from None
+    if not 1 <= value < 2**32:
+        raise argparse.ArgumentTypeError(f"budget {value} is outside 1..2^32-1")
+    return value
 
-    outputs = [p for p in (args.out, args.ids, args.stats, args.save_camera) if p]
-    for p in outputs:
-        check_writable(p)
-    camera = None if args.camera == "auto" else load_camera(args.camera)
-    paths = input_paths(args.files)
-    t0 = time.perf_counter()
-    with CloudLoader(paths, partial=args.partial) as loader:
-        info = loader.info
-        attr = find_attribute(info, args.color_by) if args.color_by else default_attribute(info)
-        glc = create_context()
-        renderer = Renderer(glc, info, attr, raster=args.raster, width=args.width, height=args.height)
-        loader.start()
-        for batch in loader:
-            renderer.add_batch(batch)
-        warnings = list(getattr(loader, "warnings", []))
-    load_seconds = time.perf_counter() - t0
-    for w in warnings:
-        print(f"progressive: warning: {w}", file=sys.stderr)
-    if camera is None:
-        camera = auto_camera(info.bounds_min, info.bounds_max, args.width / args.height)
-    frame = renderer.render(camera, args.width, args.height, renderer.style(args.colormap, args.background))
-    if args.out:
-        write_png(args.out, frame.image)
-    if args.ids:
-        write_npy(args.ids, frame.ids)
-    if args.save_camera:
-        write_json(args.save_camera, camera.to_dict())
-    if args.stats:
-        covered = int((frame.ids != 0xFFFFFFFF).sum())
-        write_json(args.stats, {
-            "device": glc.caps.description,
-            "raster": renderer.raster_path,
-            "points": info.points,
-            "points_loaded": renderer.loaded,
-            "load_seconds": load_seconds,
-            "load_points_per_second": renderer.loaded / load_seconds if load_seconds > 0 else None,
-            "upload_seconds": renderer.upload_seconds,
-            "gpu_ms": frame.gpu_ms,
-            "width": args.width,
-            "height": args.height,
-            "attribute": attr.name,
-            "covered_pixels": covered,
-            "camera": camera.to_dict(),
-        })
-    renderer.release()
-    glc.release()
+
+def positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
+    if not 0.0 < value < 10_000.0:
+        raise argparse.ArgumentTypeError(f"{value} is outside (0, 10000)")
+    return value
+
+
+def load_camera_path(path: str):
+    """A JSON list of cameras (or {"cameras": [...]}), one per frame."""
+    import json
+
+    from progressive.camera import Camera, CameraError
+
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise CameraError(f"camera path {path} not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise CameraError(f"cannot read camera path {path}: {exc}") from None
+    except json.JSONDecodeError as exc:
+        raise CameraError(f"camera path {path} is not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    if isinstance(data, dict):
+        data = data.get("cameras")
+    if not isinstance(data, list) or not data:
+        raise CameraError(f"camera path {path} must be a non-empty list of cameras")
+    cameras = []
+    for i, item in enumerate(data):
+        try:
+            cameras.append(Camera.from_dict(item))
+        except CameraError as exc:
+            raise CameraError(f"camera path {path}, camera {i}: {exc}") from None
+    return cameras
+
+
+def session_options(args):
+    from progressive.budget import BudgetParams
+    from progressive.session import SessionOptions
+
+    budget = BudgetParams(target_ns=int(args.target_ms * 1e6), fixed=args.budget)
+    return SessionOptions(width=args.width, height=args.height, method=args.method, raster=args.raster,
+                          budget=budget, reference=args.reference or args.converge, color_by=args.color_by,
+                          colormap=args.colormap, background=args.background, partial=args.partial)
+
+
+def cmd_render(args) -> int:
+    from progressive.output import check_writable, write_json, write_npy, write_png
+    from progressive.session import Method, Session
+
+    for p in (args.out, args.ids, args.stats, args.save_camera):
+        if p:
+            check_writable(p)
+    cameras = load_camera_path(args.camera_path) if args.camera_path else None
+    camera = None if args.camera == "auto" or cameras else load_camera(args.camera)
+    if args.method is Method.BRUTE and (args.converge or args.reference or cameras):
+        raise UsageError("--converge, --reference and --camera-path need --method progressive")
+    with Session(input_paths(args.files), session_options(args)) as session:
+        if cameras is None:
+            cameras = [camera or session.auto_camera()]
+        converged_at, frames = _run_frames(session, cameras, args)
+        for w in session.warnings:
+            print(f"progressive: warning: {w}", file=sys.stderr)
+        stats = _stats(session, cameras[-1], frames, converged_at)
+        image, ids = session.image(), session.ids()
+        if args.out:
+            write_png(args.out, image)
+        if args.ids:
+            write_npy(args.ids, ids)
+        if args.save_camera:
+            write_json(args.save_camera, cameras[-1].to_dict())
+        if args.stats:
+            stats["covered_pixels"] = int((ids != 0xFFFFFFFF).sum())
+            write_json(args.stats, stats)
+    if args.converge and converged_at is None:
+        print(f"progressive: warning: did not converge within {frames} frames", file=sys.stderr)
+        return 1
     return 0
+
+
+def _run_frames(session, cameras, args) -> tuple[int | None, int]:
+    """Frames as asked: a fixed count, the camera path, or until equal to brute force."""
+    if not session.progressive:
+        session.frame(cameras[0])
+        return None, 1
+    limit = args.frames or (args.max_frames if args.converge else len(cameras))
+    limit = max(limit, len(cameras)) if not args.frames else limit
+    converged_at = None
+    for k in range(limit):
+        session.frame(cameras[min(k, len(cameras) - 1)])
+        if args.converge and k + 1 >= len(cameras):
+            converged_at = _first_equal(session.renderer.history, len(cameras) - 1)
+            if converged_at is not None:
+                return converged_at, k + 1
+    if args.converge:
+        converged_at = _first_equal(session.stats(), len(cameras) - 1)
+    return converged_at, limit
+
+
+def _first_equal(history, after: int) -> int | None:
+    return next((s.frame for s in history if s.frame >= after and s.equal_fraction == 1.0), None)
+
+
+def _stats(session, camera, frames: int, converged_at: int | None) -> dict:
+    renderer = session.renderer
+    out = {
+        "device": session.glc.caps.description,
+        "method": session.options.method.value,
+        "raster": renderer.raster_path,
+        "points": session.info.points,
+        "points_loaded": renderer.scene.loaded,
+        "load_seconds": session.load_seconds,
+        "load_points_per_second": renderer.scene.loaded / session.load_seconds if session.load_seconds else None,
+        "first_image_seconds": session.first_image_seconds,
+        "width": session.options.width,
+        "height": session.options.height,
+        "attribute": session.attribute.name,
+        "camera": camera.to_dict(),
+        "frames_rendered": frames,
+    }
+    if session.progressive:
+        history = session.stats()
+        out["frames"] = [s.as_dict() for s in history]
+        out["converged_frame"] = converged_at
+        timed = [s for s in history if s.gpu_ms]
+        if timed:
+            out["median_fill_fraction"] = float(np.median([s.gpu_ms["fill"] / s.gpu_ms["frame"] for s in timed
+                                                           if s.gpu_ms["frame"] > 0]))
+    else:
+        out["gpu_ms"] = session.last_frame.gpu_ms
+    return out
 
 
 def cmd_convert(args) -> int:
@@ -167,6 +258,7 @@ def cmd_convert(args) -> int:
 def build_parser() -> Parser:
     from progressive.colors import Colormap
     from progressive.renderer import Raster
+    from progressive.session import Method
 
     parser = Parser(prog="progressive", description="Progressive rendering of LAS/LAZ point clouds on the GPU.")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
@@ -191,6 +283,15 @@ def build_parser() -> Parser:
     render.add_argument("--ids", help="write the (H, W) uint32 file-order index of each pixel (.npy)")
     render.add_argument("--stats", help="write timings and counts (.json)")
     render.add_argument("--partial", action="store_true", help="render what a truncated file holds, with a warning")
+    render.add_argument("--method", type=enum_arg(Method), default=Method.BRUTE,
+                        help="brute (every point in one frame) or progressive (reproject + budgeted fill)")
+    render.add_argument("--budget", type=budget_arg, default=None, help="points filled per frame, or auto (default)")
+    render.add_argument("--target-ms", type=positive_float, default=1000.0 / 60.0, help="frame time target (auto budget)")
+    render.add_argument("--frames", type=size_arg, help="progressive frames to render")
+    render.add_argument("--converge", action="store_true", help="render until the ids equal the brute-force ids")
+    render.add_argument("--max-frames", type=size_arg, default=1000, help="limit for --converge")
+    render.add_argument("--camera-path", help="JSON list of cameras, one per frame")
+    render.add_argument("--reference", action="store_true", help="report per frame the share of pixels equal to brute force")
     render.set_defaults(func=cmd_render)
 
     convert = sub.add_parser("convert", help="write the fast GPU-layout format")

@@ -125,20 +125,26 @@ class ProgressiveRenderer:
             self.change += 1
         restyled = style != self._style
         self._camera, self._style = camera, style
+        if self.scene.loaded == 0:
+            self.vis.clear()
+            self.resolve.run(style)
+            self.budget.end_frame(complete=False)
+            self._idle_frame(("resolve",))
+            return ("resolve",)
         if self.converged and not passes:
             if restyled:
                 self.resolve.run(style)
                 passes.append("resolve")
             self.budget.end_frame(complete=False)
-            self._finish_frame(tuple(passes), gpu=False)
+            self._idle_frame(tuple(passes))
             return tuple(passes)
-        passes += self._render(camera, style, reset=bool(passes) or moved)
-        return tuple(passes)
+        return self._render(camera, style, passes, reset=bool(passes) or moved)
 
-    def _render(self, camera: Camera, style: ColorStyle, reset: bool) -> list[str]:
+    def _render(self, camera: Camera, style: ColorStyle, passes: list[str], reset: bool) -> tuple[str, ...]:
         view = view_uniforms(camera, self.info.origin, self.vis.width, self.vis.height)
         b, raster = self.budget, self.raster
-        passes = ["reproject"] if self._has_visible else []
+        if self._has_visible:
+            passes.append("reproject")
         b.stamp(Stamp.FRAME)
         self.vis.clear()
         for p in range(raster.passes):
@@ -170,9 +176,10 @@ class ProgressiveRenderer:
                                self.compare.counter if reference else None)
         b.end_frame(complete=True)
         self.frame_index += 1
-        return passes
+        return tuple(passes)
 
-    def _finish_frame(self, passes: tuple[str, ...], gpu: bool) -> None:
+    def _idle_frame(self, passes: tuple[str, ...]) -> None:
+        """A converged frame: nothing to measure on the GPU."""
         self.history.append(FrameStats(self.frame_index, passes, self.scene.loaded, 0, 0, self.info.points, 0, {}, None))
         self.frame_index += 1
 

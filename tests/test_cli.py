@@ -165,3 +165,65 @@ def test_console_script_no_traceback(tmp_path):
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2
     assert "Traceback" not in proc.stderr and proc.stderr.count("\n") == 1, proc.stderr
+
+
+def test_progressive_converge_equals_brute_ids(tmp_path, capsys):
+    brute, prog, stats = tmp_path / "b.npy", tmp_path / "p.npy", tmp_path / "s.json"
+    assert run(capsys, "render", *SMALL, "--ids", brute)[0] == 0
+    code, _, err = run(capsys, "render", *SMALL, "--method", "progressive", "--budget", "30000", "--converge",
+                       "--ids", prog, "--stats", stats)
+    assert code == 0, err
+    assert np.array_equal(np.load(brute), np.load(prog))
+    s = json.loads(stats.read_text())
+    assert s["converged_frame"] is not None and s["converged_frame"] >= 3
+    frames = s["frames"]
+    first = next(f for f in frames if "distribute" in f["passes"])
+    assert "reproject" not in first["passes"] and "fill" in first["passes"]
+    assert all(f["passes"] == ["resolve"] for f in frames[: frames.index(first)])
+    assert all({"reproject", "fill", "prepare", "resolve"} <= set(f["gpu_ms"]) for f in frames if f["gpu_ms"])
+
+
+def test_camera_path_replays_one_camera_per_frame(tmp_path, capsys):
+    from progressive.camera import auto_camera
+    from progressive.loaders import open_cloud
+
+    info = open_cloud([SAMPLE])
+    cam = auto_camera(info.bounds_min, info.bounds_max, 160 / 120)
+    path = []
+    for k in range(5):
+        d = cam.to_dict()
+        d["position"] = [d["position"][0] + 10 * k, d["position"][1], d["position"][2]]
+        path.append(d)
+    cam_file = tmp_path / "path.json"
+    cam_file.write_text(json.dumps(path))
+    stats = tmp_path / "s.json"
+    code, _, err = run(capsys, "render", *SMALL, "--method", "progressive", "--camera-path", cam_file,
+                       "--frames", "3", "--stats", stats)
+    assert code == 0, err
+    assert json.loads(stats.read_text())["frames_rendered"] == 3
+    code, _, err = run(capsys, "render", *SMALL, "--method", "progressive", "--camera-path", cam_file,
+                       "--converge", "--stats", stats)
+    assert code == 0, err
+    s = json.loads(stats.read_text())
+    assert s["frames_rendered"] >= 5 and s["converged_frame"] >= 4
+    assert s["camera"]["position"] == path[-1]["position"]
+    complete = [f for f in s["frames"] if f["points_loaded"] == s["points"] and "fill" in f["passes"]]
+    assert complete and all(f["equal_fraction"] is not None for f in complete)
+
+
+@pytest.mark.parametrize("argv,needle", [
+    (["--method", "progressive", "--budget", "lots"], "budget"),
+    (["--method", "progressive", "--target-ms", "0"], "target-ms"),
+    (["--converge"], "progressive"),
+    (["--method", "progressive", "--camera-path", "/no/such/path.json"], "not found"),
+])
+def test_bad_progressive_options(tmp_path, capsys, argv, needle):
+    code, _, err = run(capsys, "render", *SMALL, *argv, "--out", tmp_path / "x.png")
+    assert code == 2 and err.count("\n") == 1 and needle in err, err
+
+
+def test_malformed_camera_path(tmp_path, capsys):
+    bad = tmp_path / "path.json"
+    bad.write_text('[{"position": [0, -5, 1], "target": [0, 0, 0]}, {"position": "x"}]')
+    code, _, err = run(capsys, "render", *SMALL, "--method", "progressive", "--camera-path", bad, "--out", tmp_path / "x.png")
+    assert code == 2 and "camera 1" in err and err.count("\n") == 1

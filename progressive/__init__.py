@@ -1,0 +1,9 @@
+"""Progressive real-time rendering of LAS/LAZ point clouds on the GPU."""
+
+from progressive.budget import BudgetParams
+from progressive.camera import Camera
+from progressive.colors import Colormap
+from progressive.renderer import Raster
+from progressive.session import Method, Session, SessionOptions, open
+
+__all__ = ["BudgetParams", "Camera", "Colormap", "Method", "Raster", "Session", "SessionOptions", "open"]

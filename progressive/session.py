@@ -1,0 +1,146 @@
+"""The Python API: open files, render frames for cameras, get images, ids and
+statistics. The CLI, the viewer and the benchmarks all go through it.
+
+    import progressive
+    with progressive.open(["tile.laz"], progressive.SessionOptions(width=800, height=600)) as s:
+        cam = s.auto_camera()
+        while not s.converged:
+            s.frame(cam)
+        image, ids = s.image(), s.ids()
+"""
+
+from __future__ import annotations
+
+import enum
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from progressive.attributes import default_attribute, find_attribute
+from progressive.budget import BudgetParams
+from progressive.camera import Camera, auto_camera
+from progressive.colors import ColorStyle, Colormap
+from progressive.context import GLContext, create_context
+from progressive.frame_loop import FrameStats, ProgressiveOptions, ProgressiveRenderer
+from progressive.loaders import CloudLoader
+from progressive.renderer import Frame, Raster, Renderer
+
+
+class Method(enum.Enum):
+    BRUTE = "brute"                # every point, every frame
+    PROGRESSIVE = "progressive"    # reproject + budgeted fill + prepare
+
+
+@dataclass(frozen=True)
+class SessionOptions:
+    width: int = 1280
+    height: int = 720
+    method: Method = Method.PROGRESSIVE
+    raster: Raster = Raster.COMPUTE
+    budget: BudgetParams = field(default_factory=BudgetParams)
+    batches_per_frame: int = 2
+    reference: bool = False
+    color_by: str | None = None
+    colormap: Colormap = Colormap.VIRIDIS
+    background: tuple[int, int, int] = (0, 0, 0)
+    partial: bool = False
+    chunk_points: int | None = None
+
+
+class Session:
+    def __init__(self, paths, options: SessionOptions = SessionOptions(), glc: GLContext | None = None):
+        self.options = options
+        self.opened = time.perf_counter()
+        self.loader = CloudLoader(paths, partial=options.partial)
+        try:
+            self.info = self.loader.info
+            self.attribute = find_attribute(self.info, options.color_by) if options.color_by else default_attribute(self.info)
+            self._own_context = glc is None
+            self.glc = glc or create_context()
+            if options.method is Method.BRUTE:
+                self.renderer = Renderer(self.glc, self.info, self.attribute, raster=options.raster,
+                                         width=options.width, height=options.height, chunk_points=options.chunk_points)
+            else:
+                self.renderer = ProgressiveRenderer(self.glc, self.info, self.attribute, ProgressiveOptions(
+                    options.width, options.height, options.raster, options.budget, options.batches_per_frame,
+                    options.reference, options.chunk_points))
+        except BaseException:
+            self.loader.close()
+            raise
+        self.loader.start()
+        self.load_seconds: float | None = None
+        self.first_image_seconds: float | None = None
+        self._last: Frame | None = None
+
+    def __enter__(self) -> Session:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    @property
+    def progressive(self) -> bool:
+        return isinstance(self.renderer, ProgressiveRenderer)
+
+    @property
+    def converged(self) -> bool:
+        return self.progressive and self.renderer.converged
+
+    @property
+    def warnings(self) -> list[str]:
+        return list(self.loader.warnings)
+
+    def auto_camera(self) -> Camera:
+        return auto_camera(self.info.bounds_min, self.info.bounds_max, self.options.width / self.options.height)
+
+    def style(self) -> ColorStyle:
+        return self.renderer.scene.style(self.options.colormap, self.options.background)
+
+    def _pump(self, block: bool) -> None:
+        batches = list(self.loader) if block else self.loader.poll()
+        for b in batches:
+            self.renderer.add_batch(b)
+        if self.load_seconds is None and self.loader.done:
+            self.load_seconds = time.perf_counter() - self.opened
+
+    def frame(self, camera: Camera) -> tuple[str, ...]:
+        """Progressive: one frame with whatever has loaded. Brute: load all, render."""
+        if not self.progressive:
+            self._pump(block=True)
+            self._last = self.renderer.render(camera, self.options.width, self.options.height, self.style())
+            passes = ("distribute", "raster", "resolve")
+        else:
+            self._pump(block=False)
+            passes = self.renderer.frame(camera, self.style())
+        if self.first_image_seconds is None and self.renderer.scene.loaded > 0:
+            self.first_image_seconds = time.perf_counter() - self.opened
+        return passes
+
+    def stats(self) -> list[FrameStats]:
+        """Per-frame statistics (progressive; waits for the GPU, so call after the loop)."""
+        return self.renderer.flush() if self.progressive else []
+
+    def image(self) -> np.ndarray:
+        return self.renderer.read_image() if self.progressive else self._last.image
+
+    def ids(self) -> np.ndarray:
+        return self.renderer.read_ids() if self.progressive else self._last.ids
+
+    @property
+    def last_frame(self) -> Frame | None:
+        return self._last
+
+    def close(self) -> None:
+        self.loader.close()
+        renderer = getattr(self, "renderer", None)
+        if renderer is not None:
+            renderer.release()
+            self.renderer = None
+        if getattr(self, "_own_context", False):
+            self.glc.release()
+            self._own_context = False
+
+
+def open(paths, options: SessionOptions = SessionOptions(), glc: GLContext | None = None) -> Session:  # noqa: A001
+    return Session(paths, options, glc)
