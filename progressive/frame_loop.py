@@ -71,11 +71,13 @@ class FrameStats:
 
 class ProgressiveRenderer:
     def __init__(self, glc: GLContext, info: CloudInfo, attribute: AttributeInfo,
-                 options: ProgressiveOptions = ProgressiveOptions()):
+                 options: ProgressiveOptions = ProgressiveOptions(), scene: Scene | None = None):
+        """`scene`: a cloud already on the GPU to render (kept on release)."""
         if options.raster is Raster.POINTS:
             raise ProgressiveError("progressive rendering runs on the compute rasterizers; GL_POINTS is brute-force only")
         self.glc, self.info, self.options = glc, info, options
-        self.scene = Scene(glc, info, attribute, chunk_points=options.chunk_points)
+        self._own_scene = scene is None
+        self.scene = scene or Scene(glc, info, attribute, chunk_points=options.chunk_points)
         self.store = self.scene.store
         self.vis = VisibilityBuffer(glc, options.width, options.height)
         self.raster = make_raster(glc, self.store, self.vis, options.raster)
@@ -212,7 +214,9 @@ class ProgressiveRenderer:
         return self.resolve.read()
 
     def release(self) -> None:
-        parts = [self.stats_ring, self.raster, self.budget, self.prepare, self.resolve, self.vis, self.scene]
+        parts = [self.stats_ring, self.raster, self.budget, self.prepare, self.resolve, self.vis]
+        if self._own_scene:
+            parts.append(self.scene)
         if self.compare is not None:
             parts.append(self.compare)
         for obj in parts:

@@ -40,9 +40,11 @@ class Renderer:
 
     def __init__(self, glc: GLContext, info: CloudInfo, attribute: AttributeInfo, *,
                  raster: Raster = Raster.COMPUTE, width: int = 1280, height: int = 720,
-                 chunk_points: int | None = None):
+                 chunk_points: int | None = None, scene: Scene | None = None):
+        """`scene`: a cloud already on the GPU to render (kept on release)."""
         self.glc, self.info, self.attribute = glc, info, attribute
-        self.scene = Scene(glc, info, attribute, chunk_points=chunk_points)
+        self._own_scene = scene is None
+        self.scene = scene or Scene(glc, info, attribute, chunk_points=chunk_points)
         self.store = self.scene.store
         self.vis = VisibilityBuffer(glc, width, height)
         self.raster_kind = raster
@@ -85,8 +87,10 @@ class Renderer:
         return Frame(image=image, slots=slots, ids=ids_for(self.store, slots), gpu_ms=t.durations_ms())
 
     def release(self) -> None:
-        for obj in (self.raster, self.resolve, self.vis, self.scene, self.timestamps):
+        for obj in (self.raster, self.resolve, self.vis, self.timestamps):
             obj.release()
+        if self._own_scene:
+            self.scene.release()
 
 
 def make_raster(glc: GLContext, store: PointStore, vis: VisibilityBuffer, raster: Raster):
