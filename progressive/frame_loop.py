@@ -39,6 +39,7 @@ class ProgressiveOptions:
     batches_per_frame: int = 2          # loading never holds a frame longer than this many distributes
     reference: bool = False             # count pixels equal to the brute-force render (costs a brute render a frame)
     chunk_points: int | None = None
+    frames_in_flight: int | None = None  # headless pacing, as a swap chain paces a window; None: no limit
 
 
 @dataclass(frozen=True)
@@ -94,6 +95,8 @@ class ProgressiveRenderer:
         self._camera: Camera | None = None
         self._style: ColorStyle | None = None
         self._has_visible = False
+        self._in_flight: deque[int] = deque()
+        self.pacing_waits = 0
 
     @property
     def raster_path(self) -> str:
@@ -117,6 +120,7 @@ class ProgressiveRenderer:
 
     def frame(self, camera: Camera, style: ColorStyle) -> tuple[str, ...]:
         """Issue one frame's GPU work; returns the passes that ran."""
+        self._pace()
         self._take(self.stats_ring.collect())
         passes: list[str] = []
         for _ in range(min(self.options.batches_per_frame, len(self.pending))):
@@ -177,8 +181,21 @@ class ProgressiveRenderer:
         self.stats_ring.record(tag, b.state, b.stamps, b.parity * TIMESTAMP_SLOTS * 8, self.prepare.previous.meta,
                                self.compare.counter if reference else None)
         b.end_frame(complete=True)
+        if self.options.frames_in_flight:
+            self._in_flight.append(self.glc.gl.fence())
         self.frame_index += 1
         return tuple(passes)
+
+    def _pace(self) -> None:
+        """With frames_in_flight = k, wait until frame n-k is done before issuing frame n
+        (what swapping buffers does in a window); the wait is for an old frame, never a readback."""
+        limit = self.options.frames_in_flight
+        while limit and len(self._in_flight) >= limit:
+            sync = self._in_flight.popleft()
+            if not self.glc.gl.signaled(sync):
+                self.pacing_waits += 1
+                self.glc.gl.wait(sync)
+            self.glc.gl.delete_sync(sync)
 
     def _idle_frame(self, passes: tuple[str, ...]) -> None:
         """A converged frame: nothing to measure on the GPU."""
@@ -214,6 +231,9 @@ class ProgressiveRenderer:
         return self.resolve.read()
 
     def release(self) -> None:
+        for sync in self._in_flight:
+            self.glc.gl.delete_sync(sync)
+        self._in_flight.clear()
         parts = [self.stats_ring, self.raster, self.budget, self.prepare, self.resolve, self.vis]
         if self._own_scene:
             parts.append(self.scene)

@@ -94,6 +94,11 @@ class GLFunctions:
         status = self.client_wait_sync(sync, GL_SYNC_FLUSH_COMMANDS_BIT, 0)
         return status in (GL_ALREADY_SIGNALED, GL_CONDITION_SATISFIED)
 
+    def wait(self, sync: int, timeout_ns: int = 10**9) -> None:
+        """Block until the GPU passes this fence (frame pacing only)."""
+        while self.client_wait_sync(sync, GL_SYNC_FLUSH_COMMANDS_BIT, timeout_ns) not in (GL_ALREADY_SIGNALED, GL_CONDITION_SATISFIED):
+            pass
+
     def clear_texture_u32(self, glo: int, value: int) -> None:
         word = ctypes.c_uint32(value & 0xFFFFFFFF)
         self.clear_tex_image(glo, 0, GL_RED_INTEGER, GL_UNSIGNED_INT, ctypes.byref(word))

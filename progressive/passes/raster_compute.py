@@ -34,8 +34,12 @@ class ComputeRaster:
         self.atomic64 = atomic64
         self.passes = 1 if atomic64 else 2
         self._programs: dict[tuple[Source, int], object] = {}
+        for source in Source:
+            for pass_index in range(self.passes):
+                self.program(source, pass_index)
 
     def program(self, source: Source, pass_index: int):
+        """Compiled at construction, so no frame pays for a compile."""
         key = (source, pass_index)
         if key not in self._programs:
             defines = dict(self.store.defines, **Source.defines(source), **layout_defines())
