@@ -25,10 +25,16 @@ class Binding(enum.IntEnum):
     FILL_STATE = 12
     FILL_ARGS = 13
     TIMESTAMPS = 14
-    SLOT_LIST = 15
-    SLOT_LIST_META = 16
+    SLOT_LIST = 15          # reprojection input: slots
+    SLOT_LIST_META = 16     # count, dispatch args, draw args, gathers
     REFERENCE = 17
     COUNTERS = 18
+    LIST_RECORDS = 19       # reprojection input: record copies
+    OUT_SLOTS = 20          # prepare output
+    OUT_RECORDS = 21
+    OUT_META = 22
+    HINT = 23               # per pixel: list index of the reprojected point that last improved it
+    PIXEL_WORDS = 24        # per pixel: attribute word of the visible point
 
     @classmethod
     def points(cls, chunk: int) -> Binding:

@@ -63,6 +63,7 @@ class FrameStats:
     budget: int
     filled_since_change: int
     covered_pixels: int
+    gathered: int                   # visible points prepare read from the shuffled store (new winners)
     gpu_ms: dict[str, float]
     equal_fraction: float | None
 
@@ -83,8 +84,8 @@ class ProgressiveRenderer:
         self.vis = VisibilityBuffer(glc, options.width, options.height)
         self.raster = make_raster(glc, self.store, self.vis, options.raster)
         self.budget = BudgetPass(glc, info.points, options.budget)
-        self.prepare = PreparePass(glc, self.vis)
-        self.resolve = ResolvePass(glc, self.store, self.vis)
+        self.prepare = PreparePass(glc, self.store, self.vis)
+        self.resolve = ResolvePass(glc, self.store, self.vis, pixel_words=True)
         self.compare = ComparePass(glc, self.store, self.vis, atomic64=self.raster.atomic64) if options.reference else None
         self.stats_ring = StatsRing(glc)
         self.pending: deque[Batch] = deque()
@@ -133,13 +134,13 @@ class ProgressiveRenderer:
         self._camera, self._style = camera, style
         if self.scene.loaded == 0:
             self.vis.clear()
-            self.resolve.run(style)
+            self.resolve.run(style, self.prepare.pixel_words)
             self.budget.end_frame(complete=False)
             self._idle_frame(("resolve",))
             return ("resolve",)
         if self.converged and not passes:
             if restyled:
-                self.resolve.run(style)
+                self.resolve.run(style, self.prepare.pixel_words)
                 passes.append("resolve")
             self.budget.end_frame(complete=False)
             self._idle_frame(tuple(passes))
@@ -155,7 +156,7 @@ class ProgressiveRenderer:
         self.vis.clear()
         for p in range(raster.passes):
             if self._has_visible:
-                raster.draw_list(view, self.prepare.previous, p)
+                raster.draw_list(view, self.prepare, p)
             if p == 0:
                 b.stamp(Stamp.FILL)
                 b.begin(reset)
@@ -170,7 +171,7 @@ class ProgressiveRenderer:
         self.prepare.run()
         self._has_visible = True
         b.stamp(Stamp.PREPARE_END)
-        self.resolve.run(style)
+        self.resolve.run(style, self.prepare.pixel_words)
         b.stamp(Stamp.END)
         passes += ["fill", "prepare", "resolve"]
         reference = self.compare is not None and self.scene.complete
@@ -199,7 +200,7 @@ class ProgressiveRenderer:
 
     def _idle_frame(self, passes: tuple[str, ...]) -> None:
         """A converged frame: nothing to measure on the GPU."""
-        self.history.append(FrameStats(self.frame_index, passes, self.scene.loaded, 0, 0, self.info.points, 0, {}, None))
+        self.history.append(FrameStats(self.frame_index, passes, self.scene.loaded, 0, 0, self.info.points, 0, 0, {}, None))
         self.frame_index += 1
 
     def _take(self, records: list[GPURecord]) -> None:
@@ -212,7 +213,7 @@ class ProgressiveRenderer:
             gpu_ms = {name: (t[b] - t[a]) / 1e6 for name, (a, b) in PASS_TIMES.items()}
             equal = r.equal / tag.pixels if tag.reference else None
             self.history.append(FrameStats(tag.frame, tag.passes, tag.points_loaded, int(r.state[StateWord.FIRST]),
-                                           int(r.state[StateWord.BUDGET]), filled, r.visible, gpu_ms, equal))
+                                           int(r.state[StateWord.BUDGET]), filled, r.visible, r.gathered, gpu_ms, equal))
         self.history.sort(key=lambda s: s.frame)
 
     def flush(self) -> list[FrameStats]:

@@ -1,7 +1,11 @@
-// Prepare (paper 3.4): append the slot of every covered pixel to the list that the
-// next frame reprojects. One global atomicAdd per work group, not per pixel. With
-// ARGS, a 1x1x1 dispatch turns the count into the next reprojection's indirect
-// arguments (dispatch at word 1, draw at word 4).
+// Prepare (paper 3.4): every covered pixel's point becomes a record copy in the list
+// the next frame reprojects, and its attribute word goes to the per-pixel words that
+// resolve reads. The record comes from the current list when the pixel's hint points
+// at the winning slot (a reprojected point), else it is gathered from the shuffled
+// store (a point filled this frame): random lookups into gigabytes are what a frame
+// pays for most, so only new winners make them. One global atomicAdd per work group.
+// With ARGS, a 1x1x1 dispatch turns the count into indirect arguments for the next
+// reprojection (dispatch at word 1, draw at word 4).
 #if ARGS
 layout(local_size_x = 1) in;
 #else
@@ -9,41 +13,73 @@ layout(local_size_x = 16, local_size_y = 16) in;
 #endif
 #include "common.glsl"
 
-layout(std430, binding = BINDING_SLOT_LIST_META) buffer SlotListMeta { uint list_meta[]; };
+layout(std430, binding = BINDING_OUT_META) buffer OutMeta { uint out_meta[]; };
 uniform uint u_capacity;
 
 #if ARGS
 void main() {
-    uint count = min(list_meta[0], u_capacity);
+    uint count = min(out_meta[META_COUNT], u_capacity);
     uint groups = (count + 255u) / 256u;
     uint gx = min(groups, 65535u);
-    list_meta[1] = gx;
-    list_meta[2] = gx == 0u ? 0u : (groups + gx - 1u) / gx;
-    list_meta[3] = 1u;
-    list_meta[4] = count;
-    list_meta[5] = 1u;
-    list_meta[6] = 0u;
-    list_meta[7] = 0u;
+    out_meta[1] = gx;
+    out_meta[2] = gx == 0u ? 0u : (groups + gx - 1u) / gx;
+    out_meta[3] = 1u;
+    out_meta[4] = count;
+    out_meta[5] = 1u;
+    out_meta[6] = 0u;
+    out_meta[7] = 0u;
 }
 #else
+#include "points.glsl"
 layout(std430, binding = BINDING_VISIBILITY) readonly buffer Visibility { uint visibility[]; };
-layout(std430, binding = BINDING_SLOT_LIST) writeonly buffer SlotList { uint slot_list[]; };
+layout(std430, binding = BINDING_SLOT_LIST) readonly buffer PrevSlots { uint prev_slots[]; };
+layout(std430, binding = BINDING_LIST_RECORDS) readonly buffer PrevRecords { uvec4 prev_records[]; };
+layout(std430, binding = BINDING_SLOT_LIST_META) readonly buffer PrevMeta { uint prev_meta[]; };
+layout(std430, binding = BINDING_HINT) readonly buffer Hint { uint hint[]; };
+layout(std430, binding = BINDING_OUT_SLOTS) writeonly buffer OutSlots { uint out_slots[]; };
+layout(std430, binding = BINDING_OUT_RECORDS) writeonly buffer OutRecords { uvec4 out_records[]; };
+layout(std430, binding = BINDING_PIXEL_WORDS) writeonly buffer PixelWords { uint pixel_words[]; };
 uniform uvec2 u_size;
 
 shared uint group_count;
+shared uint group_gathers;
 shared uint group_base;
 
 void main() {
-    if (gl_LocalInvocationIndex == 0u) group_count = 0u;
+    if (gl_LocalInvocationIndex == 0u) {
+        group_count = 0u;
+        group_gathers = 0u;
+    }
     barrier();
     uvec2 p = gl_GlobalInvocationID.xy;
     uint slot = EMPTY;
-    if (p.x < u_size.x && p.y < u_size.y) slot = visibility[2u * (p.y * u_size.x + p.x)];
+    uint pixel = 0u;
+    uvec4 record = uvec4(0u);
+    if (p.x < u_size.x && p.y < u_size.y) {
+        pixel = p.y * u_size.x + p.x;
+        slot = visibility[2u * pixel];
+    }
+    if (slot != EMPTY) {
+        uint h = hint[pixel];
+        if (h < min(prev_meta[META_COUNT], u_capacity) && prev_slots[h] == slot) {
+            record = prev_records[h];
+        } else {
+            record = load_point(slot);
+            atomicAdd(group_gathers, 1u);
+        }
+        pixel_words[pixel] = record.w;
+    }
     uint local = slot != EMPTY ? atomicAdd(group_count, 1u) : 0u;
     barrier();
-    if (gl_LocalInvocationIndex == 0u && group_count > 0u) group_base = atomicAdd(list_meta[0], group_count);
+    if (gl_LocalInvocationIndex == 0u && group_count > 0u) {
+        group_base = atomicAdd(out_meta[META_COUNT], group_count);
+        atomicAdd(out_meta[META_GATHERS], group_gathers);
+    }
     barrier();
     uint k = group_base + local;
-    if (slot != EMPTY && k < u_capacity) slot_list[k] = slot;
+    if (slot != EMPTY && k < u_capacity) {
+        out_slots[k] = slot;
+        out_records[k] = record;
+    }
 }
 #endif

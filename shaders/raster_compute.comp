@@ -20,19 +20,29 @@ void main() {
     uint i;
     if (!range_index(source_count(), i)) return;
     uint slot = source_slot(i);
-    uvec4 record = load_point(slot);
+    uvec4 record = source_record(i, slot);
     if (!finite_position(record)) return;
     uint pixel;
     float depth;
     if (!project(uintBitsToFloat(record.xyz), pixel, depth)) return;
     uint depth_bits = floatBitsToUint(depth);
+    // A reprojected point that improves its pixel leaves a hint (its list index), so
+    // prepare can copy its record from the list; prepare validates it, races are harmless.
 #if ATOMIC64
     uint64_t key = (uint64_t(depth_bits) << 32) | uint64_t(slot);
-    if (key < visibility[pixel]) atomicMin(visibility[pixel], key);
+    if (key < visibility[pixel] && key < atomicMin(visibility[pixel], key)) {
+#ifdef WRITE_HINT
+        hint[pixel] = i;
+#endif
+    }
 #elif DEPTH_PASS
     if (depth_bits < visibility[2u * pixel + 1u]) atomicMin(visibility[2u * pixel + 1u], depth_bits);
 #else
-    if (depth_bits == visibility[2u * pixel + 1u] && slot < visibility[2u * pixel])
-        atomicMin(visibility[2u * pixel], slot);
+    if (depth_bits == visibility[2u * pixel + 1u] && slot < visibility[2u * pixel]
+        && slot < atomicMin(visibility[2u * pixel], slot)) {
+#ifdef WRITE_HINT
+        hint[pixel] = i;
+#endif
+    }
 #endif
 }

@@ -6,6 +6,13 @@ layout(local_size_x = 16, local_size_y = 16) in;
 layout(std430, binding = BINDING_VISIBILITY) readonly buffer Visibility { uint visibility[]; };
 layout(std430, binding = BINDING_IMAGE) writeonly buffer Image { uint image[]; };
 layout(std430, binding = BINDING_PALETTE) readonly buffer Palette { uint palette[256]; };
+#if PIXEL_WORDS
+// Progressive frames: prepare already copied each visible point's word (no gathers).
+layout(std430, binding = BINDING_PIXEL_WORDS) readonly buffer PixelWords { uint pixel_words[]; };
+uint visible_word(uint pixel, uint slot) { return pixel_words[pixel]; }
+#else
+uint visible_word(uint pixel, uint slot) { return load_point(slot).w; }
+#endif
 
 uniform uvec2 u_size;
 uniform int u_mode;          // COLOR_MODE_* (progressive/colors.py ColorMode)
@@ -27,5 +34,5 @@ void main() {
     if (p.x >= u_size.x || p.y >= u_size.y) return;
     uint pixel = p.y * u_size.x + p.x;
     uint slot = visibility[2u * pixel];
-    image[pixel] = slot == EMPTY ? u_background : shade(load_point(slot).w);
+    image[pixel] = slot == EMPTY ? u_background : shade(visible_word(pixel, slot));
 }

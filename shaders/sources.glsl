@@ -1,21 +1,28 @@
-// Which slots a raster dispatch or draw covers. SOURCE_RANGE: a uniform range (whole
-// cloud); SOURCE_PIECE: a fill piece placed on the GPU by budget.comp; SOURCE_LIST:
-// last frame's visible slots appended by prepare.comp (reprojection).
+// Which points a raster dispatch or draw covers. SOURCE_RANGE: a uniform slot range
+// (whole cloud); SOURCE_PIECE: a fill piece placed on the GPU by budget.comp;
+// SOURCE_LIST: last frame's visible points, as record copies made by prepare.comp, so
+// reprojection reads sequentially instead of gathering from the shuffled store.
 
 #if SOURCE == SOURCE_RANGE
 uniform uint u_first;
 uniform uint u_count;
 uint source_count() { return u_count; }
 uint source_slot(uint i) { return u_first + i; }
+uvec4 source_record(uint i, uint slot) { return load_point(slot); }
 #elif SOURCE == SOURCE_PIECE
 layout(std430, binding = BINDING_FILL_STATE) readonly buffer FillState { uint fill_state[]; };
 uniform uint u_piece;
 uint source_count() { return fill_state[STATE_PIECES + 2u * u_piece + 1u]; }
 uint source_slot(uint i) { return fill_state[STATE_PIECES + 2u * u_piece] + i; }
+uvec4 source_record(uint i, uint slot) { return load_point(slot); }
 #else
 layout(std430, binding = BINDING_SLOT_LIST) readonly buffer SlotList { uint slot_list[]; };
+layout(std430, binding = BINDING_LIST_RECORDS) readonly buffer ListRecords { uvec4 list_records[]; };
 layout(std430, binding = BINDING_SLOT_LIST_META) readonly buffer SlotListMeta { uint list_meta[]; };
+layout(std430, binding = BINDING_HINT) writeonly buffer Hint { uint hint[]; };
 uniform uint u_capacity;
 uint source_count() { return min(list_meta[0], u_capacity); }
 uint source_slot(uint i) { return slot_list[i]; }
+uvec4 source_record(uint i, uint slot) { return list_records[i]; }
+#define WRITE_HINT 1
 #endif

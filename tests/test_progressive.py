@@ -174,3 +174,23 @@ def test_gpu_equal_fraction_matches_cpu(gl, cloud, brute):
     stats = pr.flush()
     assert [s.equal_fraction for s in stats[:3]] == pytest.approx(fractions)
     pr.release()
+
+
+def test_reprojection_list_holds_record_copies_and_avoids_gathers(gl, cloud):
+    """Prepare copies visible records into the list (read sequentially by reprojection);
+    with a still camera, winners that were reprojected come from the list, not the store."""
+    info, _ = cloud
+    cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
+    pr = make(gl, cloud, budget=BudgetParams(fixed=2000))
+    style = pr.scene.style()
+    for _ in range(6):
+        pr.frame(cam, style)
+    slots, records = pr.prepare.previous.read()
+    assert slots.size == np.count_nonzero(pr.read_slots() != EMPTY)
+    store = pr.store.read_records()
+    assert np.array_equal(records, store[slots])
+    stats = [s for s in pr.flush() if s.gpu_ms]
+    assert stats[0].gathered == stats[0].covered_pixels, "first frame: every record comes from the store"
+    later = stats[-1]
+    assert later.gathered < 0.2 * later.covered_pixels, (later.gathered, later.covered_pixels)
+    pr.release()

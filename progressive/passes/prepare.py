@@ -1,6 +1,9 @@
-"""Prepare: the slots visible now become the list the next frame reprojects."""
+"""Prepare: the points visible now become record copies that the next frame
+reprojects, and per-pixel attribute words for resolve."""
 
 from __future__ import annotations
+
+import enum
 
 import numpy as np
 
@@ -9,63 +12,100 @@ from progressive.bindings import Binding
 from progressive.context import GLContext
 from progressive.gpu import grid_2d
 from progressive.passes.visibility import VisibilityBuffer
+from progressive.pointstore import PointStore
+
+RECORD_BYTES = 16
+
+
+class Meta(enum.IntEnum):
+    """Words of a list's meta buffer."""
+
+    COUNT = 0
+    DISPATCH = 1     # 3 words: the next reprojection's dispatch arguments
+    DRAW = 4         # 4 words: the same as draw arguments
+    GATHERS = 8      # records that had to come from the shuffled store
+    WORDS = 12
+
+    @classmethod
+    def defines(cls) -> dict[str, int]:
+        return {f"META_{m.name}": int(m) for m in cls}
 
 
 class SlotList:
-    """Visible slots (capacity = pixel count, so it cannot overflow; still checked on
-    the GPU) and meta words: count, dispatch args (1-3), draw args (4-7)."""
+    """Visible points: slots, record copies and meta words. Capacity is the pixel
+    count, so it cannot overflow (the GPU checks anyway)."""
 
-    DISPATCH_OFFSET = 4
-    DRAW_OFFSET = 16
+    DISPATCH_OFFSET = Meta.DISPATCH * 4
 
     def __init__(self, glc: GLContext, capacity: int, label: str):
         self.glc = glc
         self.capacity = capacity
         self.slots = glc.ctx.buffer(reserve=max(4, capacity * 4))
-        self.slots.label = label
-        self.meta = glc.ctx.buffer(reserve=32)
+        self.slots.label = f"{label} slots"
+        self.records = glc.ctx.buffer(reserve=max(16, capacity * RECORD_BYTES))
+        self.records.label = f"{label} records"
+        self.meta = glc.ctx.buffer(reserve=Meta.WORDS * 4)
         self.meta.label = f"{label} meta"
         self.reset()
 
     def reset(self) -> None:
         self.glc.gl.clear_u32(self.meta.glo, 0, total=self.meta.size)
 
-    def bind(self) -> None:
+    def bind_input(self) -> None:
         self.slots.bind_to_storage_buffer(Binding.SLOT_LIST)
+        self.records.bind_to_storage_buffer(Binding.LIST_RECORDS)
         self.meta.bind_to_storage_buffer(Binding.SLOT_LIST_META)
 
-    def read(self) -> np.ndarray:
-        """The listed slots (tests only: waits for the GPU)."""
+    def bind_output(self) -> None:
+        self.slots.bind_to_storage_buffer(Binding.OUT_SLOTS)
+        self.records.bind_to_storage_buffer(Binding.OUT_RECORDS)
+        self.meta.bind_to_storage_buffer(Binding.OUT_META)
+
+    def read(self) -> tuple[np.ndarray, np.ndarray]:
+        """The listed slots and records (tests only: waits for the GPU)."""
         count = min(int(np.frombuffer(self.meta.read(4), dtype=np.uint32)[0]), self.capacity)
-        return np.frombuffer(self.slots.read(count * 4), dtype=np.uint32)
+        slots = np.frombuffer(self.slots.read(count * 4), dtype=np.uint32)
+        records = np.frombuffer(self.records.read(count * RECORD_BYTES), dtype=np.uint32).reshape(-1, 4)
+        return slots, records
 
     def release(self) -> None:
-        self.slots.release()
-        self.meta.release()
+        for b in (self.slots, self.records, self.meta):
+            b.release()
 
 
 class PreparePass:
-    def __init__(self, glc: GLContext, vis: VisibilityBuffer):
-        self.glc, self.vis = glc, vis
-        self.append = shaderlib.compute(glc.ctx, "prepare.comp", {"ARGS": 0}, label="prepare")
-        self.args = shaderlib.compute(glc.ctx, "prepare.comp", {"ARGS": 1}, label="prepare args")
+    def __init__(self, glc: GLContext, store: PointStore, vis: VisibilityBuffer):
+        self.glc, self.store, self.vis = glc, store, vis
+        defines = dict(store.defines, **Meta.defines())
+        self.append = shaderlib.compute(glc.ctx, "prepare.comp", dict(defines, ARGS=0), label="prepare")
+        self.args = shaderlib.compute(glc.ctx, "prepare.comp", dict(defines, ARGS=1), label="prepare args")
         self.lists: list[SlotList] = []
+        self.hint = self.pixel_words = None
         self.current = 0
         self._allocate()
 
     def _allocate(self) -> None:
-        for lst in self.lists:
-            lst.release()
+        for obj in (*self.lists, self.hint, self.pixel_words):
+            if obj is not None:
+                obj.release()
         self.capacity = self.vis.pixels
-        self.lists = [SlotList(self.glc, self.capacity, f"visible slots {i}") for i in range(2)]
+        self.lists = [SlotList(self.glc, self.capacity, f"visible {i}") for i in range(2)]
+        self.hint = self.glc.ctx.buffer(reserve=self.capacity * 4)
+        self.hint.label = "reprojection hints"
+        self.pixel_words = self.glc.ctx.buffer(reserve=self.capacity * 4)
+        self.pixel_words.label = "pixel words"
 
     @property
     def previous(self) -> SlotList:
         """What the last prepare wrote: this frame's reprojection input."""
         return self.lists[self.current]
 
+    def bind_reprojection(self) -> None:
+        self.previous.bind_input()
+        self.hint.bind_to_storage_buffer(Binding.HINT)
+
     def invalidate(self) -> None:
-        """Forget the visible set (new size, or nothing to reproject)."""
+        """Forget the visible set (a new size, or records that changed)."""
         if self.capacity != self.vis.pixels:
             self._allocate()
         for lst in self.lists:
@@ -74,8 +114,11 @@ class PreparePass:
     def run(self) -> None:
         out = self.lists[1 - self.current]
         out.reset()
-        out.bind()
+        self.bind_reprojection()
+        out.bind_output()
         self.vis.bind()
+        self.store.bind()
+        self.pixel_words.bind_to_storage_buffer(Binding.PIXEL_WORDS)
         for p in (self.append, self.args):
             p["u_capacity"] = self.capacity
         self.append["u_size"] = (self.vis.width, self.vis.height)
@@ -86,5 +129,5 @@ class PreparePass:
         self.current = 1 - self.current
 
     def release(self) -> None:
-        for obj in (*self.lists, self.append, self.args):
+        for obj in (*self.lists, self.hint, self.pixel_words, self.append, self.args):
             obj.release()

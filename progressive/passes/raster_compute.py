@@ -8,7 +8,7 @@ from progressive.camera import ViewUniforms
 from progressive.context import GLContext
 from progressive.gpu import grid
 from progressive.passes.budget import ARGS_BYTES, BudgetPass, layout_defines
-from progressive.passes.prepare import SlotList
+from progressive.passes.prepare import PreparePass
 from progressive.passes.sources import Source
 from progressive.passes.visibility import VisibilityBuffer
 from progressive.pointstore import PointStore
@@ -79,11 +79,12 @@ class ComputeRaster:
         program.run_indirect(budget.args, offset=piece * ARGS_BYTES)
         self.glc.ctx.memory_barrier()
 
-    def draw_list(self, view: ViewUniforms, slots: SlotList, pass_index: int) -> None:
+    def draw_list(self, view: ViewUniforms, prepare: PreparePass, pass_index: int) -> None:
+        """Reproject the record copies of the points visible last frame."""
         program = self._prepare(Source.LIST, pass_index, view)
-        program["u_capacity"] = slots.capacity
-        slots.bind()
-        program.run_indirect(slots.meta, offset=slots.DISPATCH_OFFSET)
+        program["u_capacity"] = prepare.capacity
+        prepare.bind_reprojection()
+        program.run_indirect(prepare.previous.meta, offset=prepare.previous.DISPATCH_OFFSET)
         self.glc.ctx.memory_barrier()
 
     def release(self) -> None:

@@ -14,15 +14,19 @@ from progressive.pointstore import PointStore
 
 
 class ResolvePass:
-    def __init__(self, glc: GLContext, store: PointStore, vis: VisibilityBuffer):
+    def __init__(self, glc: GLContext, store: PointStore, vis: VisibilityBuffer, *, pixel_words: bool = False):
+        """pixel_words: read each visible point's word from the buffer prepare writes
+        (progressive frames) instead of gathering it from the store."""
         self.glc, self.store, self.vis = glc, store, vis
-        self.program = shaderlib.compute(glc.ctx, "resolve.comp", dict(store.defines, **ColorMode.glsl_defines()), label="resolve")
+        defines = dict(store.defines, PIXEL_WORDS=int(pixel_words), **ColorMode.glsl_defines())
+        self.program = shaderlib.compute(glc.ctx, "resolve.comp", defines, label="resolve")
         self.palette = glc.ctx.buffer(reserve=256 * 4)
         self.palette.label = "palette"
         self.image = None
         self._palette_key = None
 
-    def run(self, style: ColorStyle) -> None:
+    def run(self, style: ColorStyle, words=None) -> None:
+        """`words`: the per-pixel word buffer, with pixel_words."""
         vis = self.vis
         if self.image is None or self.image.size != vis.pixels * 4:
             if self.image is not None:
@@ -41,6 +45,8 @@ class ResolvePass:
         vis.bind()
         self.image.bind_to_storage_buffer(Binding.IMAGE)
         self.palette.bind_to_storage_buffer(Binding.PALETTE)
+        if words is not None:
+            words.bind_to_storage_buffer(Binding.PIXEL_WORDS)
         p.run(*grid_2d(vis.width, vis.height))
         self.glc.ctx.memory_barrier()
 

@@ -11,11 +11,13 @@ import numpy as np
 
 from progressive.context import GLContext
 from progressive.passes.budget import TIMESTAMP_SLOTS, StateWord
+from progressive.passes.prepare import Meta
 
-SLOT_WORDS = 48          # fill state (16), timestamps (16), visible count, equal pixels
+SLOT_WORDS = 48          # fill state (16), timestamps (16), visible count, equal pixels, gathers
 TS_WORD = 16
 VISIBLE_WORD = 32
 EQUAL_WORD = 33
+GATHER_WORD = 34
 
 
 @dataclass(frozen=True)
@@ -32,6 +34,7 @@ class GPURecord:
     stamps: np.ndarray       # Stamp-indexed uint64 nanoseconds
     visible: int
     equal: int
+    gathered: int
 
 
 class StatsRing:
@@ -54,7 +57,8 @@ class StatsRing:
         self.glc.ctx.memory_barrier()
         copy(state_buf.glo, self.buffer.glo, 0, base, StateWord.WORDS * 4)
         copy(stamps_buf.glo, self.buffer.glo, stamps_offset, base + TS_WORD * 4, TIMESTAMP_SLOTS * 8)
-        copy(visible_meta_buf.glo, self.buffer.glo, 0, base + VISIBLE_WORD * 4, 4)
+        copy(visible_meta_buf.glo, self.buffer.glo, Meta.COUNT * 4, base + VISIBLE_WORD * 4, 4)
+        copy(visible_meta_buf.glo, self.buffer.glo, Meta.GATHERS * 4, base + GATHER_WORD * 4, 4)
         if equal_buf is not None:
             copy(equal_buf.glo, self.buffer.glo, 0, base + EQUAL_WORD * 4, 4)
         self.pending.append(Pending(self.next_slot, self.glc.gl.fence(), tag))
@@ -74,7 +78,7 @@ class StatsRing:
             words = np.frombuffer(self.buffer.read(SLOT_WORDS * 4, offset=head.slot * SLOT_WORDS * 4), dtype=np.uint32)
             out.append(GPURecord(head.tag, words[:StateWord.WORDS].copy(),
                                  words[TS_WORD:TS_WORD + 2 * TIMESTAMP_SLOTS].view(np.uint64).copy(),
-                                 int(words[VISIBLE_WORD]), int(words[EQUAL_WORD])))
+                                 int(words[VISIBLE_WORD]), int(words[EQUAL_WORD]), int(words[GATHER_WORD])))
         return out
 
     def release(self) -> None:

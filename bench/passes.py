@@ -1,0 +1,75 @@
+"""Each pass of a progressive frame timed in isolation: glFinish before and after,
+wall-clock on the CPU. Slower than the pipelined frame, but unambiguous about
+where GPU time goes (timestamps attribute overlapping work to neighbouring passes)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from bench.progressive import SAMPLE, load
+from bench.synthetic import tiled
+from progressive.budget import BudgetParams
+from progressive.camera import auto_camera, view_uniforms
+from progressive.context import create_context
+from progressive.frame_loop import ProgressiveOptions, ProgressiveRenderer
+from progressive.passes.budget import Stamp
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--points", type=int, default=1_000_000)
+    ap.add_argument("--size", default="1920x1080")
+    ap.add_argument("--budget", type=int, default=10_000_000)
+    ap.add_argument("--out", default="bench/results/local")
+    args = ap.parse_args(argv)
+    width, height = (int(v) for v in args.size.split("x"))
+    glc = create_context()
+    cloud = tiled(str(SAMPLE), args.points)
+    scene, _ = load(glc, cloud)
+    r = ProgressiveRenderer(glc, cloud.info, cloud.attribute,
+                            ProgressiveOptions(width, height, budget=BudgetParams(fixed=args.budget)), scene=scene)
+    cam = auto_camera(cloud.info.bounds_min, cloud.info.bounds_max, width / height)
+    style = scene.style()
+    for _ in range(5):
+        r.frame(cam, style)
+    view = view_uniforms(cam, cloud.info.origin, width, height)
+    ctx = glc.ctx
+    rows: dict[str, list[float]] = {}
+
+    def timed(name, fn):
+        ctx.finish()
+        t0 = time.perf_counter()
+        fn()
+        ctx.finish()
+        rows.setdefault(name, []).append((time.perf_counter() - t0) * 1e3)
+
+    b, raster = r.budget, r.raster
+    for _ in range(7):
+        timed("clear", r.vis.clear)
+        timed("reproject", lambda: [raster.draw_list(view, r.prepare, p) for p in range(raster.passes)])
+        timed("budget begin", lambda: b.begin(False))
+        timed("fill first", lambda: [raster.draw_piece(view, b, k, p) for p in range(raster.passes) for k in (0, 1)])
+        timed("stamp", lambda: b.stamp(Stamp.FILL))
+        timed("budget adapt", b.adapt)
+        timed("fill rest", lambda: [raster.draw_piece(view, b, k, p) for p in range(raster.passes) for k in (2, 3)])
+        timed("prepare", r.prepare.run)
+        timed("resolve", lambda: r.resolve.run(style, r.prepare.pixel_words))
+        timed("brute force", lambda: (r.vis.clear(), raster.draw(view, 0, r.store.count)))
+        timed("empty", lambda: None)
+    med = {k: float(np.median(v[1:])) for k, v in rows.items()}
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"passes_{args.points}.json").write_text(json.dumps({"device": glc.caps.description, "points": args.points,
+                                                                  "budget": args.budget, "ms": med}, indent=2))
+    print(glc.caps.description, args.points, json.dumps(med))
+    r.release()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
