@@ -58,6 +58,8 @@ def summarize(stats, label, target_ms, points, converge_after=0):
         "pass_ms_median": {k: float(np.median([s.gpu_ms[k] for s in timed])) for k in ("reproject", "fill", "prepare", "resolve")},
         "fill_fraction_median": float(np.median([s.gpu_ms["fill"] / s.gpu_ms["frame"] for s in timed])),
         "budget_median": float(np.median([s.first_fill + s.budget for s in timed])),
+        "gathered_median": float(np.median([s.gathered for s in timed])),
+        "covered_median": float(np.median([s.covered_pixels for s in timed])),
         "converged_frame": converged,
         "ms_to_converge": float(sum(s.gpu_ms["frame"] for s in until)) if converged is not None else None,
     }
