@@ -25,14 +25,12 @@ class Binding(enum.IntEnum):
     FILL_STATE = 12
     FILL_ARGS = 13
     TIMESTAMPS = 14
-    SLOT_LIST = 15          # reprojection input: slots
-    SLOT_LIST_META = 16     # count, dispatch args, draw args, gathers
+    SLOT_LIST = 15          # reprojection input: meta words (count, indirect args, gathers), then slots
     REFERENCE = 17
     COUNTERS = 18
     LIST_RECORDS = 19       # reprojection input: record copies
-    OUT_SLOTS = 20          # prepare output
+    OUT_SLOTS = 20          # prepare output, laid out as SLOT_LIST
     OUT_RECORDS = 21
-    OUT_META = 22
     HINT = 23               # per pixel: list index of the reprojected point that last improved it
     PIXEL_WORDS = 24        # per pixel: attribute word of the visible point
 

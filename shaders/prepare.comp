@@ -5,7 +5,8 @@
 // store (a point filled this frame): random lookups into gigabytes are what a frame
 // pays for most, so only new winners make them. One global atomicAdd per work group.
 // With ARGS, a 1x1x1 dispatch turns the count into indirect arguments for the next
-// reprojection (dispatch at word 1, draw at word 4).
+// reprojection (dispatch at word 1, draw at word 4). A list's meta words head its
+// slot buffer: NVIDIA allows 16 storage blocks a shader and 8 hold the store.
 #if ARGS
 layout(local_size_x = 1) in;
 #else
@@ -13,7 +14,7 @@ layout(local_size_x = 16, local_size_y = 16) in;
 #endif
 #include "common.glsl"
 
-layout(std430, binding = BINDING_OUT_META) buffer OutMeta { uint out_meta[]; };
+layout(std430, binding = BINDING_OUT_SLOTS) buffer OutSlots { uint out_meta[META_WORDS]; uint out_slots[]; };
 uniform uint u_capacity;
 
 #if ARGS
@@ -32,11 +33,9 @@ void main() {
 #else
 #include "points.glsl"
 layout(std430, binding = BINDING_VISIBILITY) readonly buffer Visibility { uint visibility[]; };
-layout(std430, binding = BINDING_SLOT_LIST) readonly buffer PrevSlots { uint prev_slots[]; };
+layout(std430, binding = BINDING_SLOT_LIST) readonly buffer PrevSlots { uint prev_meta[META_WORDS]; uint prev_slots[]; };
 layout(std430, binding = BINDING_LIST_RECORDS) readonly buffer PrevRecords { uvec4 prev_records[]; };
-layout(std430, binding = BINDING_SLOT_LIST_META) readonly buffer PrevMeta { uint prev_meta[]; };
 layout(std430, binding = BINDING_HINT) readonly buffer Hint { uint hint[]; };
-layout(std430, binding = BINDING_OUT_SLOTS) writeonly buffer OutSlots { uint out_slots[]; };
 layout(std430, binding = BINDING_OUT_RECORDS) writeonly buffer OutRecords { uvec4 out_records[]; };
 layout(std430, binding = BINDING_PIXEL_WORDS) writeonly buffer PixelWords { uint pixel_words[]; };
 uniform uvec2 u_size;

@@ -194,3 +194,16 @@ def test_reprojection_list_holds_record_copies_and_avoids_gathers(gl, cloud):
     later = stats[-1]
     assert later.gathered < 0.2 * later.covered_pixels, (later.gathered, later.covered_pixels)
     pr.release()
+
+
+def test_eight_chunk_store_converges(gl, cloud, brute):
+    """The largest store (8 buffers) must fit every pass within 16 storage blocks."""
+    info, batches = cloud
+    cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
+    pr = ProgressiveRenderer(gl, info, default_attribute(info),
+                             ProgressiveOptions(W, H, budget=BudgetParams(fixed=B), chunk_points=-(-info.points // 8)))
+    assert len(pr.store.buffers) == 8
+    for b in batches:
+        pr.add_batch(b)
+    assert frames_until_equal(gl, pr, cam, pr.scene.style(), brute(cam), math.ceil(info.points / B) + 1)
+    pr.release()

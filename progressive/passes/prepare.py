@@ -32,45 +32,42 @@ class Meta(enum.IntEnum):
 
 
 class SlotList:
-    """Visible points: slots, record copies and meta words. Capacity is the pixel
-    count, so it cannot overflow (the GPU checks anyway)."""
+    """Visible points: meta words then slots in one buffer (`meta`), and record copies.
+    Capacity is the pixel count, so it cannot overflow (the GPU checks anyway)."""
 
     DISPATCH_OFFSET = Meta.DISPATCH * 4
+    META_BYTES = Meta.WORDS * 4
 
     def __init__(self, glc: GLContext, capacity: int, label: str):
         self.glc = glc
         self.capacity = capacity
-        self.slots = glc.ctx.buffer(reserve=max(4, capacity * 4))
-        self.slots.label = f"{label} slots"
+        self.meta = glc.ctx.buffer(reserve=self.META_BYTES + max(4, capacity * 4))
+        self.meta.label = f"{label} slots"
         self.records = glc.ctx.buffer(reserve=max(16, capacity * RECORD_BYTES))
         self.records.label = f"{label} records"
-        self.meta = glc.ctx.buffer(reserve=Meta.WORDS * 4)
-        self.meta.label = f"{label} meta"
         self.reset()
 
     def reset(self) -> None:
-        self.glc.gl.clear_u32(self.meta.glo, 0, total=self.meta.size)
+        self.glc.gl.clear_u32(self.meta.glo, 0, size=self.META_BYTES, total=self.meta.size)
 
     def bind_input(self) -> None:
-        self.slots.bind_to_storage_buffer(Binding.SLOT_LIST)
+        self.meta.bind_to_storage_buffer(Binding.SLOT_LIST)
         self.records.bind_to_storage_buffer(Binding.LIST_RECORDS)
-        self.meta.bind_to_storage_buffer(Binding.SLOT_LIST_META)
 
     def bind_output(self) -> None:
-        self.slots.bind_to_storage_buffer(Binding.OUT_SLOTS)
+        self.meta.bind_to_storage_buffer(Binding.OUT_SLOTS)
         self.records.bind_to_storage_buffer(Binding.OUT_RECORDS)
-        self.meta.bind_to_storage_buffer(Binding.OUT_META)
 
     def read(self) -> tuple[np.ndarray, np.ndarray]:
         """The listed slots and records (tests only: waits for the GPU)."""
         count = min(int(np.frombuffer(self.meta.read(4), dtype=np.uint32)[0]), self.capacity)
-        slots = np.frombuffer(self.slots.read(count * 4), dtype=np.uint32)
+        slots = np.frombuffer(self.meta.read(count * 4, offset=self.META_BYTES), dtype=np.uint32)
         records = np.frombuffer(self.records.read(count * RECORD_BYTES), dtype=np.uint32).reshape(-1, 4)
         return slots, records
 
     def release(self) -> None:
-        for b in (self.slots, self.records, self.meta):
-            b.release()
+        self.meta.release()
+        self.records.release()
 
 
 class PreparePass:

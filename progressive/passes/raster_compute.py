@@ -8,7 +8,7 @@ from progressive.camera import ViewUniforms
 from progressive.context import GLContext
 from progressive.gpu import grid
 from progressive.passes.budget import ARGS_BYTES, BudgetPass, layout_defines
-from progressive.passes.prepare import PreparePass
+from progressive.passes.prepare import Meta, PreparePass
 from progressive.passes.sources import Source
 from progressive.passes.visibility import VisibilityBuffer
 from progressive.pointstore import PointStore
@@ -42,7 +42,7 @@ class ComputeRaster:
         """Compiled at construction, so no frame pays for a compile."""
         key = (source, pass_index)
         if key not in self._programs:
-            defines = dict(self.store.defines, **Source.defines(source), **layout_defines())
+            defines = dict(self.store.defines, **Source.defines(source), **layout_defines(), **Meta.defines())
             if self.atomic64:
                 defines["ATOMIC64"] = 1
                 ext = ("GL_ARB_gpu_shader_int64", "GL_NV_shader_atomic_int64")
