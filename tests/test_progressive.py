@@ -201,7 +201,8 @@ def test_eight_chunk_store_converges(gl, cloud, brute):
     info, batches = cloud
     cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
     pr = ProgressiveRenderer(gl, info, default_attribute(info),
-                             ProgressiveOptions(W, H, budget=BudgetParams(fixed=B), chunk_points=-(-info.points // 8)))
+                             ProgressiveOptions(W, H, budget=BudgetParams(fixed=B), batches_per_frame=100,
+                                                chunk_points=-(-info.points // 8)))
     assert len(pr.store.buffers) == 8
     for b in batches:
         pr.add_batch(b)
