@@ -18,6 +18,8 @@ GAIN_ONE = 1024           # gain in 1/1024 units
 GAIN_MIN, GAIN_MAX = 128, 8192
 GAIN_STEP_MIN, GAIN_STEP_MAX = 820, 1250   # at most -20 % / +22 % per frame
 RAW_CAP = 2**48           # keeps raw budget x gain inside uint64 on the GPU
+FIRST_MIN = 1024          # the measured first fill never shrinks below this
+FIRST_SHARE = 4           # ... nor takes more than 1/4 of the goal at the measured rate
 
 
 @dataclass(frozen=True)
@@ -35,9 +37,14 @@ class BudgetParams:
     def goal_ns(self) -> int:
         return self.target_ns * (1024 - self.margin_q10) // 1024
 
-    def first(self, points: int) -> int:
-        """Points in the first (measured) fill of a frame."""
-        size = self.fixed if self.fixed is not None else self.first_fill
+    def first(self, points: int, state: BudgetState | None = None) -> int:
+        """Points in the first (measured) fill of a frame: the fixed budget, or the
+        configured first fill, shrunk on slow devices so it stays a fraction of the goal."""
+        if self.fixed is not None:
+            return min(self.fixed, points)
+        size = self.first_fill
+        if state is not None and state.next_first:
+            size = min(size, state.next_first)
         return min(size, points)
 
 
@@ -48,6 +55,7 @@ class BudgetState:
     rate_points: int = 0        # last valid measurement: points ...
     rate_ns: int = 0            # ... in this many nanoseconds
     gain_q10: int = GAIN_ONE
+    next_first: int = 0         # the next frame's first fill (0: the configured size)
 
 
 def elapsed(later: int, earlier: int) -> int | None:
@@ -79,6 +87,8 @@ def step(t_frame: int, t_fill: int, t_first: int, prev_frame_ns: int | None, fir
         budget = params.min_budget
     else:
         budget = min(state.rate_points * left // state.rate_ns, RAW_CAP) * state.gain_q10 // GAIN_ONE
+        share = state.rate_points * (goal // FIRST_SHARE) // state.rate_ns
+        state = replace(state, next_first=min(params.first_fill, max(FIRST_MIN, share)))
     return min(max(budget, params.min_budget), params.max_budget), state
 
 

@@ -10,7 +10,7 @@ layout(std430, binding = BINDING_TIMESTAMPS) readonly buffer Timestamps { uint64
 
 uniform int u_stage;
 uniform uint u_points;        // ring size: slots of the cloud
-uniform uint u_first_fill;
+uniform uint u_first_fill;    // the configured first fill (or fixed budget), not capped by the cloud
 uniform bool u_reset;         // the camera moved or points were added: count fills anew
 uniform bool u_fixed;
 uniform uint u_parity;        // this frame's timestamp block
@@ -60,7 +60,8 @@ void main() {
     uint base = u_parity * TIMESTAMP_SLOTS;
     if (u_stage == STAGE_BEGIN) {
         if (u_reset) state[STATE_FILLED] = 0u;
-        uint first = min(u_first_fill, u_points);
+        uint next_first = state[STATE_NEXT_FIRST];
+        uint first = min(u_fixed || next_first == 0u ? u_first_fill : min(next_first, u_first_fill), u_points);
         state[STATE_FIRST] = first;
         place(0u, first);
         return;
@@ -89,6 +90,9 @@ void main() {
         if (state[STATE_RATE_NS] != 0u) {
             raw = clamp64(uint64_t(state[STATE_RATE_POINTS]) * left / uint64_t(state[STATE_RATE_NS]), 0ul, 281474976710656ul);
             raw = raw * uint64_t(state[STATE_GAIN]) / 1024ul;
+            uint64_t share = uint64_t(state[STATE_RATE_POINTS]) * (goal / 4ul) / uint64_t(state[STATE_RATE_NS]);
+            share = share < 1024ul ? 1024ul : share;
+            state[STATE_NEXT_FIRST] = uint(share < uint64_t(u_first_fill) ? share : uint64_t(u_first_fill));
         }
         budget = uint(clamp64(raw, uint64_t(u_min_budget), uint64_t(u_max_budget)));
         uint first = state[STATE_FIRST];

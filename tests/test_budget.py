@@ -48,6 +48,18 @@ def test_timer_wrap():
     assert elapsed(5, U64 - 5) == 10 and elapsed(5, 10) is None
 
 
+def test_first_fill_shrinks_to_a_share_of_the_goal_on_slow_devices():
+    p = BudgetParams(target_ns=20 * MS, margin_q10=0, first_fill=1_000_000)
+    # 1,000,000 points took 50 ms: a quarter of the 20 ms goal holds 100,000
+    _, state = step(0, 0, 50 * MS, None, 1_000_000, BudgetState(), p)
+    assert state.next_first == 100_000 and p.first(10**9, state) == 100_000
+    _, fast = step(0, 0, MS, None, 1_000_000, BudgetState(), p)
+    assert fast.next_first == 1_000_000
+    _, slowest = step(0, 0, 10**9, None, 10, BudgetState(), p)
+    assert slowest.next_first == 1024
+    assert BudgetParams(fixed=5).first(100, slowest) == 5
+
+
 def test_no_rate_yet_gives_minimum():
     p = BudgetParams(min_budget=123)
     assert step(0, 0, 0, None, 0, BudgetState(), p)[0] == 123
@@ -151,8 +163,8 @@ def test_gpu_budget_equals_pure_function(gl, case, points):
     budget, state = step(t_frame, t_fill, t_first, prev_ns, first_points, BudgetState(rp, rn, gain), params)
     budget = frame_fill(budget, first_points, points)
     assert got[StateWord.BUDGET] == budget
-    assert (got[StateWord.RATE_POINTS], got[StateWord.RATE_NS], got[StateWord.GAIN]) == \
-        (state.rate_points, state.rate_ns, state.gain_q10)
+    assert (got[StateWord.RATE_POINTS], got[StateWord.RATE_NS], got[StateWord.GAIN], got[StateWord.NEXT_FIRST]) == \
+        (state.rate_points, state.rate_ns, state.gain_q10, state.next_first)
     piece0, piece1, after_first = split_ring(offset, first_points, points)
     piece2, piece3, after = split_ring(after_first, budget, points)
     pieces = got[StateWord.PIECES: StateWord.PIECES + 8].reshape(4, 2)

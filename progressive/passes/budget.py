@@ -33,6 +33,7 @@ class StateWord(enum.IntEnum):
     FILLED = 4          # ring slots filled since the last reset, saturating at the cloud size
     BUDGET = 5          # the adaptive part of this frame
     FIRST = 6           # the fixed first part of this frame
+    NEXT_FIRST = 7      # the next frame's first part (adaptive: a share of the goal)
     PIECES = 8          # FILL_PIECES x (first slot, count)
     WORDS = 16
 
@@ -92,7 +93,7 @@ class BudgetPass:
         p, params = self.program, self.params
         p["u_stage"] = int(stage)
         p["u_points"] = self.points
-        p["u_first_fill"] = params.first(self.points)
+        p["u_first_fill"] = min(params.fixed if params.fixed is not None else params.first_fill, 2**32 - 1)
         p["u_reset"] = reset
         p["u_fixed"] = params.fixed is not None
         p["u_parity"] = self.parity
