@@ -19,6 +19,7 @@ GAIN_MIN, GAIN_MAX = 128, 8192
 GAIN_STEP_MIN, GAIN_STEP_MAX = 820, 1250   # at most -20 % / +22 % per frame
 RAW_CAP = 2**48           # keeps raw budget x gain inside uint64 on the GPU
 FIRST_MIN = 1024          # the measured first fill never shrinks below this
+FIRST_INITIAL = 65_536    # before any measurement: small, the adaptive part adds the rest
 FIRST_SHARE = 4           # ... nor takes more than 1/4 of the goal at the measured rate
 
 
@@ -42,10 +43,8 @@ class BudgetParams:
         configured first fill, shrunk on slow devices so it stays a fraction of the goal."""
         if self.fixed is not None:
             return min(self.fixed, points)
-        size = self.first_fill
-        if state is not None and state.next_first:
-            size = min(size, state.next_first)
-        return min(size, points)
+        known = state.next_first if state is not None and state.next_first else FIRST_INITIAL
+        return min(self.first_fill, known, points)
 
 
 @dataclass(frozen=True)

@@ -61,7 +61,8 @@ void main() {
     if (u_stage == STAGE_BEGIN) {
         if (u_reset) state[STATE_FILLED] = 0u;
         uint next_first = state[STATE_NEXT_FIRST];
-        uint first = min(u_fixed || next_first == 0u ? u_first_fill : min(next_first, u_first_fill), u_points);
+        uint known = next_first == 0u ? FIRST_INITIAL : next_first;
+        uint first = min(u_fixed ? u_first_fill : min(known, u_first_fill), u_points);
         state[STATE_FIRST] = first;
         place(0u, first);
         return;

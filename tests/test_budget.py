@@ -53,6 +53,7 @@ def test_first_fill_shrinks_to_a_share_of_the_goal_on_slow_devices():
     # 1,000,000 points took 50 ms: a quarter of the 20 ms goal holds 100,000
     _, state = step(0, 0, 50 * MS, None, 1_000_000, BudgetState(), p)
     assert state.next_first == 100_000 and p.first(10**9, state) == 100_000
+    assert p.first(10**9) == 65_536 and p.first(1000) == 1000
     _, fast = step(0, 0, MS, None, 1_000_000, BudgetState(), p)
     assert fast.next_first == 1_000_000
     _, slowest = step(0, 0, 10**9, None, 10, BudgetState(), p)
@@ -68,6 +69,7 @@ def test_no_rate_yet_gives_minimum():
 def test_fixed_budget_has_no_adaptive_part():
     p = BudgetParams(fixed=5000)
     assert p.first(100_000) == 5000 and p.first(10) == 10
+    assert BudgetParams(first_fill=100).first(10**6) == 100
     assert step(0, 0, MS, 10 * MS, 5000, BudgetState(), p)[0] == 0
 
 

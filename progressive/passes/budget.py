@@ -11,7 +11,7 @@ import numpy as np
 
 from progressive import shaderlib
 from progressive.bindings import Binding
-from progressive.budget import GAIN_ONE, BudgetParams
+from progressive.budget import FIRST_INITIAL, GAIN_ONE, BudgetParams
 from progressive.context import GLContext
 from progressive.glext import GL_QUERY_BUFFER, GL_QUERY_RESULT, GL_TIMESTAMP
 
@@ -52,6 +52,7 @@ def layout_defines() -> dict[str, int]:
     d.update({f"TS_{s.name}": int(s) for s in Stamp})
     d.update({f"STAGE_{s.name}": int(s) for s in Stage})
     d["TIMESTAMP_SLOTS"] = TIMESTAMP_SLOTS
+    d["FIRST_INITIAL"] = f"{FIRST_INITIAL}u"
     return d
 
 
