@@ -408,6 +408,8 @@ def _checked_count(path: str, raw: RawHeader, size: int, partial: bool, warnings
 def _laz_layout(path: str, stream, header: laspy.LasHeader, count: int) -> LazLayout:
     """LazrsParallel where a readable chunk table allows it (and then the count is checked
     against the table); the sequential decoder otherwise, which fails on a short read."""
+    if not laspy.LazBackend.Lazrs.is_available():
+        raise fail(path, "is LAZ but no LAZ decoder is installed (pip install 'laspy[lazrs]')")
     try:
         vlr_data = bytes(header.vlrs.get("LasZipVlr")[0].record_data)
         vlr = lazrs.LazVlr(vlr_data)

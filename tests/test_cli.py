@@ -227,3 +227,15 @@ def test_malformed_camera_path(tmp_path, capsys):
     bad.write_text('[{"position": [0, -5, 1], "target": [0, 0, 0]}, {"position": "x"}]')
     code, _, err = run(capsys, "render", *SMALL, "--method", "progressive", "--camera-path", bad, "--out", tmp_path / "x.png")
     assert code == 2 and "camera 1" in err and err.count("\n") == 1
+
+
+def test_laz_without_backend(tmp_path, capsys, monkeypatch):
+    import laspy
+
+    from conftest import shared_file
+
+    laz = shared_file("pine_plot.laz")
+    monkeypatch.setattr(laspy.LazBackend, "is_available", lambda self: False)
+    code, _, err = run(capsys, "render", *SMALL, laz, "--out", tmp_path / "x.png")
+    assert code == 2 and "no LAZ decoder" in err and err.count("\n") == 1, err
+    assert not (tmp_path / "x.png").exists()
