@@ -14,7 +14,6 @@ from progressive.budget import BudgetParams
 from progressive.camera import Camera, view_uniforms
 from progressive.colors import ColorStyle
 from progressive.context import GLContext
-from progressive.errors import ProgressiveError
 from progressive.loaders.types import AttributeInfo, Batch, CloudInfo
 from progressive.passes.budget import TIMESTAMP_SLOTS, BudgetPass, Stamp, StateWord
 from progressive.passes.compare import ComparePass
@@ -75,8 +74,6 @@ class ProgressiveRenderer:
     def __init__(self, glc: GLContext, info: CloudInfo, attribute: AttributeInfo,
                  options: ProgressiveOptions = ProgressiveOptions(), scene: Scene | None = None):
         """`scene`: a cloud already on the GPU to render (kept on release)."""
-        if options.raster is Raster.POINTS:
-            raise ProgressiveError("progressive rendering runs on the compute rasterizers; GL_POINTS is brute-force only")
         self.glc, self.info, self.options = glc, info, options
         self._own_scene = scene is None
         self.scene = scene or Scene(glc, info, attribute, chunk_points=options.chunk_points)
@@ -86,7 +83,7 @@ class ProgressiveRenderer:
         self.budget = BudgetPass(glc, info.points, options.budget)
         self.prepare = PreparePass(glc, self.store, self.vis)
         self.resolve = ResolvePass(glc, self.store, self.vis, pixel_words=True)
-        self.compare = ComparePass(glc, self.store, self.vis, atomic64=self.raster.atomic64) if options.reference else None
+        self.compare = ComparePass(glc, self.store, self.vis, atomic64=glc.caps.atomic_int64) if options.reference else None
         self.stats_ring = StatsRing(glc)
         self.pending: deque[Batch] = deque()
         self.frame_index = 0
@@ -154,6 +151,7 @@ class ProgressiveRenderer:
             passes.append("reproject")
         b.stamp(Stamp.FRAME)
         self.vis.clear()
+        raster.begin_frame()
         for p in range(raster.passes):
             if self._has_visible:
                 raster.draw_list(view, self.prepare, p)
@@ -167,6 +165,7 @@ class ProgressiveRenderer:
                 b.adapt()
             raster.draw_piece(view, b, 2, p)
             raster.draw_piece(view, b, 3, p)
+        raster.end_frame(view)
         b.stamp(Stamp.FILL_END)
         self.prepare.run()
         self._has_visible = True

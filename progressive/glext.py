@@ -16,6 +16,8 @@ GL_TIMESTAMP = 0x8E28
 GL_QUERY_RESULT = 0x8866
 GL_QUERY_RESULT_AVAILABLE = 0x8867
 GL_QUERY_BUFFER = 0x9192
+GL_DRAW_INDIRECT_BUFFER = 0x8F3F
+GL_POINTS = 0x0000
 GL_SYNC_GPU_COMMANDS_COMPLETE = 0x9117
 GL_SYNC_FLUSH_COMMANDS_BIT = 0x1
 GL_ALREADY_SIGNALED = 0x911A
@@ -55,6 +57,9 @@ class GLFunctions:
     client_wait_sync: Callable
     delete_sync: Callable
     copy_named_buffer_sub_data: Callable
+    use_program: Callable
+    bind_vertex_array: Callable
+    draw_arrays_indirect: Callable
 
     @classmethod
     def load(cls, loader: ProcLoader) -> GLFunctions:
@@ -78,6 +83,9 @@ class GLFunctions:
             client_wait_sync=fn("glClientWaitSync", _vp, _u, ctypes.c_uint64, restype=_u),
             delete_sync=fn("glDeleteSync", _vp),
             copy_named_buffer_sub_data=fn("glCopyNamedBufferSubData", _u, _u, _iptr, _iptr, _iptr),
+            use_program=fn("glUseProgram", _u),
+            bind_vertex_array=fn("glBindVertexArray", _u),
+            draw_arrays_indirect=fn("glDrawArraysIndirect", _u, _vp),
         )
 
     def clear_u32(self, glo: int, value: int, offset: int = 0, size: int | None = None, *, total: int) -> None:
@@ -85,6 +93,16 @@ class GLFunctions:
         word = ctypes.c_uint32(value & 0xFFFFFFFF)
         length = total - offset if size is None else size
         self.clear_named_buffer_sub_data(glo, GL_R32UI, offset, length, GL_RED_INTEGER, GL_UNSIGNED_INT, ctypes.byref(word))
+
+    def draw_points_indirect(self, program_glo: int, vao_glo: int, args_glo: int, offset: int) -> None:
+        """glDrawArraysIndirect(GL_POINTS) with arguments a compute pass wrote (moderngl's
+        render_indirect assumes a 20-byte command stride)."""
+        self.use_program(program_glo)
+        self.bind_vertex_array(vao_glo)
+        self.bind_buffer(GL_DRAW_INDIRECT_BUFFER, args_glo)
+        self.draw_arrays_indirect(GL_POINTS, ctypes.c_void_p(offset))
+        self.bind_buffer(GL_DRAW_INDIRECT_BUFFER, 0)
+        self.bind_vertex_array(0)
 
     def fence(self) -> int:
         return self.fence_sync(GL_SYNC_GPU_COMMANDS_COMPLETE, 0)

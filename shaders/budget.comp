@@ -35,6 +35,11 @@ void write_piece(uint piece, uint first, uint count) {
     args[3u * piece] = gx;
     args[3u * piece + 1u] = gy;
     args[3u * piece + 2u] = 1u;
+    // the same piece as DrawArraysIndirectCommand for the GL_POINTS baseline
+    args[DRAW_ARGS_WORD + 4u * piece] = count;
+    args[DRAW_ARGS_WORD + 4u * piece + 1u] = 1u;
+    args[DRAW_ARGS_WORD + 4u * piece + 2u] = 0u;
+    args[DRAW_ARGS_WORD + 4u * piece + 3u] = 0u;
 }
 
 // split_ring(): two contiguous pieces of [offset, offset+count) on the ring.

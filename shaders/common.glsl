@@ -2,6 +2,13 @@
 
 const uint EMPTY = 0xFFFFFFFFu;
 
+// Empty slots and non-finite coordinates are never drawn.
+bool finite_position(uvec4 record) {
+    uvec3 exponent = record.xyz & uvec3(0x7F800000u);
+    return all(notEqual(exponent, uvec3(0x7F800000u)));
+}
+
+#ifndef VERTEX_STAGE
 // Invocation i of a 1-D range spread over a 2-D grid of 1-D work groups (GL only
 // guarantees 65535 groups per dimension). False past `count`; never overflows.
 bool range_index(uint count, out uint i) {
@@ -12,6 +19,7 @@ bool range_index(uint count, out uint i) {
     i = base + gl_LocalInvocationID.x;
     return true;
 }
+#endif
 
 #ifdef PERMUTE_INT64
 uint mulmod(uint a, uint b, uint p) {

@@ -85,9 +85,3 @@ void store_point(uint slot, uvec4 record, int component) {
     }
 #undef STORE
 }
-
-// Empty slots and non-finite coordinates are never drawn.
-bool finite_position(uvec4 record) {
-    uvec3 exponent = record.xyz & uvec3(0x7F800000u);
-    return all(notEqual(exponent, uvec3(0x7F800000u)));
-}

@@ -1,22 +1,38 @@
 // The paper's baseline: GL_POINTS with a hardware depth test. The pixel comes from
 // the same project() as the compute rasterizer and the vertex sits at its centre, so
 // sub-pixel snapping cannot move a point across a pixel edge; depth is linear in
-// [near, far]. Rejected points are placed outside the clip volume.
-#include "camera.glsl"
-
+// [near, far]. Rejected points are placed outside the clip volume. Brute force reads
+// vertex attributes from one store chunk; progressive frames (VERTEX_PULLING) read
+// their points from the same sources as the compute rasterizer, by gl_VertexID.
+#define VERTEX_STAGE 1
+#include "common.glsl"
+#if VERTEX_PULLING
+#include "points.glsl"
+#include "sources.glsl"
+#else
 in vec3 a_position;
 uniform uint u_chunk_base;   // slot of the chunk's first record
+#endif
+#include "camera.glsl"
+
 flat out uint v_slot;
 flat out uint v_depth_bits;
 
 void main() {
-    v_slot = u_chunk_base + uint(gl_VertexID);
     gl_PointSize = 1.0;
     gl_Position = vec4(2.0, 2.0, 2.0, 1.0);
-    uvec3 exponent = floatBitsToUint(a_position) & uvec3(0x7F800000u);
+#if VERTEX_PULLING
+    uint i = uint(gl_VertexID);
+    if (i >= source_count()) return;
+    v_slot = source_slot(i);
+    uvec4 record = source_record(i, v_slot);
+#else
+    v_slot = u_chunk_base + uint(gl_VertexID);
+    uvec4 record = uvec4(floatBitsToUint(a_position), 0u);
+#endif
     uint pixel;
     float depth;
-    if (any(equal(exponent, uvec3(0x7F800000u))) || !project(a_position, pixel, depth)) return;
+    if (!finite_position(record) || !project(uintBitsToFloat(record.xyz), pixel, depth)) return;
     v_depth_bits = floatBitsToUint(depth);
     uint row = pixel / u_size.x;
     uint col = pixel - row * u_size.x;

@@ -18,6 +18,8 @@ from progressive.glext import GL_QUERY_BUFFER, GL_QUERY_RESULT, GL_TIMESTAMP
 FILL_PIECES = 4            # first fill and adaptive fill, each possibly wrapped in two
 TIMESTAMP_SLOTS = 8
 ARGS_BYTES = 12            # one DispatchIndirectCommand
+DRAW_ARGS_WORD = FILL_PIECES * 3
+DRAW_ARGS_BYTES = 16       # one DrawArraysIndirectCommand
 
 
 class Stage(enum.IntEnum):
@@ -53,6 +55,7 @@ def layout_defines() -> dict[str, int]:
     d.update({f"STAGE_{s.name}": int(s) for s in Stage})
     d["TIMESTAMP_SLOTS"] = TIMESTAMP_SLOTS
     d["FIRST_INITIAL"] = f"{FIRST_INITIAL}u"
+    d["DRAW_ARGS_WORD"] = f"{DRAW_ARGS_WORD}u"
     return d
 
 
@@ -66,7 +69,7 @@ class BudgetPass:
         initial[StateWord.GAIN] = GAIN_ONE
         self.state = ctx.buffer(initial.tobytes())
         self.state.label = "fill state"
-        self.args = ctx.buffer(reserve=FILL_PIECES * ARGS_BYTES)
+        self.args = ctx.buffer(reserve=FILL_PIECES * (ARGS_BYTES + DRAW_ARGS_BYTES))
         self.args.label = "fill dispatch args"
         self.stamps = ctx.buffer(reserve=2 * TIMESTAMP_SLOTS * 8)
         self.stamps.label = "timestamps"
@@ -75,6 +78,10 @@ class BudgetPass:
         self.program = shaderlib.compute(ctx, "budget.comp", layout_defines(), ("GL_ARB_gpu_shader_int64",), "budget")
         self.parity = 0
         self.have_prev = False
+
+    @staticmethod
+    def draw_offset(piece: int) -> int:
+        return DRAW_ARGS_WORD * 4 + piece * DRAW_ARGS_BYTES
 
     def bind(self) -> None:
         self.state.bind_to_storage_buffer(Binding.FILL_STATE)

@@ -36,6 +36,7 @@ class SlotList:
     Capacity is the pixel count, so it cannot overflow (the GPU checks anyway)."""
 
     DISPATCH_OFFSET = Meta.DISPATCH * 4
+    DRAW_OFFSET = Meta.DRAW * 4
     META_BYTES = Meta.WORDS * 4
 
     def __init__(self, glc: GLContext, capacity: int, label: str):

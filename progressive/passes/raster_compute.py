@@ -54,6 +54,12 @@ class ComputeRaster:
             self._programs[key] = shaderlib.compute(self.glc.ctx, "raster_compute.comp", defines, ext, label)
         return self._programs[key]
 
+    def begin_frame(self) -> None:
+        """Nothing to set up: the frame loop clears the visibility buffer."""
+
+    def end_frame(self, view: ViewUniforms) -> None:
+        """Nothing to gather: atomics wrote the visibility buffer directly."""
+
     def _prepare(self, source: Source, pass_index: int, view: ViewUniforms):
         program = self.program(source, pass_index)
         set_view(program, view)

@@ -11,25 +11,40 @@ from progressive.bindings import Binding
 from progressive.camera import ViewUniforms
 from progressive.context import GLContext
 from progressive.gpu import grid_2d
+from progressive.passes.budget import BudgetPass, layout_defines
+from progressive.passes.prepare import Meta, PreparePass
 from progressive.passes.raster_compute import set_view
+from progressive.passes.sources import Source
 from progressive.passes.visibility import EMPTY, VisibilityBuffer
 from progressive.pointstore import PointStore
 
 
 class PointsRaster:
+    """`passes` is 1. A frame is begin_frame(), draws, end_frame(); draw() is a whole
+    brute-force frame from vertex buffers, as in the paper."""
+
+    passes = 1
+
     def __init__(self, glc: GLContext, store: PointStore, vis: VisibilityBuffer):
         self.glc, self.store, self.vis = glc, store, vis
         ctx = glc.ctx
-        self.program = ctx.program(
-            vertex_shader=shaderlib.source("raster_points.vert"),
-            fragment_shader=shaderlib.source("raster_points.frag"),
-        )
-        self.program.label = "raster points"
+        self.program = self._program({"VERTEX_PULLING": 0}, "raster points")
         self.vaos = [ctx.vertex_array(self.program, [(buf, "3f4 x4", "a_position")]) for buf in store.buffers]
+        defines = dict(store.defines, **layout_defines(), **Meta.defines(), VERTEX_PULLING=1)
+        self.pulling = {s: self._program(dict(defines, **Source.defines(s)), f"raster points {s.name.lower()}")
+                        for s in (Source.PIECE, Source.LIST)}
+        self.empty_vaos = {s: ctx.vertex_array(p, []) for s, p in self.pulling.items()}
         self.gather = shaderlib.compute(ctx, "points_gather.comp", label="points gather")
         self.size = (0, 0)
         self.fbo = None
         self._targets = []
+        self._previous = None
+
+    def _program(self, defines, label):
+        program = self.glc.ctx.program(vertex_shader=shaderlib.source("raster_points.vert", defines),
+                                       fragment_shader=shaderlib.source("raster_points.frag"))
+        program.label = label
+        return program
 
     def _ensure_targets(self) -> None:
         size = (self.vis.width, self.vis.height)
@@ -48,26 +63,26 @@ class PointsRaster:
         self._targets = [self.fbo, slots, depths, depth]
         self.size = size
 
-    def draw(self, view: ViewUniforms, first: int, count: int) -> None:
-        """Draw slots [first, first+count) into fresh targets and overwrite the
-        visibility buffer with the result (the baseline renders whole frames only)."""
+    def begin_frame(self) -> None:
+        """Empty targets, bound with a depth test, until end_frame()."""
         self._ensure_targets()
         ctx = self.glc.ctx
         _, slots, depths, _ = self._targets
-        previous = ctx.fbo or ctx.detect_framebuffer()
+        self._previous = ctx.fbo or ctx.detect_framebuffer()
         self.fbo.use()
         self.fbo.clear(depth=1.0)
         self.glc.gl.clear_texture_u32(slots.glo, EMPTY)
         self.glc.gl.clear_texture_u32(depths.glo, EMPTY)
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.depth_func = "<"
-        set_view(self.program, view)
-        for chunk, local_first, n in self.store.chunk_ranges(first, count):
-            self.program["u_chunk_base"] = chunk * self.store.chunk_points
-            self.vaos[chunk].render(moderngl.POINTS, vertices=n, first=local_first)
+
+    def end_frame(self, view: ViewUniforms) -> None:
+        """Gather the attachments into the visibility buffer (overwriting it)."""
+        ctx = self.glc.ctx
         ctx.disable(moderngl.DEPTH_TEST)
-        previous.use()
+        self._previous.use()
         ctx.memory_barrier()
+        _, slots, depths, _ = self._targets
         slots.use(0)
         depths.use(1)
         self.gather["u_slots"] = 0
@@ -77,6 +92,32 @@ class PointsRaster:
         self.gather.run(*grid_2d(*view.size))
         ctx.memory_barrier()
 
+    def draw(self, view: ViewUniforms, first: int, count: int) -> None:
+        """A whole frame of slots [first, first+count) from vertex buffers, chunk by chunk."""
+        self.begin_frame()
+        set_view(self.program, view)
+        for chunk, local_first, n in self.store.chunk_ranges(first, count):
+            self.program["u_chunk_base"] = chunk * self.store.chunk_points
+            self.vaos[chunk].render(moderngl.POINTS, vertices=n, first=local_first)
+        self.end_frame(view)
+
+    def _pull(self, source: Source, view: ViewUniforms, args_buffer, offset: int) -> None:
+        program = self.pulling[source]
+        set_view(program, view)
+        self.store.bind()
+        self.glc.ctx.memory_barrier()
+        self.glc.gl.draw_points_indirect(program.glo, self.empty_vaos[source].glo, args_buffer.glo, offset)
+
+    def draw_piece(self, view: ViewUniforms, budget: BudgetPass, piece: int, pass_index: int) -> None:
+        self.pulling[Source.PIECE]["u_piece"] = piece
+        budget.bind()
+        self._pull(Source.PIECE, view, budget.args, budget.draw_offset(piece))
+
+    def draw_list(self, view: ViewUniforms, prepare: PreparePass, pass_index: int) -> None:
+        self.pulling[Source.LIST]["u_capacity"] = prepare.capacity
+        prepare.bind_reprojection()
+        self._pull(Source.LIST, view, prepare.previous.meta, prepare.previous.DRAW_OFFSET)
+
     def release(self) -> None:
-        for obj in [*self._targets, *self.vaos, self.program, self.gather]:
+        for obj in [*self._targets, *self.vaos, *self.empty_vaos.values(), self.program, *self.pulling.values(), self.gather]:
             obj.release()
