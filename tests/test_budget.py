@@ -172,7 +172,10 @@ def test_gpu_budget_equals_pure_function(gl, case, points):
     pieces = got[StateWord.PIECES: StateWord.PIECES + 8].reshape(4, 2)
     assert [tuple(x) for x in pieces.tolist()] == [piece0, piece1, piece2, piece3]
     assert got[StateWord.OFFSET] == after
-    args = np.frombuffer(bp.args.read(), dtype=np.uint32).reshape(4, 3)
-    for (first_slot, count), (gx, gy, gz) in zip([piece0, piece1, piece2, piece3], args):
+    words = np.frombuffer(bp.args.read(), dtype=np.uint32)
+    dispatch = words[:12].reshape(4, 3)
+    draws = words[12:28].reshape(4, 4)
+    for (first_slot, count), (gx, gy, gz), draw in zip([piece0, piece1, piece2, piece3], dispatch, draws):
         assert gx * gy * 256 >= count and gz == 1 and gx <= 65535
+        assert draw.tolist() == [count, 1, 0, 0]
     bp.release()
