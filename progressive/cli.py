@@ -106,6 +106,20 @@ def budget_arg(text: str) -> int | None:
     return value
 
 
+def bytes_arg(text: str) -> int:
+    """A size such as 512M, 2G or 1.5GiB (powers of 1024)."""
+    units = {"": 1, "K": 2**10, "M": 2**20, "G": 2**30, "T": 2**40}
+    t = text.strip().upper().removesuffix("IB").removesuffix("B")
+    unit = t[-1] if t and t[-1] in units else ""
+    try:
+        value = float(t[: len(t) - len(unit)]) * units[unit]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a size like 512M or 2G") from None
+    if not 0 < value < 2**50:
+        raise argparse.ArgumentTypeError(f"size {text} is out of range")
+    return int(value)
+
+
 def positive_float(text: str) -> float:
     try:
         value = float(text)
@@ -150,7 +164,8 @@ def session_options(args):
     budget = BudgetParams(target_ns=int(args.target_ms * 1e6), fixed=args.budget)
     return SessionOptions(width=args.width, height=args.height, method=args.method, raster=args.raster,
                           budget=budget, reference=args.reference or args.converge, color_by=args.color_by,
-                          colormap=args.colormap, background=args.background, partial=args.partial)
+                          colormap=args.colormap, background=args.background, partial=args.partial,
+                          gpu_memory_limit=args.gpu_memory_limit)
 
 
 def cmd_render(args) -> int:
@@ -218,6 +233,7 @@ def _stats(session, camera, frames: int, converged_at: int | None) -> dict:
         "raster": renderer.raster_path,
         "points": session.info.points,
         "points_loaded": renderer.scene.loaded,
+        "points_on_gpu": renderer.scene.store.capacity,
         "load_seconds": session.load_seconds,
         "load_points_per_second": renderer.scene.loaded / session.load_seconds if session.load_seconds else None,
         "first_image_seconds": session.first_image_seconds,
@@ -292,6 +308,8 @@ def build_parser() -> Parser:
     render.add_argument("--max-frames", type=size_arg, default=1000, help="limit for --converge")
     render.add_argument("--camera-path", help="JSON list of cameras, one per frame")
     render.add_argument("--reference", action="store_true", help="report per frame the share of pixels equal to brute force")
+    render.add_argument("--gpu-memory-limit", type=bytes_arg, help="GPU memory to use, e.g. 4G; a larger cloud shows "
+                        "a uniform random subset (the free memory the driver reports also counts)")
     render.set_defaults(func=cmd_render)
 
     convert = sub.add_parser("convert", help="write the fast GPU-layout format")

@@ -39,6 +39,7 @@ class ProgressiveOptions:
     reference: bool = False             # count pixels equal to the brute-force render (costs a brute render a frame)
     chunk_points: int | None = None
     frames_in_flight: int | None = None  # headless pacing, as a swap chain paces a window; None: no limit
+    capacity: int | None = None         # points kept on the GPU (progressive/memory.py); None: all
 
 
 @dataclass(frozen=True)
@@ -76,11 +77,11 @@ class ProgressiveRenderer:
         """`scene`: a cloud already on the GPU to render (kept on release)."""
         self.glc, self.info, self.options = glc, info, options
         self._own_scene = scene is None
-        self.scene = scene or Scene(glc, info, attribute, chunk_points=options.chunk_points)
+        self.scene = scene or Scene(glc, info, attribute, chunk_points=options.chunk_points, capacity=options.capacity)
         self.store = self.scene.store
         self.vis = VisibilityBuffer(glc, options.width, options.height)
         self.raster = make_raster(glc, self.store, self.vis, options.raster)
-        self.budget = BudgetPass(glc, info.points, options.budget)
+        self.budget = BudgetPass(glc, self.store.capacity, options.budget)
         self.prepare = PreparePass(glc, self.store, self.vis)
         self.resolve = ResolvePass(glc, self.store, self.vis, pixel_words=True)
         self.compare = ComparePass(glc, self.store, self.vis, atomic64=glc.caps.atomic_int64) if options.reference else None
@@ -199,14 +200,14 @@ class ProgressiveRenderer:
 
     def _idle_frame(self, passes: tuple[str, ...]) -> None:
         """A converged frame: nothing to measure on the GPU."""
-        self.history.append(FrameStats(self.frame_index, passes, self.scene.loaded, 0, 0, self.info.points, 0, 0, {}, None))
+        self.history.append(FrameStats(self.frame_index, passes, self.scene.loaded, 0, 0, self.store.capacity, 0, 0, {}, None))
         self.frame_index += 1
 
     def _take(self, records: list[GPURecord]) -> None:
         for r in records:
             tag: FrameTag = r.tag
             filled = int(r.state[StateWord.FILLED])
-            if tag.change == self.change and tag.points_loaded == self.info.points and filled >= self.info.points:
+            if tag.change == self.change and tag.points_loaded == self.info.points and filled >= self.store.capacity:
                 self.converged_change = tag.change
             t = r.stamps.astype(np.int64)
             gpu_ms = {name: (t[b] - t[a]) / 1e6 for name, (a, b) in PASS_TIMES.items()}

@@ -13,28 +13,41 @@ EMPTY_WORD = 0xFFFFFFFF
 """Every slot starts as NaN coordinates, which no pass draws: unloaded slots stay dark."""
 
 
+class GPUMemoryError(ProgressiveError):
+    """An allocation the driver refused (GL_OUT_OF_MEMORY)."""
+
+
 def chunk_capacity(max_ssbo_bytes: int) -> int:
     return min(max_ssbo_bytes, 2**31 - 1) // RECORD_BYTES
 
 
 class PointStore:
-    def __init__(self, glc: GLContext, count: int, *, chunk_points: int | None = None, rotate: bool = True):
+    """`count` points shuffled over slots [0, count); the GPU holds slots [0, capacity).
+    A capacity below the count keeps a uniform random subset (progressive/memory.py)."""
+
+    def __init__(self, glc: GLContext, count: int, *, capacity: int | None = None,
+                 chunk_points: int | None = None, rotate: bool = True):
         limit = chunk_capacity(glc.caps.max_ssbo_bytes)
         self.chunk_points = min(chunk_points or limit, limit)
         self.count = count
-        chunks = max(1, -(-count // self.chunk_points))
+        self.capacity = count if capacity is None else max(0, min(capacity, count))
+        chunks = max(1, -(-self.capacity // self.chunk_points))
         if chunks > MAX_POINT_CHUNKS:
             raise ProgressiveError(
-                f"{count:,} points need {chunks} GPU buffers of {self.chunk_points:,} points; at most {MAX_POINT_CHUNKS} are supported")
+                f"{self.capacity:,} points need {chunks} GPU buffers of {self.chunk_points:,} points; "
+                f"at most {MAX_POINT_CHUNKS} are supported")
         self.permutation = Permutation.for_count(count, rotate=rotate)
         self._glc = glc
         self.buffers = []
         for c in range(chunks):
-            n = max(1, min(self.chunk_points, count - c * self.chunk_points))
+            n = max(1, min(self.chunk_points, self.capacity - c * self.chunk_points))
             buf = glc.ctx.buffer(reserve=n * RECORD_BYTES)
             buf.label = f"points[{c}]"
             glc.gl.clear_u32(buf.glo, EMPTY_WORD, total=buf.size)
             self.buffers.append(buf)
+            if glc.ctx.error == "GL_OUT_OF_MEMORY":
+                self.release()
+                raise GPUMemoryError(f"the GPU could not allocate {n * RECORD_BYTES / 2**20:.0f} MiB for points")
 
     @property
     def defines(self) -> dict[str, int]:
@@ -46,7 +59,7 @@ class PointStore:
 
     def chunk_ranges(self, first: int, count: int):
         """(chunk, local first, local count) pieces of the slot range [first, first+count)."""
-        end = min(first + count, self.count)
+        end = min(first + count, self.capacity)
         while first < end:
             c = first // self.chunk_points
             local = first - c * self.chunk_points
@@ -59,7 +72,7 @@ class PointStore:
         import numpy as np
 
         parts = [np.frombuffer(b.read(), dtype=np.uint32).reshape(-1, 4) for b in self.buffers]
-        return np.concatenate(parts)[: self.count]
+        return np.concatenate(parts)[: self.capacity]
 
     def release(self) -> None:
         for buf in self.buffers:

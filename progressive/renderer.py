@@ -40,11 +40,11 @@ class Renderer:
 
     def __init__(self, glc: GLContext, info: CloudInfo, attribute: AttributeInfo, *,
                  raster: Raster = Raster.COMPUTE, width: int = 1280, height: int = 720,
-                 chunk_points: int | None = None, scene: Scene | None = None):
+                 chunk_points: int | None = None, capacity: int | None = None, scene: Scene | None = None):
         """`scene`: a cloud already on the GPU to render (kept on release)."""
         self.glc, self.info, self.attribute = glc, info, attribute
         self._own_scene = scene is None
-        self.scene = scene or Scene(glc, info, attribute, chunk_points=chunk_points)
+        self.scene = scene or Scene(glc, info, attribute, chunk_points=chunk_points, capacity=capacity)
         self.store = self.scene.store
         self.vis = VisibilityBuffer(glc, width, height)
         self.raster_kind = raster
@@ -78,7 +78,7 @@ class Renderer:
         t.stamp("start")
         self.vis.clear()
         t.stamp("clear")
-        self.raster.draw(view, 0, self.store.count)
+        self.raster.draw(view, 0, self.store.capacity)
         t.stamp("raster")
         self.resolve.run(style)
         t.stamp("resolve")

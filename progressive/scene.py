@@ -18,9 +18,11 @@ RANGE_SAMPLE_PER_BATCH = 20_000
 
 
 class Scene:
-    def __init__(self, glc: GLContext, info: CloudInfo, attribute: AttributeInfo, *, chunk_points: int | None = None):
+    def __init__(self, glc: GLContext, info: CloudInfo, attribute: AttributeInfo, *, chunk_points: int | None = None,
+                 capacity: int | None = None):
+        """capacity: points kept on the GPU (default all; see progressive/memory.py)."""
         self.glc, self.info, self.attribute = glc, info, attribute
-        self.store = PointStore(glc, info.points, chunk_points=chunk_points)
+        self.store = PointStore(glc, info.points, capacity=capacity, chunk_points=chunk_points)
         self.distribute = DistributePass(glc, self.store)
         self.loaded = 0
         self.upload_seconds = 0.0

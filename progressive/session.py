@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from progressive import memory
 from progressive.attributes import default_attribute, find_attribute
 from progressive.budget import BudgetParams
 from progressive.camera import Camera, auto_camera
@@ -24,6 +25,7 @@ from progressive.colors import ColorStyle, Colormap
 from progressive.context import GLContext, create_context
 from progressive.frame_loop import FrameStats, ProgressiveOptions, ProgressiveRenderer
 from progressive.loaders import CloudLoader
+from progressive.pointstore import GPUMemoryError
 from progressive.renderer import Frame, Raster, Renderer
 
 
@@ -46,6 +48,7 @@ class SessionOptions:
     background: tuple[int, int, int] = (0, 0, 0)
     partial: bool = False
     chunk_points: int | None = None
+    gpu_memory_limit: int | None = None     # bytes; the free memory the driver reports also counts
 
 
 class Session:
@@ -58,13 +61,19 @@ class Session:
             self.attribute = find_attribute(self.info, options.color_by) if options.color_by else default_attribute(self.info)
             self._own_context = glc is None
             self.glc = glc or create_context()
+            self.memory = memory.plan(self.info.points, self.glc.caps, options.width * options.height,
+                                      options.gpu_memory_limit)
+            if self.memory.capacity == 0:
+                raise GPUMemoryError(f"no points fit in the GPU memory available ({self.memory.source})")
+            capacity = self.memory.capacity
             if options.method is Method.BRUTE:
                 self.renderer = Renderer(self.glc, self.info, self.attribute, raster=options.raster,
-                                         width=options.width, height=options.height, chunk_points=options.chunk_points)
+                                         width=options.width, height=options.height,
+                                         chunk_points=options.chunk_points, capacity=capacity)
             else:
                 self.renderer = ProgressiveRenderer(self.glc, self.info, self.attribute, ProgressiveOptions(
                     options.width, options.height, options.raster, options.budget, options.batches_per_frame,
-                    options.reference, options.chunk_points))
+                    options.reference, options.chunk_points, capacity=capacity))
         except BaseException:
             self.loader.close()
             raise
@@ -89,7 +98,8 @@ class Session:
 
     @property
     def warnings(self) -> list[str]:
-        return list(self.loader.warnings)
+        subset = [self.memory.message()] if self.memory.subset else []
+        return subset + list(self.loader.warnings)
 
     def auto_camera(self) -> Camera:
         return auto_camera(self.info.bounds_min, self.info.bounds_max, self.options.width / self.options.height)

@@ -27,7 +27,7 @@ class ComparePass:
         """Render the reference for `view` and count equal pixels into `counter`."""
         self.reference.resize(self.vis.width, self.vis.height)
         self.reference.clear()
-        self.raster.draw(view, 0, self.store.count)
+        self.raster.draw(view, 0, self.store.capacity)
         self.glc.gl.clear_u32(self.counter.glo, 0, total=4)
         self.vis.bind()
         self.reference.buffer.bind_to_storage_buffer(Binding.REFERENCE)

@@ -1,0 +1,46 @@
+"""How many points fit on the GPU: the cloud's 16 bytes a point plus the per-pixel
+and staging buffers, against what the driver reports free (NVX memory info) or a
+configured limit. When the cloud does not fit, the store keeps the points whose
+shuffled slot falls below its capacity: a uniform random subset, by the shuffle."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from progressive.context import Capabilities
+from progressive.loaders.types import BATCH_POINTS
+from progressive.packing import RECORD_BYTES
+
+PIXEL_BYTES = 8 + 8 + 2 * (4 + 16) + 4 + 4 + 4     # visibility, reference, two lists, hint, words, image
+HEADROOM = 0.9                                     # of the free memory the driver reports
+
+
+@dataclass(frozen=True)
+class MemoryPlan:
+    points: int
+    capacity: int                 # points kept on the GPU
+    available_bytes: int | None   # what the plan was made against; None: no information
+    source: str                   # where that figure came from, for the message
+
+    @property
+    def subset(self) -> bool:
+        return self.capacity < self.points
+
+    def message(self) -> str:
+        need = self.points * RECORD_BYTES / 2**30
+        have = (self.available_bytes or 0) / 2**30
+        return (f"the cloud needs {need:.2f} GiB of GPU memory but {have:.2f} GiB is available ({self.source}): "
+                f"showing a uniform random subset of {self.capacity:,} of {self.points:,} points")
+
+
+def plan(points: int, caps: Capabilities, pixels: int, limit_bytes: int | None = None) -> MemoryPlan:
+    available, source = None, "no limit known"
+    if caps.free_memory_kib is not None:
+        available, source = int(caps.free_memory_kib * 1024 * HEADROOM), "free GPU memory"
+    if limit_bytes is not None and (available is None or limit_bytes < available):
+        available, source = limit_bytes, "configured limit"
+    if available is None:
+        return MemoryPlan(points, points, None, source)
+    overhead = pixels * PIXEL_BYTES + BATCH_POINTS * RECORD_BYTES
+    capacity = max(0, min(points, (available - overhead) // RECORD_BYTES))
+    return MemoryPlan(points, capacity, available, source)

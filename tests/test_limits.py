@@ -1,0 +1,159 @@
+"""Resource limits: a cloud larger than the GPU (or a configured limit) shows a
+uniform random subset and says so; frames of any size; no leaks over many frames."""
+
+from __future__ import annotations
+
+import dataclasses
+import gc
+import json
+import math
+
+import laspy
+import moderngl
+import numpy as np
+
+from conftest import SAMPLE
+from progressive import memory
+from progressive.cli import main
+from progressive.packing import RECORD_BYTES
+from progressive.permutation import Permutation
+from progressive.reference import EMPTY, reference_ids
+
+SMALL = ["--width", "160", "--height", "120"]
+
+
+def limit_for(points: int, pixels: int = 160 * 120) -> int:
+    return pixels * memory.PIXEL_BYTES + memory.BATCH_POINTS * RECORD_BYTES + points * RECORD_BYTES
+
+
+def test_plan(gl):
+    caps = gl.caps
+    assert memory.plan(1000, dataclasses.replace(caps, free_memory_kib=None), 100).capacity == 1000
+    limited = memory.plan(110_000, caps, 160 * 120, limit_for(40_000))
+    assert limited.capacity == 40_000 and limited.subset and "40,000 of 110,000" in limited.message()
+    nvx = dataclasses.replace(caps, free_memory_kib=limit_for(5000) // 1024 + 1)
+    assert memory.plan(10**9, nvx, 160 * 120).capacity < 10_000
+    assert memory.plan(10, caps, 10**6, 1000).capacity == 0
+
+
+def test_subset_is_uniform_and_rendered_exactly(tmp_path, capsys):
+    ids_path, stats_path = tmp_path / "ids.npy", tmp_path / "s.json"
+    code = main(["render", *SMALL, str(SAMPLE), "--gpu-memory-limit", str(limit_for(40_000)),
+                 "--ids", str(ids_path), "--stats", str(stats_path), "--save-camera", str(tmp_path / "c.json")])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert "uniform random subset of 40,000 of 110,000" in err and err.startswith("progressive: warning:")
+    assert json.loads(stats_path.read_text())["points_on_gpu"] == 40_000
+    perm = Permutation.for_count(110_000)
+    kept = np.nonzero(perm.forward(np.arange(110_000)) < 40_000)[0]
+    assert kept.size == 40_000
+    per_tenth = np.histogram(kept, bins=10, range=(0, 110_000))[0]
+    assert per_tenth.min() > 0.8 * 4000 and per_tenth.max() < 1.2 * 4000, per_tenth
+    las = laspy.read(SAMPLE)
+    xyz = np.stack([las.x, las.y, las.z], axis=1)
+    from progressive.camera import Camera
+
+    cam = Camera.from_json((tmp_path / "c.json").read_text())
+    ids = np.load(ids_path)
+    ref_local = reference_ids(xyz[kept], cam, 160, 120, tie_key=perm.forward(kept).astype(np.int64))
+    ref = np.where(ref_local == EMPTY, EMPTY, kept[np.minimum(ref_local, kept.size - 1)]).astype(np.uint32)
+    assert np.mean(ids == ref) >= 0.999
+
+
+def test_progressive_converges_on_a_subset(tmp_path, capsys):
+    stats = tmp_path / "s.json"
+    code = main(["render", *SMALL, str(SAMPLE), "--method", "progressive", "--budget", "7000", "--converge",
+                 "--gpu-memory-limit", str(limit_for(30_000)), "--stats", str(stats)])
+    assert code == 0, capsys.readouterr().err
+    s = json.loads(stats.read_text())
+    assert s["points_on_gpu"] == 30_000 and s["converged_frame"] >= math.ceil(30_000 / 7000) - 1
+
+
+def test_limit_too_small(tmp_path, capsys):
+    code = main(["render", *SMALL, "--gpu-memory-limit", "1M", "--out", str(tmp_path / "x.png")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "no points fit" in err
+    assert not (tmp_path / "x.png").exists()
+
+
+def test_frames_wider_than_2048(gl):
+    """The original code drew nothing past 2048 pixels; buffers follow the frame size."""
+    from progressive.attributes import default_attribute
+    from progressive.camera import auto_camera
+    from progressive.loaders import CloudLoader
+    from progressive.renderer import Renderer
+
+    with CloudLoader([SAMPLE]) as loader:
+        info = loader.info
+        r = Renderer(gl, info, default_attribute(info), width=64, height=48)
+        loader.start()
+        for b in loader:
+            r.add_batch(b)
+    las = laspy.read(SAMPLE)
+    xyz = np.stack([las.x, las.y, las.z], axis=1)
+    slots = r.store.permutation.forward(np.arange(info.points)).astype(np.int64)
+    for w, h in ((2300, 2300), (64, 48), (2600, 1400)):
+        cam = auto_camera(info.bounds_min, info.bounds_max, w / h)
+        ids = r.render(cam, w, h, r.style()).ids
+        gl.check()
+        assert ids.shape == (h, w)
+        if w > 2048:
+            assert (ids[:, 2048:] != EMPTY).sum() > 20, "nothing drawn past column 2048"
+        assert np.mean(ids == reference_ids(xyz, cam, w, h, tie_key=slots)) >= 0.999
+    r.release()
+
+
+def gpu_objects() -> int:
+    gc.collect()
+    kinds = (moderngl.Buffer, moderngl.Texture, moderngl.Framebuffer, moderngl.ComputeShader,
+             moderngl.Program, moderngl.VertexArray)
+    return sum(isinstance(o, kinds) for o in gc.get_objects())
+
+
+def test_no_leaks_over_many_frames(gl):
+    """Camera motion, style switches and resizes for 400 frames (10,000 on a GPU in the
+    bench): GPU objects and fences stay bounded, Python memory flat."""
+    import tracemalloc
+
+    from progressive.attributes import default_attribute
+    from progressive.budget import BudgetParams
+    from progressive.camera import auto_camera
+    from progressive.colors import Colormap
+    from progressive.frame_loop import ProgressiveOptions, ProgressiveRenderer
+    from progressive.loaders import CloudLoader
+
+    with CloudLoader([SAMPLE]) as loader:
+        info = loader.info
+        loader.start()
+        batches = list(loader)
+    pr = ProgressiveRenderer(gl, info, info.attribute("intensity"),
+                             ProgressiveOptions(64, 48, budget=BudgetParams(fixed=5000), frames_in_flight=2))
+    for b in batches:
+        pr.add_batch(b)
+    cam = auto_camera(info.bounds_min, info.bounds_max, 64 / 48)
+    maps = list(Colormap)
+
+    def run(frames, start):
+        for k in range(start, start + frames):
+            c = cam if k % 3 else dataclasses.replace(cam, position=tuple(np.add(cam.position, (k % 7, 0, 0))))
+            if k % 50 == 0:
+                pr.resize(64 + 8 * (k // 50 % 2), 48)
+            pr.frame(c, pr.scene.style(maps[k % len(maps)]))
+            if k % 25 == 0:
+                pr._take(pr.stats_ring.collect())
+
+    run(100, 0)
+    objects = gpu_objects()
+    tracemalloc.start()
+    before = tracemalloc.take_snapshot()
+    run(300, 100)
+    pr.flush()
+    pr.history.clear()
+    after = tracemalloc.take_snapshot()
+    tracemalloc.stop()
+    grown = sum(s.size_diff for s in after.compare_to(before, "filename"))
+    assert gpu_objects() <= objects + 2
+    assert len(pr.stats_ring.pending) == 0 and len(pr._in_flight) <= 2
+    assert grown < 2_000_000, f"Python memory grew by {grown} bytes"
+    gl.check()
+    pr.release()
