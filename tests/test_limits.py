@@ -157,3 +157,21 @@ def test_no_leaks_over_many_frames(gl):
     assert grown < 2_000_000, f"Python memory grew by {grown} bytes"
     gl.check()
     pr.release()
+
+
+def test_tiny_clouds_render_and_converge(tmp_path, capsys):
+    """1, 2, 3 and 7 points (no shuffle prime below 3; a ring of one slot): brute force
+    and progressive agree, and convergence is reached, not stalled."""
+    las = laspy.read(SAMPLE)
+    for n in (1, 2, 3, 7):
+        small = laspy.LasData(las.header)
+        small.points = las.points[:: 110_000 // n][:n].copy()
+        path = tmp_path / f"tiny{n}.las"
+        small.write(path)
+        brute, prog, stats = tmp_path / f"b{n}.npy", tmp_path / f"p{n}.npy", tmp_path / f"s{n}.json"
+        assert main(["render", *SMALL, str(path), "--ids", str(brute)]) == 0
+        code = main(["render", *SMALL, str(path), "--method", "progressive", "--converge", "--max-frames", "50",
+                     "--ids", str(prog), "--stats", str(stats)])
+        assert code == 0, capsys.readouterr().err
+        assert np.array_equal(np.load(brute), np.load(prog))
+        assert 0 < (np.load(brute) != EMPTY).sum() <= n
