@@ -40,6 +40,7 @@ class ProgressiveOptions:
     chunk_points: int | None = None
     frames_in_flight: int | None = None  # headless pacing, as a swap chain paces a window; None: no limit
     capacity: int | None = None         # points kept on the GPU (progressive/memory.py); None: all
+    history_frames: int = 10_000        # per-frame statistics kept (a viewer runs for hours)
 
 
 @dataclass(frozen=True)
@@ -133,17 +134,16 @@ class ProgressiveRenderer:
         if self.scene.loaded == 0:
             self.vis.clear()
             self.resolve.run(style, self.prepare.pixel_words)
-            self.budget.end_frame(complete=False)
-            self._idle_frame(("resolve",))
-            return ("resolve",)
-        if self.converged and not passes:
+            passes.append("resolve")
+        elif self.converged and not passes:
             if restyled:
                 self.resolve.run(style, self.prepare.pixel_words)
                 passes.append("resolve")
-            self.budget.end_frame(complete=False)
-            self._idle_frame(tuple(passes))
-            return tuple(passes)
-        return self._render(camera, style, passes, reset=bool(passes) or moved)
+        else:
+            return self._render(camera, style, passes, reset=bool(passes) or moved)
+        self.budget.end_frame(complete=False)
+        self._idle_frame(tuple(passes))
+        return tuple(passes)
 
     def _render(self, camera: Camera, style: ColorStyle, passes: list[str], reset: bool) -> tuple[str, ...]:
         view = view_uniforms(camera, self.info.origin, self.vis.width, self.vis.height)
@@ -199,7 +199,7 @@ class ProgressiveRenderer:
             self.glc.gl.delete_sync(sync)
 
     def _idle_frame(self, passes: tuple[str, ...]) -> None:
-        """A converged frame: nothing to measure on the GPU."""
+        """A frame without fill (converged, or nothing loaded yet): nothing to measure on the GPU."""
         self.history.append(FrameStats(self.frame_index, passes, self.scene.loaded, 0, 0, self.store.capacity, 0, 0, {}, None))
         self.frame_index += 1
 
@@ -215,6 +215,7 @@ class ProgressiveRenderer:
             self.history.append(FrameStats(tag.frame, tag.passes, tag.points_loaded, int(r.state[StateWord.FIRST]),
                                            int(r.state[StateWord.BUDGET]), filled, r.visible, r.gathered, gpu_ms, equal))
         self.history.sort(key=lambda s: s.frame)
+        del self.history[: max(0, len(self.history) - self.options.history_frames)]
 
     def flush(self) -> list[FrameStats]:
         """Wait for every issued frame and return all statistics (after the loop)."""
