@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import re
 
+import numpy as np
+
 from progressive.errors import ProgressiveError
-from progressive.loaders.types import AttributeInfo, AttributeKind, CloudInfo
+from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, CloudInfo
 
 ALIASES = {
     "color": "rgb", "colour": "rgb", "red": "rgb", "green": "rgb", "blue": "rgb",
@@ -32,10 +34,27 @@ def find_attribute(info: CloudInfo, name: str) -> AttributeInfo:
     raise ProgressiveError(f"unknown attribute '{name}'; this cloud has: {', '.join(names)}")
 
 
-def default_attribute(info: CloudInfo) -> AttributeInfo:
-    """RGB where the files have it, else intensity, else elevation."""
-    kinds = {a.name: a for a in info.attributes}
-    for name in ("rgb", "intensity", "elevation"):
-        if name in kinds:
-            return kinds[name]
-    return next(a for a in info.attributes if a.kind is not AttributeKind.RGB)
+DEFAULT_ORDER = ("rgb", "intensity", "elevation")
+
+
+def default_attribute(info: CloudInfo, sample: Batch | None = None) -> AttributeInfo:
+    """RGB where the files have it, else intensity, else elevation; with a sample
+    batch, an attribute that is all zero there is passed over (see default_choice)."""
+    return default_choice(info, sample)[0]
+
+
+def default_choice(info: CloudInfo, sample: Batch | None = None) -> tuple[AttributeInfo, str | None]:
+    """The default attribute and, when one was passed over for being all zero in the
+    sample (scanners that write empty RGB or intensity), a sentence saying so."""
+    by_name = {a.name: a for a in info.attributes}
+    skipped = []
+    for name in DEFAULT_ORDER:
+        if name not in by_name:
+            continue
+        values = None if sample is None else sample.attributes.get(name)
+        if values is not None and values.size and not np.any(values):
+            skipped.append(name)
+            continue
+        note = f"{' and '.join(skipped)} all zero in the first {sample.count:,} points; colouring by {name}" if skipped else None
+        return by_name[name], note
+    return next(a for a in info.attributes if a.kind is not AttributeKind.RGB), None

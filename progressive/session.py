@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from progressive import memory
-from progressive.attributes import default_attribute, find_attribute
+from progressive.attributes import default_choice, find_attribute
 from progressive.budget import BudgetParams
 from progressive.camera import Camera, auto_camera
 from progressive.colors import ColorStyle, Colormap
@@ -56,9 +56,17 @@ class Session:
         self.options = options
         self.opened = time.perf_counter()
         self.loader = CloudLoader(paths, partial=options.partial)
+        self._early: list = []
+        self._notes: list[str] = []
         try:
             self.info = self.loader.info
-            self.attribute = find_attribute(self.info, options.color_by) if options.color_by else default_attribute(self.info)
+            self.loader.start()
+            if options.color_by:
+                self.attribute = find_attribute(self.info, options.color_by)
+            else:
+                self._early = self._first_batches()
+                self.attribute, note = default_choice(self.info, self._early[0] if self._early else None)
+                self._notes += [note] if note else []
             self._own_context = glc is None
             self.glc = glc or create_context()
             self.memory = memory.plan(self.info.points, self.glc.caps, options.width * options.height,
@@ -77,7 +85,8 @@ class Session:
         except BaseException:
             self.loader.close()
             raise
-        self.loader.start()
+        for batch in self._early:
+            self.renderer.add_batch(batch)
         self.load_seconds: float | None = None
         self.first_image_seconds: float | None = None
         self._last: Frame | None = None
@@ -96,10 +105,19 @@ class Session:
     def converged(self) -> bool:
         return self.progressive and self.renderer.converged
 
+    def _first_batches(self) -> list:
+        """Wait for the first loaded batch (needed to see anything anyway) to choose
+        a default colouring that is not all zero."""
+        while True:
+            batches = self.loader.poll()
+            if batches or self.loader.done:
+                return batches
+            time.sleep(0.002)
+
     @property
     def warnings(self) -> list[str]:
         subset = [self.memory.message()] if self.memory.subset else []
-        return subset + list(self.loader.warnings)
+        return subset + self._notes + list(self.loader.warnings)
 
     def auto_camera(self) -> Camera:
         return auto_camera(self.info.bounds_min, self.info.bounds_max, self.options.width / self.options.height)

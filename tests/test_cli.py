@@ -239,3 +239,15 @@ def test_laz_without_backend(tmp_path, capsys, monkeypatch):
     code, _, err = run(capsys, "render", *SMALL, laz, "--out", tmp_path / "x.png")
     assert code == 2 and "no LAZ decoder" in err and err.count("\n") == 1, err
     assert not (tmp_path / "x.png").exists()
+
+
+@pytest.mark.parametrize("name,fallback", [("TLSSparseCloud_xyzOnly.laz", "elevation"), ("wires.laz", "elevation")])
+def test_all_zero_default_colour_falls_back_and_says_so(tmp_path, capsys, name, fallback):
+    """TLSSparseCloud has RGB fields that are all zero, wires.laz all-zero intensity (MANIFEST)."""
+    from conftest import shared_file
+
+    stats = tmp_path / "s.json"
+    code, _, err = run(capsys, "render", *SMALL, shared_file(name), "--stats", stats)
+    assert code == 0, err
+    assert json.loads(stats.read_text())["attribute"] == fallback
+    assert "all zero" in err and f"colouring by {fallback}" in err and err.startswith("progressive: warning:")
