@@ -234,6 +234,7 @@ def _stats(session, camera, frames: int, converged_at: int | None) -> dict:
         "points": session.info.points,
         "points_loaded": renderer.scene.loaded,
         "points_on_gpu": renderer.scene.store.capacity,
+        "points_not_drawn": renderer.scene.skipped,
         "load_seconds": session.load_seconds,
         "load_points_per_second": renderer.scene.loaded / session.load_seconds if session.load_seconds else None,
         "first_image_seconds": session.first_image_seconds,

@@ -32,11 +32,25 @@ def attribute_word(batch: Batch, attr: AttributeInfo, origin_z: float) -> np.nda
     return scalar.astype(np.float32).view(np.uint32).reshape(n)
 
 
+NAN_WORD = np.uint32(0xFFFFFFFF)
+
+
 def pack_records(batch: Batch, attr: AttributeInfo, origin_z: float) -> np.ndarray:
-    """(n, 4) uint32 GPU records; fast-format batches come packed already."""
+    """(n, 4) uint32 GPU records; fast-format batches come packed already. A point
+    whose shown scalar is NaN or infinite gets NaN coordinates: no pass draws it, so
+    it neither shows a made-up colour nor hides what is behind it."""
     if batch.records is not None:
         return batch.records
     out = np.empty((batch.count, 4), dtype=np.uint32)
     out[:, :3] = np.ascontiguousarray(batch.positions, dtype=np.float32).view(np.uint32)
     out[:, 3] = attribute_word(batch, attr, origin_z)
+    if attr.kind is AttributeKind.SCALAR:
+        bad = ~np.isfinite(out[:, 3].view(np.float32))
+        out[bad, :3] = NAN_WORD
     return out
+
+
+def undrawable(records: np.ndarray) -> int:
+    """Records no pass draws: a non-finite x, y or z (shaders/common.glsl finite_position)."""
+    exponent = records[:, :3] & np.uint32(0x7F800000)
+    return int(np.count_nonzero((exponent == np.uint32(0x7F800000)).any(axis=1)))

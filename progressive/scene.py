@@ -10,7 +10,7 @@ import numpy as np
 from progressive.colors import ColorStyle, Colormap, robust_range
 from progressive.context import GLContext
 from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, CloudInfo
-from progressive.packing import pack_records
+from progressive.packing import pack_records, undrawable
 from progressive.passes.distribute import DistributePass
 from progressive.pointstore import PointStore
 
@@ -25,6 +25,7 @@ class Scene:
         self.store = PointStore(glc, info.points, capacity=capacity, chunk_points=chunk_points)
         self.distribute = DistributePass(glc, self.store)
         self.loaded = 0
+        self.skipped = 0            # points never drawn: non-finite coordinates or shown value
         self.upload_seconds = 0.0
         self._samples: list[np.ndarray] = []
 
@@ -35,6 +36,7 @@ class Scene:
     def add_batch(self, batch: Batch) -> None:
         t0 = time.perf_counter()
         records = pack_records(batch, self.attribute, float(self.info.origin[2]))
+        self.skipped += undrawable(records)
         self.distribute.upload(records, batch.start)
         if self.attribute.kind is AttributeKind.SCALAR:
             step = max(1, batch.count // RANGE_SAMPLE_PER_BATCH)

@@ -117,7 +117,9 @@ class Session:
     @property
     def warnings(self) -> list[str]:
         subset = [self.memory.message()] if self.memory.subset else []
-        return subset + self._notes + list(self.loader.warnings)
+        skipped = self.renderer.scene.skipped if self.renderer is not None else 0
+        nonfinite = [f"{skipped:,} points not drawn: non-finite coordinates or {self.attribute.name} values"] if skipped else []
+        return subset + self._notes + nonfinite + list(self.loader.warnings)
 
     def auto_camera(self) -> Camera:
         return auto_camera(self.info.bounds_min, self.info.bounds_max, self.options.width / self.options.height)

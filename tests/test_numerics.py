@@ -115,3 +115,31 @@ def test_one_centimetre_apart_resolves_at_any_distance(gl, distance, raster):
     assert shown.size > 500
     assert np.all(shown >= len(back)), f"{np.count_nonzero(shown < len(back))} pixels show the farther patch"
     r.release()
+
+
+def test_nonfinite_values_and_positions_are_never_drawn(gl):
+    """A NaN or infinite shown value, or coordinate, is skipped and counted; such a point
+    must not hide the point behind it."""
+    from progressive.packing import pack_records, undrawable
+
+    n = 6
+    xyz = np.array([[0.0, 5.0, 0.0], [0.0, 6.0, 0.0], [0.3, 5.0, 0.0], [0.3, 6.0, 0.0], [-0.3, 5.0, 0.0],
+                    [-0.3, 6.0, 0.0]]) + [500_000.0, 5_000_000.0, 10.0]
+    values = np.array([np.nan, 1.0, np.inf, 2.0, 3.0, 4.0])
+    attr = AttributeInfo("reflectance", AttributeKind.SCALAR, np.dtype("f4"))
+    origin = xyz.mean(axis=0)
+    positions = (xyz - origin).astype(np.float32)
+    positions[4, 0] = np.nan                   # a non-finite coordinate (fast-format style)
+    batch = Batch(start=0, positions=positions, attributes={"reflectance": values})
+    records = pack_records(batch, attr, float(origin[2]))
+    assert undrawable(records) == 3
+    info = CloudInfo(files=(), points=n, origin=origin, bounds_min=xyz.min(0), bounds_max=xyz.max(0), attributes=(attr,))
+    cam = Camera(tuple((origin + [0.0, -5.0, 0.0]).tolist()), tuple(origin.tolist()), (0.0, 0.0, 1.0), 40.0, 0.1, 100.0)
+    for raster in (Raster.COMPUTE, Raster.POINTS):
+        r = Renderer(gl, info, attr, raster=raster, width=W, height=H)
+        r.add_batch(batch)
+        assert r.scene.skipped == 3
+        ids = r.render(cam, W, H, r.style()).ids
+        shown = set(ids[ids != EMPTY].tolist())
+        assert shown == {1, 3, 5}, shown      # the points behind the skipped ones show through
+        r.release()
