@@ -6,7 +6,6 @@ from __future__ import annotations
 import argparse
 import enum
 import sys
-import time
 from importlib import resources
 from pathlib import Path
 

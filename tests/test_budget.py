@@ -175,7 +175,7 @@ def test_gpu_budget_equals_pure_function(gl, case, points):
     words = np.frombuffer(bp.args.read(), dtype=np.uint32)
     dispatch = words[:12].reshape(4, 3)
     draws = words[12:28].reshape(4, 4)
-    for (first_slot, count), (gx, gy, gz), draw in zip([piece0, piece1, piece2, piece3], dispatch, draws):
+    for (_, count), (gx, gy, gz), draw in zip([piece0, piece1, piece2, piece3], dispatch, draws):
         assert gx * gy * 256 >= count and gz == 1 and gx <= 65535
         assert draw.tolist() == [count, 1, 0, 0]
     bp.release()

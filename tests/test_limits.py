@@ -115,7 +115,6 @@ def test_no_leaks_over_many_frames(gl):
     bench): GPU objects and fences stay bounded, Python memory flat."""
     import tracemalloc
 
-    from progressive.attributes import default_attribute
     from progressive.budget import BudgetParams
     from progressive.camera import auto_camera
     from progressive.colors import Colormap
