@@ -14,20 +14,21 @@ from progressive.packing import ELEVATION
 
 @dataclass
 class _Range:
-    """Running min/max of one quantity (per channel for RGB)."""
+    """Running min/max of one quantity (per channel for RGB, per axis for positions) over
+    its finite values: a float row with any NaN/Inf is left out (and counted elsewhere)."""
 
     lo: np.ndarray | None = None
     hi: np.ndarray | None = None
 
     def add(self, values: np.ndarray) -> None:
+        if values.dtype.kind == "f":
+            finite = np.isfinite(values)
+            values = values[finite.all(axis=1) if values.ndim > 1 else finite]
         if values.size == 0:
             return
-        axis = 0 if values.ndim > 1 else None
-        floats = np.issubdtype(values.dtype, np.floating)
-        lo = np.nanmin(values, axis=axis) if floats else np.min(values, axis=axis)
-        hi = np.nanmax(values, axis=axis) if floats else np.max(values, axis=axis)
-        self.lo = lo if self.lo is None else np.fmin(self.lo, lo)
-        self.hi = hi if self.hi is None else np.fmax(self.hi, hi)
+        lo, hi = values.min(axis=0), values.max(axis=0)
+        self.lo = lo if self.lo is None else np.minimum(self.lo, lo)
+        self.hi = hi if self.hi is None else np.maximum(self.hi, hi)
 
     def merge(self, other: _Range) -> None:
         if other.lo is not None:
@@ -38,26 +39,34 @@ class _Range:
 class _FileStats:
     info: FileInfo
     points: int = 0
-    positions: _Range = field(default_factory=_Range)
+    nonfinite_positions: int = 0
+    nonfinite_values: dict[str, int] = field(default_factory=dict)
+    bounds: _Range = field(default_factory=_Range)
     attributes: dict[str, _Range] = field(default_factory=dict)
 
     def add(self, batch: Batch, cloud: CloudInfo) -> None:
+        """LAS batches bring exact float64 bounds; fast-format ones are exactly their
+        float32 positions plus the origin."""
         self.points += batch.count
-        self.positions.add(batch.positions)
+        self.nonfinite_positions += batch.nonfinite_positions
+        for name, n in batch.nonfinite_values.items():
+            self.nonfinite_values[name] = self.nonfinite_values.get(name, 0) + n
+        if batch.bounds is not None:
+            self.bounds.add(np.stack(batch.bounds))
+        else:
+            self.bounds.add(cloud.origin + batch.positions.astype(np.float64))
         for attr in cloud.attributes:
             if attr.name != ELEVATION:
                 self.attributes.setdefault(attr.name, _Range()).add(_values(batch, attr))
 
-    def bounds(self, origin: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """File coordinates in float64: the float32 extremes plus the origin, snapped back to
-        the file's scale grid (exact wherever float32 resolves half a scale step)."""
-        if self.positions.lo is None:
-            return None
-        lo, hi = (origin + v.astype(np.float64) for v in (self.positions.lo, self.positions.hi))
-        if self.info.point_format >= 0:
-            scale, offset = np.array(self.info.scale), np.array(self.info.offset)
-            lo, hi = (offset + np.round((v - offset) / scale) * scale for v in (lo, hi))
-        return lo, hi
+    def merge(self, other: _FileStats) -> None:
+        self.points += other.points
+        self.nonfinite_positions += other.nonfinite_positions
+        for name, n in other.nonfinite_values.items():
+            self.nonfinite_values[name] = self.nonfinite_values.get(name, 0) + n
+        self.bounds.merge(other.bounds)
+        for name, rng in other.attributes.items():
+            self.attributes.setdefault(name, _Range()).merge(rng)
 
 
 def _values(batch: Batch, attr: AttributeInfo) -> np.ndarray:
@@ -79,33 +88,35 @@ def _plain(value):
     value = np.asarray(value)
     if value.ndim:
         return [_plain(v) for v in value]
-    if value.dtype.kind == "f" and np.isnan(value):
-        return None
     return value.item()
 
 
-def _summary(info: FileInfo, points: int, bounds, attributes: dict, cloud: CloudInfo) -> dict:
+def _summary(info: FileInfo, stats: _FileStats, cloud: CloudInfo) -> dict:
+    bounds = stats.bounds
     return {
         "path": info.path,
         "format": info.format,
         "version": info.version,
         "point_format": info.point_format,
-        "points": points,
+        "points": stats.points,
         "header_points": info.points,
         "scale": list(info.scale),
         "offset": list(info.offset),
         "crs": info.crs,
         "rgb_16bit": info.rgb_16bit,
-        "bounds": {"min": _plain(bounds[0]) if bounds else None, "max": _plain(bounds[1]) if bounds else None},
+        "bounds": {"min": _plain(bounds.lo), "max": _plain(bounds.hi)},
         "header_bounds": {"min": list(info.bounds_min), "max": list(info.bounds_max)},
-        "attributes": {attr.name: _attribute(attr, bounds, attributes) for attr in cloud.attributes},
+        "attributes": {attr.name: _attribute(attr, bounds, stats.attributes) for attr in cloud.attributes},
+        "nonfinite_positions": stats.nonfinite_positions,
+        "nonfinite_values": dict(stats.nonfinite_values),
     }
 
 
-def _attribute(attr: AttributeInfo, bounds, ranges: dict[str, _Range]) -> dict:
-    """Kind and range; elevation is the z of the bounds, having no array of its own."""
+def _attribute(attr: AttributeInfo, bounds: _Range, ranges: dict[str, _Range]) -> dict:
+    """Kind and range of the finite values; elevation is the z of the bounds, having no
+    array of its own."""
     if attr.name == ELEVATION:
-        lo, hi = (bounds[0][2], bounds[1][2]) if bounds else (None, None)
+        lo, hi = (None, None) if bounds.lo is None else (bounds.lo[2], bounds.hi[2])
     else:
         rng = ranges.get(attr.name, _Range())
         lo, hi = rng.lo, rng.hi
@@ -114,7 +125,8 @@ def _attribute(attr: AttributeInfo, bounds, ranges: dict[str, _Range]) -> dict:
 
 def describe(paths, *, partial: bool = False) -> dict:
     """Header facts and data ranges of a cloud; top-level per-file facts (format, version,
-    point format, scale, offset, CRS) are the first file's."""
+    point format, scale, offset, CRS) are the first file's. `nonfinite_positions` counts
+    the points never drawn, `nonfinite_values` the NaN/Inf values of float attributes."""
     with CloudLoader(paths, partial=partial) as loader:
         cloud = loader.info
         stats = [_FileStats(f) for f in cloud.files]
@@ -122,15 +134,11 @@ def describe(paths, *, partial: bool = False) -> dict:
         for batch in loader:
             stats[bisect.bisect_right(ends, batch.start)].add(batch, cloud)
         warnings = list(loader.warnings)
-    per_file = [s.bounds(cloud.origin) for s in stats]
-    files = [_summary(s.info, s.points, b, s.attributes, cloud) for s, b in zip(stats, per_file)]
-    present = [b for b in per_file if b is not None]
-    bounds = (np.min([b[0] for b in present], axis=0), np.max([b[1] for b in present], axis=0)) if present else None
-    merged: dict[str, _Range] = {}
+    files = [_summary(s.info, s, cloud) for s in stats]
+    total = _FileStats(cloud.files[0])
     for s in stats:
-        for name, rng in s.attributes.items():
-            merged.setdefault(name, _Range()).merge(rng)
-    desc = _summary(cloud.files[0], sum(s.points for s in stats), bounds, merged, cloud)
+        total.merge(s)
+    desc = _summary(cloud.files[0], total, cloud)
     del desc["path"], desc["rgb_16bit"], desc["header_points"]
     desc["header_bounds"] = {"min": cloud.bounds_min.tolist(), "max": cloud.bounds_max.tolist()}
     desc.update(origin=cloud.origin.tolist(), files=files, warnings=warnings)
@@ -165,5 +173,8 @@ def format_text(desc: dict) -> str:
         lines += ["", f"files ({len(desc['files'])}):"]
         lines += [f"  {f['path']}  {f['points']:,} points, {f['format']} {f['version']} PF {f['point_format']}"
                   for f in desc["files"]]
+    if desc["nonfinite_positions"]:
+        lines += ["", f"{desc['nonfinite_positions']:,} points have a non-finite x, y or z and are never drawn"]
+    lines += [f"{name}: {n:,} non-finite values" for name, n in desc["nonfinite_values"].items()]
     lines += [f"warning: {w}" for w in desc["warnings"]]
     return "\n".join(lines)

@@ -7,6 +7,8 @@ attribute kind, reserved, attribute offset, attribute name (64 bytes, NUL-padded
 
 from __future__ import annotations
 
+import dataclasses
+import math
 import os
 import struct
 import tempfile
@@ -18,8 +20,9 @@ import numpy as np
 
 from progressive.errors import InputError
 from progressive.loaders.las import fail, open_binary
-from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, CloudInfo, FileInfo
-from progressive.packing import RECORD_BYTES, pack_records
+from progressive.loaders.types import (AttributeInfo, AttributeKind, Batch, CloudInfo, FileInfo,
+                                      nonfinite_records, quiet_nans)
+from progressive.packing import ELEVATION, RECORD_BYTES, pack_records
 
 MAGIC = b"PRGSPC\x00\x01"
 VERSION = 1
@@ -53,13 +56,28 @@ class FastSource:
     warnings: tuple[str, ...] = ()
 
     def batches(self, batch_points: int, start: int) -> Iterator[Batch]:
-        """Batches straight from disk; positions view the records' xyz."""
+        """Batches straight from disk, still to go through parse(); positions view the
+        records' xyz."""
         with open_binary(self.info.path) as stream:
             stream.seek(HEADER_BYTES)
             for first in range(0, self.info.points, batch_points):
                 records = np.empty((min(batch_points, self.info.points - first), 4), dtype=np.uint32)
                 _read_exactly(self.info.path, stream, memoryview(records).cast("B"))
                 yield Batch(start=start + first, positions=records[:, :3].view(np.float32), records=records)
+
+    def parse(self, batch: Batch) -> Batch:
+        """The batch with its NaN/Inf coordinates and scalar values counted (elevation only
+        as positions) and their NaNs made quiet: any bit pattern can be in a file."""
+        positions, word = batch.positions, batch.records[:, 3].view(np.float32)
+        nonfinite, values = nonfinite_records(batch.records)
+        if nonfinite:
+            quiet_nans(positions)
+        scalar = self.attribute.kind is AttributeKind.SCALAR
+        if values and scalar:
+            quiet_nans(word)
+        counted = scalar and values and self.attribute.name != ELEVATION
+        return dataclasses.replace(batch, nonfinite_positions=nonfinite,
+                                   nonfinite_values={self.attribute.name: values} if counted else {})
 
 
 def _read_exactly(path: str, stream, buffer: memoryview) -> None:
@@ -92,6 +110,8 @@ def open_fast(path: str | os.PathLike, *, partial: bool = False) -> FastSource:
         raise fail(path, f"unknown attribute kind {kind_code}")
     if count == 0:
         raise fail(path, "has no points")
+    if not all(math.isfinite(v) for v in (*floats, attr_offset)):
+        raise fail(path, "has a non-finite origin, bounds or attribute offset in its header")
     warnings = []
     expected = HEADER_BYTES + RECORD_BYTES * count
     if size != expected:

@@ -21,17 +21,20 @@ import lazrs
 import numpy as np
 
 from progressive.errors import InputError
-from progressive.loaders.types import BATCH_POINTS, AttributeInfo, AttributeKind, Batch, FileInfo
+from progressive.loaders.types import (BATCH_POINTS, AttributeInfo, AttributeKind, Batch, FileInfo,
+                                      nonfinite_count, nonfinite_rows, quiet_nans)
 
 SIGNATURE = b"LASF"
 MAX_POINT_FORMAT = 10
 MAX_MINOR_VERSION = 4
 HEADER_PREFIX = 375                     # the LAS 1.4 header; older ones are shorter
 MIN_HEADER = {0: 227, 1: 227, 2: 227, 3: 235, 4: 375}
+VLR_HEADER = 54                         # bytes of each VLR before its data
 SCAN_ANGLE_STEP = 0.006                 # degrees per unit of the PF 6-10 scan_angle
 PROBE_PIECE = 65_536                    # points per read while looking for 16-bit colour
 SALVAGE_PIECE = 1_000                   # points per read while salvaging a damaged LAZ
 LAZ_POINTWISE = 1                       # LASzip compressor without chunks or chunk table
+MIN_CHUNK_BYTES = 20                    # a LAZ chunk starts with one raw point record
 STANDARD = (
     "rgb", "intensity", "classification", "elevation", "return_number",
     "number_of_returns", "gps_time", "point_source_id", "user_data", "scan_angle",
@@ -62,6 +65,13 @@ def fail(path: str | os.PathLike, problem: object) -> InputError:
 def is_decode_error(exc: BaseException) -> bool:
     """Anything laspy/lazrs raise on bad data, including lazrs panics (BaseExceptions)."""
     return isinstance(exc, Exception) or type(exc).__name__ == "PanicException"
+
+
+def header_error(path: str, exc: Exception) -> InputError:
+    """laspy's complaint about a header; it decodes VLR names and texts strictly."""
+    if isinstance(exc, UnicodeDecodeError):
+        return fail(path, f"invalid LAS header: text in a VLR is not UTF-8 ({exc})")
+    return fail(path, f"invalid LAS header: {exc}")
 
 
 def open_binary(path: str | os.PathLike):
@@ -102,7 +112,13 @@ class RawHeader:
         if len(data) < MIN_HEADER[minor]:
             raise fail(path, f"is too short for a LAS {major}.{minor} header ({len(data)} bytes)")
         (encoding,) = struct.unpack_from("<H", data, 6)
-        point_data, _, pf, record_length, legacy = struct.unpack_from("<IIBHI", data, 96)
+        (header_size,) = struct.unpack_from("<H", data, 94)
+        point_data, vlrs, pf, record_length, legacy = struct.unpack_from("<IIBHI", data, 96)
+        if vlrs * VLR_HEADER > point_data - header_size:
+            # laspy would read that many VLRs, empty ones past the end of the file: for
+            # a count near 2^32 it never returns
+            raise fail(path, f"invalid LAS header: {vlrs} VLRs cannot fit in the "
+                             f"{max(point_data - header_size, 0)} bytes before the point data")
         waveform = struct.unpack_from("<Q", data, 227)[0] if minor >= 3 else 0
         evlr_start, evlr_count, count64 = struct.unpack_from("<QIQ", data, 235) if minor >= 4 else (0, 0, 0)
         if pf & 0x3F > MAX_POINT_FORMAT:
@@ -134,6 +150,15 @@ class LazLayout:
     points: int
     chunk_size: int | None      # fixed-size chunks; None: pointwise or variable-size
     table_ok: bool
+    stand_in: bool = False
+    """The chunk table is missing or declares more chunks than the file has room for.
+    lazrs must not see it: it allocates for every chunk declared (and aborts the process
+    when it cannot), and without a table it may take garbage for a chunk header and
+    allocate gigabytes."""
+
+    def open(self, path: str):
+        """The file as lazrs may see it."""
+        return self._stand_in(path) if self.stand_in else open_binary(path)
 
     def salvage_stream(self, path: str):
         """A stream the sequential decoder can start on, or None when nothing can be read.
@@ -142,11 +167,16 @@ class LazLayout:
         pointwise = struct.unpack_from("<H", self.vlr_data, 0)[0] == LAZ_POINTWISE
         if pointwise or self.table_ok:
             return open_binary(path)
-        if self.chunk_size is None:
-            return None
+        return None if self.chunk_size is None else self._stand_in(path)
+
+    def _stand_in(self, path: str):
+        """The file with a table of full fixed-size chunks (as many as it has room for) in
+        place of its own; with variable-size chunks, with none, which fails cleanly."""
         table = io.BytesIO()
-        entries = [(self.chunk_size, 1)] * math.ceil(self.points / self.chunk_size)
-        lazrs.write_chunk_table(table, entries, lazrs.LazVlr(self.vlr_data))
+        if self.chunk_size is not None:
+            room = os.path.getsize(path) // MIN_CHUNK_BYTES + 1
+            entries = [(self.chunk_size, 1)] * min(math.ceil(self.points / self.chunk_size), room)
+            lazrs.write_chunk_table(table, entries, lazrs.LazVlr(self.vlr_data))
         return io.BufferedReader(StandInTable(open_binary(path), self.point_data, table.getvalue()), 1 << 20)
 
 
@@ -225,14 +255,22 @@ class LasSource:
         """A Batch of the named attributes; positions are computed in float64 from laspy's
         scaled coordinates so that float32 rounding happens only once."""
         positions = np.empty((len(chunk), 3), dtype=np.float32)
-        for axis, dim in enumerate("xyz"):
-            positions[:, axis] = np.asarray(getattr(chunk, dim)) - origin[axis]
+        lo, hi = np.empty(3), np.empty(3)
+        with np.errstate(over="ignore", invalid="ignore"):     # overflow is counted, not warned
+            for axis, dim in enumerate("xyz"):
+                coords = np.asarray(getattr(chunk, dim))
+                lo[axis], hi[axis] = coords.min(), coords.max()
+                positions[:, axis] = coords - origin[axis]
         attributes = {name: self._values(chunk, name) for name in names if name != "elevation"}
-        return Batch(start=start, positions=positions, attributes=attributes)
+        counts = {name: n for name, v in attributes.items() if (n := nonfinite_count(v))}
+        for name in counts:
+            quiet_nans(attributes[name])
+        return Batch(start=start, positions=positions, attributes=attributes, bounds=(lo, hi),
+                     nonfinite_positions=nonfinite_rows(positions), nonfinite_values=counts)
 
     def _values(self, chunk: laspy.ScaleAwarePointRecord, name: str) -> np.ndarray:
         if name == "rgb":
-            # The depth is decided on the first batch; later values past 8 bits are clipped.
+            # The depth is decided once per file (FileInfo.rgb_16bit); 8-bit files clip.
             shift = 8 if self.info.rgb_16bit else 0
             rgb = np.empty((len(chunk), 3), dtype=np.uint8)
             for i, dim in enumerate(("red", "green", "blue")):
@@ -254,7 +292,8 @@ def decode(path: str, laz: LazLayout | None, count: int, piece: int, *,
     """Chunks of at most `piece` points, `count` in total, else TruncatedInput."""
     read = 0
     try:
-        with _reader(open_binary(path), path, laz.backend if laz else None, count) as reader:
+        with _reader(laz.open(path) if laz else open_binary(path), path, laz.backend if laz else None,
+                     count) as reader:
             for chunk in reader.chunk_iterator(piece):
                 read += len(chunk)
                 yield chunk
@@ -308,7 +347,7 @@ def _reader(stream, path: str, backend: laspy.LazBackend | None, count: int) -> 
         reader = laspy.LasReader(stream, laz_backend=backend or (), read_evlrs=False)
     except Exception as exc:
         stream.close()
-        raise fail(path, f"invalid LAS header: {exc}") from exc
+        raise header_error(path, exc) from exc
     reader.header.point_count = count
     return reader
 
@@ -328,10 +367,14 @@ def open_las(path: str | os.PathLike, *, partial: bool = False) -> LasSource:
         except InputError:
             raise
         except Exception as exc:
-            raise fail(path, f"invalid LAS header: {exc}") from exc
+            raise header_error(path, exc) from exc
+        _check_numbers(path, header)
         count, laz = raw.count, None
         if raw.compressed:
-            laz = _laz_layout(path, stream, header, count)
+            laz = _laz_layout(path, stream, header, count, size)
+            if laz.stand_in and not partial:
+                raise fail(path, "point data is truncated or corrupt (its LAZ chunk table is missing or "
+                                 "corrupt; a partial load reads what decodes)")
         else:
             count = _checked_count(path, raw, size, partial, warnings)
     pf = header.point_format
@@ -361,6 +404,17 @@ def open_las(path: str | os.PathLike, *, partial: bool = False) -> LasSource:
         for n in names
     )
     return dataclasses.replace(source, attributes=attributes)
+
+
+def _check_numbers(path: str, header: laspy.LasHeader) -> None:
+    """Scale, offset and bounds set every position and the cloud's origin: one NaN among
+    them would make every point non-finite, and a zero scale every point equal."""
+    fields = {"scale": header.scales, "offset": header.offsets, "bounds": np.r_[header.mins, header.maxs]}
+    for name, values in fields.items():
+        if not np.all(np.isfinite(values)):
+            raise fail(path, f"invalid LAS header: {name} is not finite ({', '.join(map(str, values))})")
+    if np.any(header.scales == 0):
+        raise fail(path, f"invalid LAS header: scale is 0 ({', '.join(map(str, header.scales))})")
 
 
 def _kind(name: str) -> AttributeKind:
@@ -405,7 +459,25 @@ def _checked_count(path: str, raw: RawHeader, size: int, partial: bool, warnings
     raise fail(path, problem)
 
 
-def _laz_layout(path: str, stream, header: laspy.LasHeader, count: int) -> LazLayout:
+def _declared_chunks(stream, point_data: int, size: int) -> int | None:
+    """How many chunks the LAZ chunk table says it holds, found as lazrs finds it (the
+    offset at the start of the point data, else in the file's last 8 bytes); None where
+    there is none to find."""
+    def offset_at(position: int) -> int:
+        stream.seek(position)
+        raw = stream.read(8)
+        return struct.unpack("<q", raw)[0] if len(raw) == 8 else -1
+
+    offset = offset_at(point_data)
+    if offset <= point_data:
+        offset = offset_at(max(size - 8, 0))
+    if not point_data < offset <= size - 8:
+        return None
+    stream.seek(offset)
+    return struct.unpack("<II", stream.read(8))[1]
+
+
+def _laz_layout(path: str, stream, header: laspy.LasHeader, count: int, size: int) -> LazLayout:
     """LazrsParallel where a readable chunk table allows it (and then the count is checked
     against the table); the sequential decoder otherwise, which fails on a short read."""
     if not laspy.LazBackend.Lazrs.is_available():
@@ -421,6 +493,9 @@ def _laz_layout(path: str, stream, header: laspy.LasHeader, count: int) -> LazLa
                        None if variable or not chunked else vlr.chunk_size(), table_ok=False)
     if not chunked:
         return layout
+    chunks = _declared_chunks(stream, header.offset_to_point_data, size)
+    if chunks is None or chunks * MIN_CHUNK_BYTES > size:
+        return dataclasses.replace(layout, stand_in=True)
     try:
         stream.seek(header.offset_to_point_data)
         table = lazrs.read_chunk_table(stream, vlr)
@@ -439,9 +514,8 @@ def _laz_layout(path: str, stream, header: laspy.LasHeader, count: int) -> LazLa
 
 def _probe(path: str, laz: LazLayout | None, count: int, has_rgb: bool,
            partial: bool) -> tuple[int, laspy.ScaleAwarePointRecord]:
-    """Max of R, G, B over the first BATCH_POINTS points (so 8- vs 16-bit colour does not
-    depend on the loader's batch size), read in pieces that stop once it exceeds 255,
-    and the first point."""
+    """Max of R, G, B over the first BATCH_POINTS points (the rule of FileInfo.rgb_16bit),
+    read in pieces that stop once it exceeds 255, and the first point."""
     wanted = min(count, BATCH_POINTS if has_rgb else 1)
     max_rgb, first = 0, None
     try:

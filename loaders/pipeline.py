@@ -85,17 +85,14 @@ def _common_attributes(sources: tuple[LasSource, ...], origin: np.ndarray) -> tu
     )
 
 
-def _ready(batch: Batch) -> Batch:
-    return batch
-
-
 def _tasks(source: Source, start: int, batch_points: int, origin: np.ndarray,
            names: tuple[str, ...], partial: bool) -> Iterator[Task]:
-    """Per batch, the work a parser thread does: parsing LAS chunks, nothing for fast files."""
+    """Per batch, the work a parser thread does: parsing LAS chunks, checking fast-format
+    records for non-finite values."""
     path = source.info.path
     if isinstance(source, FastSource):
         for batch in source.batches(batch_points, start):
-            yield path, functools.partial(_ready, batch)
+            yield path, functools.partial(source.parse, batch)
         return
     for chunk in source.chunks(batch_points, salvage=partial):
         yield path, functools.partial(source.parse, chunk, start, origin, names)
@@ -113,7 +110,10 @@ def _as_input_error(path: str, exc: BaseException) -> InputError:
 class CloudLoader:
     """Loads a cloud in the background; poll() from a render loop or iterate to block.
 
-    Batches arrive in any order, each with its global file-order `start`.
+    Batches arrive in any order, each with its global file-order `start`. Of the batches
+    handed out so far, `nonfinite_positions` counts the points that are never drawn (x,
+    y or z NaN/Inf) and `nonfinite_values` the NaN/Inf values per float attribute that
+    has any; both are final once `done`.
     """
 
     def __init__(self, paths, *, batch_points: int = BATCH_POINTS,
@@ -127,6 +127,8 @@ class CloudLoader:
         self.partial = partial
         self.warnings: list[str] = [w for s in self._sources for w in s.warnings]
         self.loaded = 0
+        self.nonfinite_positions = 0
+        self.nonfinite_values: dict[str, int] = {}
         self._finished = 0
         self._tasks: queue.Queue = queue.Queue(maxsize=1)
         self._results: queue.Queue = queue.Queue(maxsize=self.parser_threads)
@@ -198,6 +200,9 @@ class CloudLoader:
             self._finished += 1
         else:
             self.loaded += item.count
+            self.nonfinite_positions += item.nonfinite_positions
+            for name, n in item.nonfinite_values.items():
+                self.nonfinite_values[name] = self.nonfinite_values.get(name, 0) + n
             batches.append(item)
 
     def _raise_failure(self) -> None:

@@ -46,7 +46,11 @@ class FileInfo:
     offset: tuple[float, float, float]
     bounds_min: tuple[float, float, float]
     bounds_max: tuple[float, float, float]
-    rgb_16bit: bool | None      # None: the file has no RGB
+    rgb_16bit: bool | None
+    """None: no RGB. True iff some R, G or B among the file's first BATCH_POINTS points
+    exceeds 255; then every channel is shifted right by 8 bits. False: 8-bit, and any
+    later value above 255 is clipped to 255. Decided once per file, so the colours do
+    not depend on the loader's batch size."""
     crs: str | None = None
 
 
@@ -80,13 +84,52 @@ class Batch:
     of CloudInfo.attributes to 1-D arrays (RGB: (n, 3) uint8). Batches read from the
     fast format carry `records` instead: (n, 4) uint32 rows already in GPU layout
     (xyz float32 bits relative to the origin, one attribute word).
+
+    Points whose x, y or z is not finite are kept (so slots and ids stay in file order)
+    but never drawn; `nonfinite_positions` counts them, and `nonfinite_values` counts
+    NaN/Inf per float attribute (only attributes that have any).
     """
 
     start: int
     positions: np.ndarray                       # (n, 3) float32, relative to CloudInfo.origin
     attributes: dict[str, np.ndarray] = field(default_factory=dict)
     records: np.ndarray | None = None
+    bounds: tuple[np.ndarray, np.ndarray] | None = None
+    """LAS only: float64 min and max of the file coordinates, exact where the float32
+    positions are not (a 1e-7 scale, or coordinates far from the origin)."""
+    nonfinite_positions: int = 0
+    nonfinite_values: dict[str, int] = field(default_factory=dict)
 
     @property
     def count(self) -> int:
         return int(self.positions.shape[0])
+
+
+def nonfinite_rows(positions: np.ndarray) -> int:
+    """Points the GPU skips: any coordinate NaN or infinite (shaders/common.glsl)."""
+    finite = np.isfinite(positions)
+    return 0 if finite.all() else int(positions.shape[0] - np.count_nonzero(finite.all(axis=1)))
+
+
+def nonfinite_records(records: np.ndarray) -> tuple[int, int]:
+    """Of (n, 4) uint32 GPU records: the points with a non-finite x, y or z, and the
+    attribute words that are non-finite as float32. One contiguous pass packs each row's
+    four finite flags into one word (x in the low byte): a strided view of the columns
+    costs ten times as much, and this runs once per batch of a billion-point file."""
+    flags = np.isfinite(records.view(np.float32)).view("<u4")[:, 0]
+    n = records.shape[0]
+    return (n - int(np.count_nonzero((flags & 0x00FFFFFF) == 0x00010101)),
+            n - int(np.count_nonzero(flags & 0x01000000)))
+
+
+def nonfinite_count(values: np.ndarray) -> int:
+    """NaN/Inf values of a float array; integer arrays have none."""
+    if values.dtype.kind != "f":
+        return 0
+    return int(values.size - np.count_nonzero(np.isfinite(values)))
+
+
+def quiet_nans(values: np.ndarray) -> None:
+    """In place: signalling NaNs (any bit pattern can be in a file) become quiet ones,
+    which numpy arithmetic downstream accepts without an 'invalid value' warning."""
+    values[np.isnan(values)] = np.nan

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from progressive.loaders.types import AttributeInfo, AttributeKind, Batch
+from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, nonfinite_records
 
 RECORD_BYTES = 16
 ELEVATION = "elevation"
@@ -21,18 +21,21 @@ def attribute_word(batch: Batch, attr: AttributeInfo, origin_z: float) -> np.nda
     n = batch.count
     if attr.name == ELEVATION:
         z = batch.positions[:, 2].astype(np.float64) + (origin_z - attr.offset)
-        return z.astype(np.float32).view(np.uint32)
+        with np.errstate(over="ignore", invalid="ignore"):
+            return z.astype(np.float32).view(np.uint32)
     values = batch.attributes[attr.name]
     if attr.kind is AttributeKind.RGB:
         rgb = np.asarray(values, dtype=np.uint32)
         return rgb[:, 0] | (rgb[:, 1] << 8) | (rgb[:, 2] << 16) | np.uint32(0xFF000000)
     if attr.kind is AttributeKind.CATEGORY:
         return np.asarray(values).astype(np.uint32, copy=False).reshape(n)
-    scalar = np.asarray(values, dtype=np.float64) - attr.offset
-    return scalar.astype(np.float32).view(np.uint32).reshape(n)
+    with np.errstate(over="ignore", invalid="ignore"):
+        scalar = np.asarray(values, dtype=np.float64) - attr.offset
+        return scalar.astype(np.float32).view(np.uint32).reshape(n)
 
 
 NAN_WORD = np.uint32(0xFFFFFFFF)
+EXPONENT = np.uint32(0x7F800000)
 
 
 def pack_records(batch: Batch, attr: AttributeInfo, origin_z: float) -> np.ndarray:
@@ -40,17 +43,19 @@ def pack_records(batch: Batch, attr: AttributeInfo, origin_z: float) -> np.ndarr
     whose shown scalar is NaN or infinite gets NaN coordinates: no pass draws it, so
     it neither shows a made-up colour nor hides what is behind it."""
     if batch.records is not None:
-        return batch.records
-    out = np.empty((batch.count, 4), dtype=np.uint32)
-    out[:, :3] = np.ascontiguousarray(batch.positions, dtype=np.float32).view(np.uint32)
-    out[:, 3] = attribute_word(batch, attr, origin_z)
+        out = batch.records
+        if not (attr.kind is AttributeKind.SCALAR and batch.nonfinite_values.get(attr.name)):
+            return out
+    else:
+        out = np.empty((batch.count, 4), dtype=np.uint32)
+        out[:, :3] = np.ascontiguousarray(batch.positions, dtype=np.float32).view(np.uint32)
+        out[:, 3] = attribute_word(batch, attr, origin_z)
     if attr.kind is AttributeKind.SCALAR:
-        bad = ~np.isfinite(out[:, 3].view(np.float32))
+        bad = (out[:, 3] & EXPONENT) == EXPONENT
         out[bad, :3] = NAN_WORD
     return out
 
 
 def undrawable(records: np.ndarray) -> int:
     """Records no pass draws: a non-finite x, y or z (shaders/common.glsl finite_position)."""
-    exponent = records[:, :3] & np.uint32(0x7F800000)
-    return int(np.count_nonzero((exponent == np.uint32(0x7F800000)).any(axis=1)))
+    return nonfinite_records(records)[0]

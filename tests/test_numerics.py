@@ -143,3 +143,19 @@ def test_nonfinite_values_and_positions_are_never_drawn(gl):
         shown = set(ids[ids != EMPTY].tolist())
         assert shown == {1, 3, 5}, shown      # the points behind the skipped ones show through
         r.release()
+
+
+def test_fast_format_records_with_nonfinite_shown_values_are_hidden():
+    from progressive.packing import pack_records, undrawable
+
+    attr = AttributeInfo("reflectance", AttributeKind.SCALAR, np.dtype("f4"))
+    words = np.array([1.0, np.nan, 2.0, np.inf], dtype=np.float32).view(np.uint32)
+    records = np.zeros((4, 4), dtype=np.uint32)
+    records[:, 3] = words
+    batch = Batch(start=0, positions=records[:, :3].view(np.float32), records=records.copy(),
+                  nonfinite_values={"reflectance": 2})
+    packed = pack_records(batch, attr, 0.0)
+    assert undrawable(packed) == 2 and undrawable(records) == 0
+    other = AttributeInfo("intensity", AttributeKind.SCALAR, np.dtype("f4"))
+    assert undrawable(pack_records(Batch(start=0, positions=records[:, :3].view(np.float32), records=records.copy()),
+                                   other, 0.0)) == 0
