@@ -11,26 +11,20 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.progressive import SAMPLE, load
-from bench.synthetic import tiled
+from bench.synthetic import add_cloud_args, setup
 from progressive.budget import BudgetParams
 from progressive.camera import auto_camera, view_uniforms
-from progressive.context import create_context
 from progressive.frame_loop import ProgressiveOptions, ProgressiveRenderer
 from progressive.passes.budget import Stamp
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--points", type=int, default=1_000_000)
-    ap.add_argument("--size", default="1920x1080")
+    add_cloud_args(ap)
     ap.add_argument("--budget", type=int, default=10_000_000)
-    ap.add_argument("--out", default="bench/results/local")
     args = ap.parse_args(argv)
-    width, height = (int(v) for v in args.size.split("x"))
-    glc = create_context()
-    cloud = tiled(str(SAMPLE), args.points)
-    scene, _ = load(glc, cloud)
+    s = setup(args)
+    glc, cloud, scene, width, height = s.glc, s.cloud, s.scene, s.width, s.height
     r = ProgressiveRenderer(glc, cloud.info, cloud.attribute,
                             ProgressiveOptions(width, height, budget=BudgetParams(fixed=args.budget)), scene=scene)
     cam = auto_camera(cloud.info.bounds_min, cloud.info.bounds_max, width / height)

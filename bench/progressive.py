@@ -14,16 +14,12 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.synthetic import tiled
+from bench.synthetic import SAMPLE, add_cloud_args, setup
 from progressive.budget import BudgetParams
 from progressive.camera import Camera, auto_camera
-from progressive.context import create_context
 from progressive.frame_loop import ProgressiveOptions, ProgressiveRenderer
-from progressive.loaders.types import Batch
 from progressive.renderer import Renderer
-from progressive.scene import Scene
 
-SAMPLE = Path(__file__).resolve().parents[1] / "progressive" / "data" / "autzen_trim.las"
 
 
 def orbit(cam: Camera, degrees: float) -> Camera:
@@ -31,16 +27,6 @@ def orbit(cam: Camera, degrees: float) -> Camera:
     rel = np.subtract(cam.position, cam.target)
     pos = np.array([c * rel[0] - s * rel[1], s * rel[0] + c * rel[1], rel[2]]) + cam.target
     return Camera(tuple(pos.tolist()), cam.target, cam.up, cam.fov_y_deg, cam.near, cam.far)
-
-
-def load(glc, cloud) -> tuple[Scene, float]:
-    """The tiled cloud on the GPU once, shared by every run."""
-    t0 = time.perf_counter()
-    scene = Scene(glc, cloud.info, cloud.attribute)
-    for start, rec in cloud.batches():
-        scene.add_batch(Batch(start=start, positions=rec[:, :3].view(np.float32), records=rec))
-    glc.ctx.finish()
-    return scene, time.perf_counter() - t0
 
 
 def summarize(stats, label, target_ms, points, converge_after=0):
@@ -108,18 +94,14 @@ def brute_ms(glc, scene, cloud, width, height) -> float:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--points", type=int, default=1_000_000)
-    ap.add_argument("--size", default="1920x1080")
+    add_cloud_args(ap)
     ap.add_argument("--targets-ms", type=float, nargs="+", default=[16.6, 11.1])
     ap.add_argument("--fixed", type=int, nargs="*", default=[])
     ap.add_argument("--max-frames", type=int, default=400)
     ap.add_argument("--orbit-frames", type=int, default=60)
-    ap.add_argument("--out", default="bench/results/local")
     args = ap.parse_args(argv)
-    width, height = (int(v) for v in args.size.split("x"))
-    glc = create_context()
-    cloud = tiled(str(SAMPLE), args.points)
-    scene, load_s = load(glc, cloud)
+    s = setup(args)
+    glc, cloud, scene, load_s, width, height = s.glc, s.cloud, s.scene, s.upload_seconds, s.width, s.height
     print(json.dumps({"points": args.points, "upload_s": load_s}), flush=True)
     rows, raw = [], {}
     rows.append({"run": "brute force (compute)", "frame_ms_median": brute_ms(glc, scene, cloud, width, height)})

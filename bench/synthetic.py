@@ -3,16 +3,23 @@ local structure stays real. Records are made per tile and streamed to the GPU.""
 
 from __future__ import annotations
 
+import argparse
 import math
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from progressive.attributes import default_attribute
+from progressive.context import GLContext, create_context
 from progressive.loaders import CloudLoader
-from progressive.loaders.types import AttributeInfo, CloudInfo
+from progressive.loaders.types import AttributeInfo, Batch, CloudInfo
 from progressive.packing import pack_records
+from progressive.scene import Scene
+
+SAMPLE = Path(__file__).resolve().parents[1] / "progressive" / "data" / "autzen_trim.las"
 
 
 @dataclass(frozen=True)
@@ -57,3 +64,38 @@ def tiled(path: str, points: int, attribute: str | None = None) -> TiledCloud:
     tiled_info = CloudInfo(files=info.files, points=points, origin=info.origin,
                            bounds_min=info.origin - half, bounds_max=info.origin + half, attributes=info.attributes)
     return TiledCloud(tiled_info, attr, records, size, (gx, gy), points)
+
+
+def load(glc: GLContext, cloud: TiledCloud) -> tuple[Scene, float]:
+    """The tiled cloud on the GPU once, shared by every run; seconds to upload it."""
+    t0 = time.perf_counter()
+    scene = Scene(glc, cloud.info, cloud.attribute)
+    for start, rec in cloud.batches():
+        scene.add_batch(Batch(start=start, positions=rec[:, :3].view(np.float32), records=rec))
+    glc.ctx.finish()
+    return scene, time.perf_counter() - t0
+
+
+def add_cloud_args(ap: argparse.ArgumentParser) -> None:
+    ap.add_argument("--points", type=int, default=1_000_000)
+    ap.add_argument("--size", default="1920x1080")
+    ap.add_argument("--out", default="bench/results/local")
+
+
+@dataclass(frozen=True)
+class Setup:
+    glc: GLContext
+    cloud: TiledCloud
+    scene: Scene
+    upload_seconds: float
+    width: int
+    height: int
+
+
+def setup(args: argparse.Namespace) -> Setup:
+    """A context and the sample tiled to --points, on the GPU, at --size."""
+    width, height = (int(v) for v in args.size.split("x"))
+    glc = create_context()
+    cloud = tiled(str(SAMPLE), args.points)
+    scene, seconds = load(glc, cloud)
+    return Setup(glc, cloud, scene, seconds, width, height)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, nonfinite_records
+from progressive.loaders.types import AttributeInfo, AttributeKind, Batch
 
 RECORD_BYTES = 16
 ELEVATION = "elevation"
@@ -55,7 +55,3 @@ def pack_records(batch: Batch, attr: AttributeInfo, origin_z: float) -> np.ndarr
         out[bad, :3] = NAN_WORD
     return out
 
-
-def undrawable(records: np.ndarray) -> int:
-    """Records no pass draws: a non-finite x, y or z (shaders/common.glsl finite_position)."""
-    return nonfinite_records(records)[0]

@@ -9,8 +9,8 @@ import numpy as np
 
 from progressive.colors import ColorStyle, Colormap, robust_range
 from progressive.context import GLContext
-from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, CloudInfo
-from progressive.packing import pack_records, undrawable
+from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, CloudInfo, nonfinite_records
+from progressive.packing import pack_records
 from progressive.passes.distribute import DistributePass
 from progressive.pointstore import PointStore
 
@@ -36,7 +36,7 @@ class Scene:
     def add_batch(self, batch: Batch) -> None:
         t0 = time.perf_counter()
         records = pack_records(batch, self.attribute, float(self.info.origin[2]))
-        self.skipped += undrawable(records)
+        self.skipped += nonfinite_records(records)[0]     # what shaders/common.glsl finite_position skips
         self.distribute.upload(records, batch.start)
         if self.attribute.kind is AttributeKind.SCALAR:
             step = max(1, batch.count // RANGE_SAMPLE_PER_BATCH)

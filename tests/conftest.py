@@ -40,3 +40,14 @@ def gl():
     handle = create_context()
     yield handle
     handle.release()
+
+
+@pytest.fixture(scope="session")
+def fast_sample(tmp_path_factory) -> Path:
+    """The bundled sample in the fast format, its attribute word the intensity (a SCALAR)."""
+    from progressive.loaders import CloudLoader, open_cloud, write_fast
+
+    out = tmp_path_factory.mktemp("fast") / "sample.prgs"
+    info = open_cloud([SAMPLE])
+    write_fast(out, CloudLoader([SAMPLE]), info, info.attribute("intensity"))
+    return out

@@ -21,7 +21,7 @@ from PIL import Image
 
 from conftest import SAMPLE, shared_file
 from progressive.cli import main
-from progressive.loaders import BATCH_POINTS, CloudLoader, describe, open_cloud, write_fast
+from progressive.loaders import BATCH_POINTS, CloudLoader, describe, open_cloud
 from progressive.loaders.fastformat import HEADER_BYTES
 
 TINY = ["--width", "64", "--height", "48"]
@@ -262,15 +262,6 @@ def test_nonfinite_extra_bytes_describe(nan_extra_bytes):
 def test_nonfinite_extra_bytes_render(tmp_path, capsys, nan_extra_bytes, color_by):
     code, _, err = cli(capsys, "render", *TINY, nan_extra_bytes[0], "--color-by", color_by, "--out", tmp_path / "x.png")
     assert code == 0, err
-
-
-@pytest.fixture(scope="module")
-def fast_sample(tmp_path_factory) -> Path:
-    """The sample in the fast format, its word the intensity (a SCALAR)."""
-    out = tmp_path_factory.mktemp("fast") / "sample.prgs"
-    info = open_cloud([SAMPLE])
-    write_fast(out, CloudLoader([SAMPLE]), info, info.attribute("intensity"))
-    return out
 
 
 NAN32, SNAN32, INF32, NEG_INF32 = 0x7FC00000, 0x7F800001, 0x7F800000, 0xFF800000

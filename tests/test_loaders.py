@@ -277,14 +277,6 @@ def test_fast_write_is_atomic(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-@pytest.fixture(scope="module")
-def fast_file(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("fast") / "sample.prgs"
-    info = open_cloud([SAMPLE])
-    write_fast(out, CloudLoader([SAMPLE]), info, info.attribute("intensity"))
-    return out
-
-
 @pytest.mark.parametrize("patch, message", [
     (lambda d: d.__setitem__(slice(0, 8), b"PRGSPC\x00\x02"), "bad fast-format magic"),
     (lambda d: d.__setitem__(slice(0, 8), b"PRGSXX\x00\x01"), "not a LAS/LAZ or fast-format file"),
@@ -295,8 +287,8 @@ def fast_file(tmp_path_factory) -> Path:
     (lambda d: d.extend(b"\x00" * 16), "does not match"),
     (lambda d: struct.pack_into("<Q", d, 16, 0), "has no points"),
 ])
-def test_fast_bad_headers(tmp_path, fast_file, patch, message):
-    data = bytearray(fast_file.read_bytes())
+def test_fast_bad_headers(tmp_path, fast_sample, patch, message):
+    data = bytearray(fast_sample.read_bytes())
     patch(data)
     path = tmp_path / "bad.prgs"
     path.write_bytes(data)
@@ -318,17 +310,17 @@ def test_fast_write_of_partial_load(tmp_path):
         write_fast(tmp_path / "holes.prgs", batches, info, info.attribute("rgb"))
 
 
-def test_fast_partial_short_file(tmp_path, fast_file):
+def test_fast_partial_short_file(tmp_path, fast_sample):
     path = tmp_path / "short.prgs"
-    path.write_bytes(fast_file.read_bytes()[:HEADER_BYTES + 16 * 1234 + 7])
+    path.write_bytes(fast_sample.read_bytes()[:HEADER_BYTES + 16 * 1234 + 7])
     loader, batches = load([path], partial=True)
     assert loader.info.points == 1234 and loader.warnings
     assert_covers(batches, 1234)
 
 
-def test_fast_and_las_cannot_mix(fast_file):
+def test_fast_and_las_cannot_mix(fast_sample):
     with pytest.raises(InputError, match="cannot be mixed"):
-        open_cloud([SAMPLE, fast_file])
+        open_cloud([SAMPLE, fast_sample])
 
 
 # --- bad input ---------------------------------------------------------------------------

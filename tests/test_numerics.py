@@ -120,7 +120,8 @@ def test_one_centimetre_apart_resolves_at_any_distance(gl, distance, raster):
 def test_nonfinite_values_and_positions_are_never_drawn(gl):
     """A NaN or infinite shown value, or coordinate, is skipped and counted; such a point
     must not hide the point behind it."""
-    from progressive.packing import pack_records, undrawable
+    from progressive.loaders.types import nonfinite_records
+    from progressive.packing import pack_records
 
     n = 6
     xyz = np.array([[0.0, 5.0, 0.0], [0.0, 6.0, 0.0], [0.3, 5.0, 0.0], [0.3, 6.0, 0.0], [-0.3, 5.0, 0.0],
@@ -132,7 +133,7 @@ def test_nonfinite_values_and_positions_are_never_drawn(gl):
     positions[4, 0] = np.nan                   # a non-finite coordinate (fast-format style)
     batch = Batch(start=0, positions=positions, attributes={"reflectance": values})
     records = pack_records(batch, attr, float(origin[2]))
-    assert undrawable(records) == 3
+    assert nonfinite_records(records)[0] == 3
     info = CloudInfo(files=(), points=n, origin=origin, bounds_min=xyz.min(0), bounds_max=xyz.max(0), attributes=(attr,))
     cam = Camera(tuple((origin + [0.0, -5.0, 0.0]).tolist()), tuple(origin.tolist()), (0.0, 0.0, 1.0), 40.0, 0.1, 100.0)
     for raster in (Raster.COMPUTE, Raster.POINTS):
@@ -146,7 +147,8 @@ def test_nonfinite_values_and_positions_are_never_drawn(gl):
 
 
 def test_fast_format_records_with_nonfinite_shown_values_are_hidden():
-    from progressive.packing import pack_records, undrawable
+    from progressive.loaders.types import nonfinite_records
+    from progressive.packing import pack_records
 
     attr = AttributeInfo("reflectance", AttributeKind.SCALAR, np.dtype("f4"))
     words = np.array([1.0, np.nan, 2.0, np.inf], dtype=np.float32).view(np.uint32)
@@ -155,7 +157,7 @@ def test_fast_format_records_with_nonfinite_shown_values_are_hidden():
     batch = Batch(start=0, positions=records[:, :3].view(np.float32), records=records.copy(),
                   nonfinite_values={"reflectance": 2})
     packed = pack_records(batch, attr, 0.0)
-    assert undrawable(packed) == 2 and undrawable(records) == 0
+    assert nonfinite_records(packed)[0] == 2 and nonfinite_records(records)[0] == 0
     other = AttributeInfo("intensity", AttributeKind.SCALAR, np.dtype("f4"))
-    assert undrawable(pack_records(Batch(start=0, positions=records[:, :3].view(np.float32), records=records.copy()),
-                                   other, 0.0)) == 0
+    unmasked = pack_records(Batch(start=0, positions=records[:, :3].view(np.float32), records=records.copy()), other, 0.0)
+    assert nonfinite_records(unmasked)[0] == 0

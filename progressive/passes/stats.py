@@ -67,11 +67,11 @@ class StatsRing:
     def collect(self, wait: bool = False) -> list[GPURecord]:
         """Records whose fence has signalled (all of them, waiting, when `wait`)."""
         out = []
+        if wait and self.pending:
+            self.glc.ctx.finish()
         while self.pending:
             head = self.pending[0]
-            if wait:
-                self.glc.ctx.finish()
-            elif not self.glc.gl.signaled(head.fence):
+            if not wait and not self.glc.gl.signaled(head.fence):
                 break
             self.pending.popleft()
             self.glc.gl.delete_sync(head.fence)
