@@ -52,7 +52,7 @@ def main(argv=None) -> int:
         timed("budget adapt", b.adapt)
         timed("fill rest", lambda: [raster.draw_piece(view, b, k, p) for p in range(raster.passes) for k in (2, 3)])
         timed("prepare", r.prepare.run)
-        timed("resolve", lambda: r.resolve.run(style, r.prepare.pixel_words))
+        timed("resolve", lambda: r.shading.resolve.run(style, r.prepare.pixel_words))
         timed("brute force", lambda: (r.vis.clear(), raster.draw(view, 0, r.store.count)))
         timed("empty", lambda: None)
     med = {k: float(np.median(v[1:])) for k, v in rows.items()}

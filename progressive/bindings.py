@@ -33,6 +33,8 @@ class Binding(enum.IntEnum):
     OUT_RECORDS = 21
     HINT = 23               # per pixel: list index of the reprojected point that last improved it
     PIXEL_WORDS = 24        # per pixel: attribute word of the visible point
+    DILATED = 25            # point-size pass output, laid out as VISIBILITY
+    DILATED_WORDS = 26      # point-size pass output, laid out as PIXEL_WORDS
 
     @classmethod
     def points(cls, chunk: int) -> Binding:

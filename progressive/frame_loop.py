@@ -14,15 +14,16 @@ from progressive.budget import BudgetParams
 from progressive.camera import Camera, view_uniforms
 from progressive.colors import ColorStyle
 from progressive.context import GLContext
+from progressive.effects import Effects
 from progressive.loaders.types import AttributeInfo, Batch, CloudInfo
 from progressive.passes.budget import TIMESTAMP_SLOTS, BudgetPass, Stamp, StateWord
 from progressive.passes.compare import ComparePass
 from progressive.passes.prepare import PreparePass
-from progressive.passes.resolve import ResolvePass
 from progressive.passes.stats import GPURecord, StatsRing
 from progressive.passes.visibility import VisibilityBuffer
 from progressive.renderer import Raster, ids_for, make_raster, raster_path
 from progressive.scene import Scene
+from progressive.shading import Shading
 
 PASS_TIMES = {"reproject": (Stamp.FRAME, Stamp.FILL), "fill": (Stamp.FILL, Stamp.FILL_END),
               "prepare": (Stamp.FILL_END, Stamp.PREPARE_END), "resolve": (Stamp.PREPARE_END, Stamp.END),
@@ -41,6 +42,7 @@ class ProgressiveOptions:
     frames_in_flight: int | None = None  # headless pacing, as a swap chain paces a window; None: no limit
     capacity: int | None = None         # points kept on the GPU (progressive/memory.py); None: all
     history_frames: int = 10_000        # per-frame statistics kept (a viewer runs for hours)
+    keep_batches: bool = False          # keep loaded attributes in host memory to switch attributes
 
 
 @dataclass(frozen=True)
@@ -78,13 +80,14 @@ class ProgressiveRenderer:
         """`scene`: a cloud already on the GPU to render (kept on release)."""
         self.glc, self.info, self.options = glc, info, options
         self._own_scene = scene is None
-        self.scene = scene or Scene(glc, info, attribute, chunk_points=options.chunk_points, capacity=options.capacity)
+        self.scene = scene or Scene(glc, info, attribute, chunk_points=options.chunk_points,
+                                    capacity=options.capacity, keep_batches=options.keep_batches)
         self.store = self.scene.store
         self.vis = VisibilityBuffer(glc, options.width, options.height)
         self.raster = make_raster(glc, self.store, self.vis, options.raster)
         self.budget = BudgetPass(glc, self.store.capacity, options.budget)
         self.prepare = PreparePass(glc, self.store, self.vis)
-        self.resolve = ResolvePass(glc, self.store, self.vis, pixel_words=True)
+        self.shading = Shading(glc, self.store, self.vis, pixel_words=True)
         self.compare = ComparePass(glc, self.store, self.vis, atomic64=glc.caps.atomic_int64) if options.reference else None
         self.stats_ring = StatsRing(glc)
         self.pending: deque[Batch] = deque()
@@ -93,7 +96,8 @@ class ProgressiveRenderer:
         self.converged_change = -1
         self.history: list[FrameStats] = []
         self._camera: Camera | None = None
-        self._style: ColorStyle | None = None
+        self._look: tuple[ColorStyle, Effects] | None = None
+        self._regather = False
         self._has_visible = False
         self._in_flight: deque[int] = deque()
         self.pacing_waits = 0
@@ -118,10 +122,21 @@ class ProgressiveRenderer:
             self._has_visible = False
             self._camera = None
 
-    def frame(self, camera: Camera, style: ColorStyle) -> tuple[str, ...]:
+    def switch_attribute(self, attribute: AttributeInfo) -> None:
+        """Show another attribute: frames stream its words to the GPU (showing the last
+        image meanwhile), then refresh the visible points' words; nothing reloads."""
+        self.scene.begin_switch(attribute)
+
+    @property
+    def switching(self) -> bool:
+        return self.scene.switch is not None and not self.scene.switch.done
+
+    def frame(self, camera: Camera, style: ColorStyle, effects: Effects = Effects()) -> tuple[str, ...]:
         """Issue one frame's GPU work; returns the passes that ran."""
         self._pace()
         self._take(self.stats_ring.collect())
+        if self.switching:
+            return self._stream()
         passes: list[str] = []
         for _ in range(min(self.options.batches_per_frame, len(self.pending))):
             self.scene.add_batch(self.pending.popleft())
@@ -129,23 +144,42 @@ class ProgressiveRenderer:
         moved = camera != self._camera
         if passes or moved:
             self.change += 1
-        restyled = style != self._style
-        self._camera, self._style = camera, style
+        restyled = (style, effects) != self._look
+        self._camera, self._look = camera, (style, effects)
         if self.scene.loaded == 0:
             self.vis.clear()
-            self.resolve.run(style, self.prepare.pixel_words)
-            passes.append("resolve")
+            passes += self.shading.run(style, effects, self.prepare.pixel_words)
         elif self.converged and not passes:
-            if restyled:
-                self.resolve.run(style, self.prepare.pixel_words)
-                passes.append("resolve")
+            if self._regather:
+                self.prepare.run(regather=True)
+                self._regather = False
+                passes.append("prepare")
+            if restyled or "prepare" in passes:
+                passes += self.shading.run(style, effects, self.prepare.pixel_words)
         else:
-            return self._render(camera, style, passes, reset=bool(passes) or moved)
+            return self._render(camera, style, effects, passes, reset=bool(passes) or moved)
         self.budget.end_frame(complete=False)
         self._idle_frame(tuple(passes))
         return tuple(passes)
 
-    def _render(self, camera: Camera, style: ColorStyle, passes: list[str], reset: bool) -> tuple[str, ...]:
+    def _stream(self) -> tuple[str, ...]:
+        """One frame of an attribute switch. Words in the reprojection list are copies:
+        once the store is rewritten, the next prepare reads every visible record anew;
+        a switch that changed which points are drawn starts the image again."""
+        if self.scene.stream():
+            if self.scene.positions_changed:
+                self.change += 1
+                self.prepare.invalidate()
+                self._has_visible = False
+            else:
+                self._regather = True
+            self._look = None
+        self.budget.end_frame(complete=False)
+        self._idle_frame(("stream",))
+        return ("stream",)
+
+    def _render(self, camera: Camera, style: ColorStyle, effects: Effects, passes: list[str],
+                reset: bool) -> tuple[str, ...]:
         view = view_uniforms(camera, self.info.origin, self.vis.width, self.vis.height)
         b, raster = self.budget, self.raster
         if self._has_visible:
@@ -168,12 +202,12 @@ class ProgressiveRenderer:
             raster.draw_piece(view, b, 3, p)
         raster.end_frame(view)
         b.stamp(Stamp.FILL_END)
-        self.prepare.run()
+        self.prepare.run(regather=self._regather)
+        self._regather = False
         self._has_visible = True
         b.stamp(Stamp.PREPARE_END)
-        self.resolve.run(style, self.prepare.pixel_words)
+        passes += ["fill", "prepare", *self.shading.run(style, effects, self.prepare.pixel_words)]
         b.stamp(Stamp.END)
-        passes += ["fill", "prepare", "resolve"]
         reference = self.compare is not None and self.scene.complete
         if reference:
             self.compare.run(view)
@@ -230,13 +264,13 @@ class ProgressiveRenderer:
         return ids_for(self.store, self.read_slots())
 
     def read_image(self) -> np.ndarray:
-        return self.resolve.read()
+        return self.shading.read()
 
     def release(self) -> None:
         for sync in self._in_flight:
             self.glc.gl.delete_sync(sync)
         self._in_flight.clear()
-        parts = [self.stats_ring, self.raster, self.budget, self.prepare, self.resolve, self.vis]
+        parts = [self.stats_ring, self.raster, self.budget, self.prepare, self.shading, self.vis]
         if self._own_scene:
             parts.append(self.scene)
         if self.compare is not None:

@@ -6,8 +6,8 @@ from __future__ import annotations
 from progressive.bindings import MAX_POINT_CHUNKS, Binding
 from progressive.context import GLContext
 from progressive.errors import ProgressiveError
-from progressive.permutation import Permutation
 from progressive.packing import RECORD_BYTES
+from progressive.permutation import Permutation
 
 EMPTY_WORD = 0xFFFFFFFF
 """Every slot starts as NaN coordinates, which no pass draws: unloaded slots stay dark."""

@@ -9,15 +9,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from progressive.camera import Camera, view_uniforms
-from progressive.colors import ColorStyle, Colormap
+from progressive.colors import Colormap, ColorStyle
 from progressive.context import GLContext
+from progressive.effects import Effects
 from progressive.loaders.types import AttributeInfo, Batch, CloudInfo
 from progressive.passes.raster_compute import ComputeRaster
 from progressive.passes.raster_points import PointsRaster
-from progressive.passes.resolve import ResolvePass
 from progressive.passes.visibility import EMPTY, VisibilityBuffer
 from progressive.pointstore import PointStore
 from progressive.scene import Scene
+from progressive.shading import Shading
 from progressive.timing import Timestamps
 
 
@@ -40,16 +41,18 @@ class Renderer:
 
     def __init__(self, glc: GLContext, info: CloudInfo, attribute: AttributeInfo, *,
                  raster: Raster = Raster.COMPUTE, width: int = 1280, height: int = 720,
-                 chunk_points: int | None = None, capacity: int | None = None, scene: Scene | None = None):
+                 chunk_points: int | None = None, capacity: int | None = None, scene: Scene | None = None,
+                 keep_batches: bool = False):
         """`scene`: a cloud already on the GPU to render (kept on release)."""
         self.glc, self.info, self.attribute = glc, info, attribute
         self._own_scene = scene is None
-        self.scene = scene or Scene(glc, info, attribute, chunk_points=chunk_points, capacity=capacity)
+        self.scene = scene or Scene(glc, info, attribute, chunk_points=chunk_points, capacity=capacity,
+                                    keep_batches=keep_batches)
         self.store = self.scene.store
         self.vis = VisibilityBuffer(glc, width, height)
         self.raster_kind = raster
         self.raster = make_raster(glc, self.store, self.vis, raster)
-        self.resolve = ResolvePass(glc, self.store, self.vis)
+        self.shading = Shading(glc, self.store, self.vis)
         self.timestamps = Timestamps(glc)
 
     @property
@@ -70,7 +73,14 @@ class Renderer:
     def style(self, colormap: Colormap = Colormap.VIRIDIS, background=(0, 0, 0)) -> ColorStyle:
         return self.scene.style(colormap, background)
 
-    def render(self, camera: Camera, width: int, height: int, style: ColorStyle) -> Frame:
+    def switch_attribute(self, attribute: AttributeInfo) -> None:
+        """Show another attribute: every kept batch's words are rewritten before returning."""
+        self.scene.begin_switch(attribute)
+        while not self.scene.stream(seconds=float("inf")):
+            pass
+
+    def render(self, camera: Camera, width: int, height: int, style: ColorStyle,
+               effects: Effects = Effects()) -> Frame:
         self.vis.resize(width, height)
         view = view_uniforms(camera, self.info.origin, width, height)
         t = self.timestamps
@@ -80,14 +90,14 @@ class Renderer:
         t.stamp("clear")
         self.raster.draw(view, 0, self.store.capacity)
         t.stamp("raster")
-        self.resolve.run(style)
+        self.shading.run(style, effects)
         t.stamp("resolve")
-        image = self.resolve.read()
+        image = self.shading.read()
         slots = self.vis.read()[:, :, 0].copy()
         return Frame(image=image, slots=slots, ids=ids_for(self.store, slots), gpu_ms=t.durations_ms())
 
     def release(self) -> None:
-        for obj in (self.raster, self.resolve, self.vis, self.timestamps):
+        for obj in (self.raster, self.shading, self.vis, self.timestamps):
             obj.release()
         if self._own_scene:
             self.scene.release()

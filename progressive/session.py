@@ -21,12 +21,14 @@ from progressive import memory
 from progressive.attributes import default_choice, find_attribute
 from progressive.budget import BudgetParams
 from progressive.camera import Camera, auto_camera
-from progressive.colors import ColorStyle, Colormap
+from progressive.colors import Colormap, ColorStyle
 from progressive.context import GLContext, create_context
+from progressive.effects import Effects
 from progressive.frame_loop import FrameStats, ProgressiveOptions, ProgressiveRenderer
 from progressive.loaders import CloudLoader
 from progressive.pointstore import GPUMemoryError
 from progressive.renderer import Frame, Raster, Renderer
+from progressive.scene import AttributeSwitch
 
 
 class Method(enum.Enum):
@@ -49,6 +51,7 @@ class SessionOptions:
     partial: bool = False
     chunk_points: int | None = None
     gpu_memory_limit: int | None = None     # bytes; the free memory the driver reports also counts
+    switchable: bool = False                # keep every attribute in host memory to switch without reloading
 
 
 class Session:
@@ -77,11 +80,12 @@ class Session:
             if options.method is Method.BRUTE:
                 self.renderer = Renderer(self.glc, self.info, self.attribute, raster=options.raster,
                                          width=options.width, height=options.height,
-                                         chunk_points=options.chunk_points, capacity=capacity)
+                                         chunk_points=options.chunk_points, capacity=capacity,
+                                         keep_batches=options.switchable)
             else:
                 self.renderer = ProgressiveRenderer(self.glc, self.info, self.attribute, ProgressiveOptions(
                     options.width, options.height, options.raster, options.budget, options.batches_per_frame,
-                    options.reference, options.chunk_points, capacity=capacity))
+                    options.reference, options.chunk_points, capacity=capacity, keep_batches=options.switchable))
         except BaseException:
             self.loader.close()
             raise
@@ -124,8 +128,20 @@ class Session:
     def auto_camera(self) -> Camera:
         return auto_camera(self.info.bounds_min, self.info.bounds_max, self.options.width / self.options.height)
 
-    def style(self) -> ColorStyle:
-        return self.renderer.scene.style(self.options.colormap, self.options.background)
+    def style(self, colormap: Colormap | None = None, value_range: tuple[float, float] | None = None,
+              background: tuple[int, int, int] | None = None) -> ColorStyle:
+        """The options' colouring, or the one given (a viewer's controls)."""
+        scene = self.renderer.scene
+        return ColorStyle.for_attribute(scene.attribute, value_range or scene.value_range(),
+                                        colormap or self.options.colormap, background or self.options.background)
+
+    def switch_attribute(self, name: str) -> AttributeSwitch:
+        """Colour by another attribute (needs SessionOptions.switchable). Progressive
+        frames stream it in; the brute renderer rewrites it here."""
+        attribute = find_attribute(self.info, name)
+        self.renderer.switch_attribute(attribute)
+        self.attribute = attribute
+        return self.renderer.scene.switch
 
     def _pump(self, block: bool) -> None:
         batches = list(self.loader) if block else self.loader.poll()
@@ -134,15 +150,16 @@ class Session:
         if self.load_seconds is None and self.loader.done:
             self.load_seconds = time.perf_counter() - self.opened
 
-    def frame(self, camera: Camera) -> tuple[str, ...]:
+    def frame(self, camera: Camera, style: ColorStyle | None = None, effects: Effects = Effects()) -> tuple[str, ...]:
         """Progressive: one frame with whatever has loaded. Brute: load all, render."""
+        style = style or self.style()
         if not self.progressive:
             self._pump(block=True)
-            self._last = self.renderer.render(camera, self.options.width, self.options.height, self.style())
+            self._last = self.renderer.render(camera, self.options.width, self.options.height, style, effects)
             passes = ("distribute", "raster", "resolve")
         else:
             self._pump(block=False)
-            passes = self.renderer.frame(camera, self.style())
+            passes = self.renderer.frame(camera, style, effects)
         if self.first_image_seconds is None and self.renderer.scene.loaded > 0:
             self.first_image_seconds = time.perf_counter() - self.opened
         return passes

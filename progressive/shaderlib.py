@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Mapping
-from functools import lru_cache
+from functools import cache
 from importlib import resources
 
 import moderngl
@@ -16,7 +16,7 @@ _INCLUDE = re.compile(r'^\s*#include\s+"([^"]+)"\s*$', re.MULTILINE)
 Defines = Mapping[str, int | str | bool]
 
 
-@lru_cache(maxsize=None)
+@cache
 def shader_text(name: str) -> str:
     return resources.files("progressive.shaders").joinpath(name).read_text(encoding="utf-8")
 

@@ -2,7 +2,8 @@
 // the next frame reprojects, and its attribute word goes to the per-pixel words that
 // resolve reads. The record comes from the current list when the pixel's hint points
 // at the winning slot (a reprojected point), else it is gathered from the shuffled
-// store (a point filled this frame): random lookups into gigabytes are what a frame
+// store (a point filled this frame; every point with REGATHER, after the store's
+// attribute words were rewritten): random lookups into gigabytes are what a frame
 // pays for most, so only new winners make them. One global atomicAdd per work group.
 // With ARGS, a 1x1x1 dispatch turns the count into indirect arguments for the next
 // reprojection (dispatch at word 1, draw at word 4). A list's meta words head its
@@ -39,6 +40,7 @@ layout(std430, binding = BINDING_HINT) readonly buffer Hint { uint hint[]; };
 layout(std430, binding = BINDING_OUT_RECORDS) writeonly buffer OutRecords { uvec4 out_records[]; };
 layout(std430, binding = BINDING_PIXEL_WORDS) writeonly buffer PixelWords { uint pixel_words[]; };
 uniform uvec2 u_size;
+uniform uint u_regather;
 
 shared uint group_count;
 shared uint group_gathers;
@@ -60,7 +62,7 @@ void main() {
     }
     if (slot != EMPTY) {
         uint h = hint[pixel];
-        if (h < min(prev_meta[META_COUNT], u_capacity) && prev_slots[h] == slot) {
+        if (u_regather == 0u && h < min(prev_meta[META_COUNT], u_capacity) && prev_slots[h] == slot) {
             record = prev_records[h];
         } else {
             record = load_point(slot);

@@ -6,8 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from progressive.budget import (GAIN_ONE, U64, BudgetParams, BudgetState, elapsed, frame_fill,
-                                split_ring, step)
+from progressive.budget import GAIN_ONE, U64, BudgetParams, BudgetState, elapsed, frame_fill, split_ring, step
 
 MS = 1_000_000
 

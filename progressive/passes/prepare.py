@@ -109,7 +109,8 @@ class PreparePass:
         for lst in self.lists:
             lst.reset()
 
-    def run(self) -> None:
+    def run(self, regather: bool = False) -> None:
+        """regather: read every visible record from the store (its words were rewritten)."""
         out = self.lists[1 - self.current]
         out.reset()
         self.bind_reprojection()
@@ -120,6 +121,7 @@ class PreparePass:
         for p in (self.append, self.args):
             p["u_capacity"] = self.capacity
         self.append["u_size"] = (self.vis.width, self.vis.height)
+        self.append["u_regather"] = int(regather)
         self.append.run(*grid_2d(self.vis.width, self.vis.height))
         self.glc.ctx.memory_barrier()
         self.args.run(1, 1, 1)

@@ -25,9 +25,10 @@ class ResolvePass:
         self.image = None
         self._palette_key = None
 
-    def run(self, style: ColorStyle, words=None) -> None:
-        """`words`: the per-pixel word buffer, with pixel_words."""
-        vis = self.vis
+    def run(self, style: ColorStyle, words=None, vis: VisibilityBuffer | None = None) -> None:
+        """`words`: the per-pixel word buffer, with pixel_words. `vis`: another buffer
+        of the same size to colour (the point-size pass's output)."""
+        vis = vis or self.vis
         if self.image is None or self.image.size != vis.pixels * 4:
             if self.image is not None:
                 self.image.release()
@@ -53,7 +54,7 @@ class ResolvePass:
     def read(self) -> np.ndarray:
         """(H, W, 4) uint8 RGBA, row 0 at the top."""
         data = np.frombuffer(self.image.read(), dtype=np.uint8)
-        return data.reshape(self.vis.height, self.vis.width, 4)
+        return data.reshape(self.vis.height, self.vis.width, 4).copy()
 
     def release(self) -> None:
         for obj in (self.program, self.palette, self.image):

@@ -15,8 +15,8 @@ EMPTY = 0xFFFFFFFF
 
 
 class VisibilityBuffer:
-    def __init__(self, glc: GLContext, width: int, height: int):
-        self.glc = glc
+    def __init__(self, glc: GLContext, width: int, height: int, label: str = "visibility"):
+        self.glc, self.label = glc, label
         self.buffer = None
         self.width = self.height = 0
         self.clear_program = shaderlib.compute(glc.ctx, "clear.comp", label="clear visibility")
@@ -30,7 +30,7 @@ class VisibilityBuffer:
             self.buffer.release()
         self.width, self.height = width, height
         self.buffer = self.glc.ctx.buffer(reserve=-(-width * height // 2) * 16)
-        self.buffer.label = "visibility"
+        self.buffer.label = self.label
 
     @property
     def pixels(self) -> int:

@@ -1,0 +1,49 @@
+"""From visible points to pixels: resolve, with the effects a frame asks for around
+it (point-size dilation before, eye-dome lighting after), each pass made on first use."""
+
+from __future__ import annotations
+
+from progressive.colors import ColorStyle
+from progressive.context import GLContext
+from progressive.effects import Effects
+from progressive.passes.dilate import DilatePass
+from progressive.passes.eye_dome import EyeDomePass
+from progressive.passes.resolve import ResolvePass
+from progressive.passes.visibility import VisibilityBuffer
+from progressive.pointstore import PointStore
+
+
+class Shading:
+    def __init__(self, glc: GLContext, store: PointStore, vis: VisibilityBuffer, *, pixel_words: bool = False):
+        """pixel_words: visible points' words come per pixel from prepare (progressive)."""
+        self.glc, self.vis, self.pixel_words = glc, vis, pixel_words
+        self.resolve = ResolvePass(glc, store, vis, pixel_words=pixel_words)
+        self.dilate: DilatePass | None = None
+        self.eye_dome: EyeDomePass | None = None
+        self.shown = vis
+
+    def run(self, style: ColorStyle, effects: Effects, words=None) -> list[str]:
+        """The passes that ran. `words`: prepare's per-pixel words, with pixel_words."""
+        passes = []
+        self.shown = self.vis
+        if effects.point_size > 1:
+            self.dilate = self.dilate or DilatePass(self.glc, pixel_words=self.pixel_words)
+            self.shown = self.dilate.run(self.vis, effects.point_size, words)
+            words = self.dilate.words
+            passes.append("dilate")
+        self.resolve.run(style, words, vis=self.shown)
+        passes.append("resolve")
+        if effects.eye_dome is not None:
+            self.eye_dome = self.eye_dome or EyeDomePass(self.glc)
+            self.eye_dome.run(self.shown, self.resolve.image, effects.eye_dome)
+            passes.append("eye_dome")
+        return passes
+
+    def read(self):
+        """(H, W, 4) uint8 RGBA of the last run, row 0 at the top."""
+        return self.resolve.read()
+
+    def release(self) -> None:
+        for obj in (self.resolve, self.dilate, self.eye_dome):
+            if obj is not None:
+                obj.release()

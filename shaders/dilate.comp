@@ -1,0 +1,47 @@
+// Point size above one pixel as a screen-space pass: every output pixel takes the
+// nearest (least depth, then least slot) visible point whose disc of `point size`
+// pixels covers it. Rasterization and reprojection stay one pixel per point, so
+// convergence stays exact; only what resolve colours changes.
+layout(local_size_x = 16, local_size_y = 16) in;
+#include "common.glsl"
+
+layout(std430, binding = BINDING_VISIBILITY) readonly buffer Visibility { uint visibility[]; };
+layout(std430, binding = BINDING_DILATED) writeonly buffer Dilated { uint dilated[]; };
+#if PIXEL_WORDS
+layout(std430, binding = BINDING_PIXEL_WORDS) readonly buffer PixelWords { uint pixel_words[]; };
+layout(std430, binding = BINDING_DILATED_WORDS) writeonly buffer DilatedWords { uint dilated_words[]; };
+#endif
+
+uniform uvec2 u_size;
+uniform int u_reach;        // largest |dx| or |dy| of the footprint
+uniform float u_radius2;    // footprint: dx*dx + dy*dy <= u_radius2
+
+void main() {
+    ivec2 p = ivec2(gl_GlobalInvocationID.xy);
+    ivec2 size = ivec2(u_size);
+    if (p.x >= size.x || p.y >= size.y) return;
+    uint best_slot = EMPTY;
+    uint best_depth = EMPTY;
+    uint best_pixel = 0u;
+    for (int dy = -u_reach; dy <= u_reach; ++dy) {
+        for (int dx = -u_reach; dx <= u_reach; ++dx) {
+            ivec2 q = p + ivec2(dx, dy);
+            if (any(lessThan(q, ivec2(0))) || any(greaterThanEqual(q, size))) continue;
+            if (float(dx * dx + dy * dy) > u_radius2) continue;
+            uint qi = uint(q.y * size.x + q.x);
+            uint slot = visibility[2u * qi];
+            uint depth = visibility[2u * qi + 1u];
+            if (slot != EMPTY && (depth < best_depth || (depth == best_depth && slot < best_slot))) {
+                best_slot = slot;
+                best_depth = depth;
+                best_pixel = qi;
+            }
+        }
+    }
+    uint pixel = uint(p.y * size.x + p.x);
+    dilated[2u * pixel] = best_slot;
+    dilated[2u * pixel + 1u] = best_depth;
+#if PIXEL_WORDS
+    if (best_slot != EMPTY) dilated_words[pixel] = pixel_words[best_pixel];
+#endif
+}
