@@ -94,6 +94,8 @@ class Session:
         self.load_seconds: float | None = None
         self.first_image_seconds: float | None = None
         self._last: Frame | None = None
+        self.size = (options.width, options.height)
+        self.loading = True
 
     def __enter__(self) -> Session:
         return self
@@ -126,7 +128,7 @@ class Session:
         return subset + self._notes + nonfinite + list(self.loader.warnings)
 
     def auto_camera(self) -> Camera:
-        return auto_camera(self.info.bounds_min, self.info.bounds_max, self.options.width / self.options.height)
+        return auto_camera(self.info.bounds_min, self.info.bounds_max, self.size[0] / self.size[1])
 
     def style(self, colormap: Colormap | None = None, value_range: tuple[float, float] | None = None,
               background: tuple[int, int, int] | None = None) -> ColorStyle:
@@ -143,7 +145,25 @@ class Session:
         self.attribute = attribute
         return self.renderer.scene.switch
 
+    def set_budget(self, params: BudgetParams) -> None:
+        """Another fill budget from the next frame on (progressive)."""
+        if self.progressive:
+            self.renderer.budget.params = params
+
+    def stop_loading(self) -> None:
+        """Keep what has loaded and read no more (a file failed while the viewer shows it)."""
+        self.loading = False
+        self.loader.close()
+
+    def resize(self, width: int, height: int) -> None:
+        """A new frame size; per-pixel buffers follow (the image starts again)."""
+        self.size = (width, height)
+        if self.progressive:
+            self.renderer.resize(width, height)
+
     def _pump(self, block: bool) -> None:
+        if not self.loading:
+            return
         batches = list(self.loader) if block else self.loader.poll()
         for b in batches:
             self.renderer.add_batch(b)
@@ -155,7 +175,7 @@ class Session:
         style = style or self.style()
         if not self.progressive:
             self._pump(block=True)
-            self._last = self.renderer.render(camera, self.options.width, self.options.height, style, effects)
+            self._last = self.renderer.render(camera, *self.size, style, effects)
             passes = ("distribute", "raster", "resolve")
         else:
             self._pump(block=False)
@@ -167,6 +187,16 @@ class Session:
     def stats(self) -> list[FrameStats]:
         """Per-frame statistics (progressive; waits for the GPU, so call after the loop)."""
         return self.renderer.flush() if self.progressive else []
+
+    @property
+    def image_buffer(self):
+        """The GPU buffer of the last image (RGBA8 words, row 0 at the top)."""
+        return self.renderer.shading.resolve.image
+
+    @property
+    def shown_visibility(self):
+        """The visibility buffer behind the last image (after the point-size pass)."""
+        return self.renderer.shading.shown
 
     def image(self) -> np.ndarray:
         return self.renderer.read_image() if self.progressive else self._last.image

@@ -1,0 +1,446 @@
+"""The viewer: a glfw window over a Session. Input maps to float64 navigation, each
+loop runs one progressive frame and presents it; files dropped in open (or add) in
+a new session, and any bad input ends as a message in the window, never a crash."""
+
+from __future__ import annotations
+
+import enum
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import glfw
+import numpy as np
+
+from progressive.budget import BudgetParams
+from progressive.camera import Camera, CameraError
+from progressive.context import Backend, GLContext, create_context
+from progressive.errors import ProgressiveError
+from progressive.loaders.lookup import read_point
+from progressive.output import write_png
+from progressive.passes.present import PresentPass
+from progressive.passes.visibility import EMPTY
+from progressive.permutation import Permutation
+from progressive.session import Session, SessionOptions
+from progressive.viewer.controls import Action, BudgetMode, ViewSettings, cycle
+from progressive.viewer.navigation import Navigator, Orbit
+
+DOUBLE_CLICK_SECONDS = 0.35
+DOUBLE_CLICK_PIXELS = 4.0
+CURSOR_SEARCH = 7              # pixels around the cursor searched for a point (zoom, focus)
+IDLE_WAIT_SECONDS = 0.05       # converged and no input: wait for events instead of spinning
+
+GLFW_KEYS: dict[int, Action] = {
+    glfw.KEY_R: Action.RESET, glfw.KEY_P: Action.SCREENSHOT, glfw.KEY_EQUAL: Action.POINT_BIGGER,
+    glfw.KEY_KP_ADD: Action.POINT_BIGGER, glfw.KEY_MINUS: Action.POINT_SMALLER, glfw.KEY_KP_SUBTRACT: Action.POINT_SMALLER,
+    glfw.KEY_LEFT_BRACKET: Action.PREVIOUS_ATTRIBUTE, glfw.KEY_RIGHT_BRACKET: Action.NEXT_ATTRIBUTE,
+    glfw.KEY_E: Action.EYE_DOME, glfw.KEY_H: Action.HELP, glfw.KEY_TAB: Action.PANEL, glfw.KEY_F: Action.FLY,
+    glfw.KEY_ESCAPE: Action.QUIT, glfw.KEY_Q: Action.QUIT,
+}
+CTRL_KEYS: dict[int, Action] = {glfw.KEY_C: Action.COPY_CAMERA, glfw.KEY_V: Action.PASTE_CAMERA}
+FLY_KEYS: dict[int, tuple[float, float, float]] = {
+    glfw.KEY_W: (1, 0, 0), glfw.KEY_S: (-1, 0, 0), glfw.KEY_D: (0, 1, 0), glfw.KEY_A: (0, -1, 0),
+    glfw.KEY_SPACE: (0, 0, 1), glfw.KEY_Z: (0, 0, -1),
+}
+
+
+@dataclass(frozen=True)
+class ViewerOptions:
+    width: int = 1280
+    height: int = 720
+    color_by: str | None = None
+    partial: bool = False
+    gpu_memory_limit: int | None = None
+    ui: bool = True                    # the Dear ImGui panel
+    visible: bool = True               # tests run hidden windows too
+    screenshot_dir: Path = Path(".")
+
+
+class DragKind(enum.Enum):
+    ORBIT = "orbit"
+    PAN = "pan"
+    LOOK = "look"      # fly mode: turn about the camera
+
+
+@dataclass(frozen=True)
+class Drag:
+    kind: DragKind
+    x: float
+    y: float
+
+
+class Viewer:
+    def __init__(self, paths: list[str], options: ViewerOptions = ViewerOptions()):
+        self.options = options
+        self.glc: GLContext = create_context(Backend.WINDOW, size=(options.width, options.height),
+                                             title="progressive", visible=options.visible)
+        self.window = self.glc.window
+        glfw.swap_interval(1)
+        self.present = PresentPass(self.glc)
+        self.settings = ViewSettings()
+        self.session: Session | None = None
+        self.paths: list[str] = []
+        self.navigator: Navigator | None = None
+        self.orbit: Orbit | None = None
+        self.pasted: Camera | None = None
+        self.messages: list[str] = []
+        self.error: str | None = None
+        self.running = True
+        self.frames = 0
+        self.last_passes: tuple[str, ...] = ()
+        self.last_focus: np.ndarray | None = None
+        self.last_screenshot: Path | None = None
+        self._drag: Drag | None = None
+        self._last_click = (0.0, -1e9, -1e9)
+        self._dropped: tuple[list[str], bool] | None = None
+        self._last_time = time.perf_counter()
+        self.panel = None
+        if options.ui:
+            from progressive.viewer.panel import Panel
+
+            self.panel = Panel(self)
+        self._install_callbacks()
+        self.open(paths)
+
+    # ---- files ---------------------------------------------------------------------
+    def open(self, paths: list[str], add: bool = False) -> bool:
+        """Open files as the cloud (or add them to it). On failure the current cloud
+        stays and the error is shown."""
+        paths = [*self.paths, *paths] if add else list(paths)
+        width, height = self.framebuffer_size
+        try:
+            session = Session(paths, SessionOptions(
+                width=width, height=height, budget=self._budget(), color_by=self.options.color_by,
+                partial=self.options.partial, gpu_memory_limit=self.options.gpu_memory_limit, switchable=True),
+                glc=self.glc)
+        except (ProgressiveError, OSError) as exc:
+            self.fail(str(exc))
+            return False
+        if self.session is not None:
+            self.session.close()
+        self.session, self.paths, self.error = session, paths, None
+        self.navigator = Navigator.for_bounds(session.info.bounds_min, session.info.bounds_max, width / height)
+        self.orbit, self.pasted = self.navigator.home, None
+        self.settings = replace(self.settings, attribute=session.attribute.name, value_range=None,
+                                hidden_classes=frozenset())
+        self.messages = [*session.warnings]
+        return True
+
+    def fail(self, message: str) -> None:
+        self.error = message
+
+    @property
+    def attribute_names(self) -> list[str]:
+        return [a.name for a in self.session.info.attributes] if self.session else []
+
+    def switch_attribute(self, name: str) -> None:
+        if self.session is None or name == self.session.attribute.name:
+            return
+        try:
+            self.session.switch_attribute(name)
+        except ProgressiveError as exc:
+            self.fail(str(exc))
+            return
+        self.settings = replace(self.settings, attribute=name, value_range=None)
+
+    # ---- the loop ------------------------------------------------------------------
+    @property
+    def framebuffer_size(self) -> tuple[int, int]:
+        w, h = glfw.get_framebuffer_size(self.window)
+        return max(1, w), max(1, h)
+
+    @property
+    def camera(self) -> Camera:
+        return self.pasted or self.navigator.camera(self.orbit)
+
+    def _budget(self) -> BudgetParams:
+        s = self.settings
+        if s.budget_mode is BudgetMode.FIXED:
+            return BudgetParams(fixed=s.fixed_budget)
+        return BudgetParams(target_ns=int(1e9 / s.target_fps))
+
+    def step(self) -> None:
+        """One iteration: input, one frame, present, panel, swap."""
+        now = time.perf_counter()
+        seconds, self._last_time = now - self._last_time, now
+        idle = self.session is not None and self.session.converged and self._drag is None and self._dropped is None
+        if idle:
+            glfw.wait_events_timeout(IDLE_WAIT_SECONDS)
+        else:
+            glfw.poll_events()
+        if glfw.window_should_close(self.window):
+            self.running = False
+            return
+        if self._dropped is not None:
+            (paths, add), self._dropped = self._dropped, None
+            self.open(paths, add)
+        self._fly(seconds)
+        size = self.framebuffer_size
+        if self.session is not None:
+            if size != self.session.size:
+                self.session.resize(*size)
+            self._frame()
+            self.present.run(self.session.image_buffer, self.session.size, size)
+        else:
+            self.glc.ctx.screen.use()
+            self.glc.ctx.clear(0.0, 0.0, 0.0)
+        if self.panel is not None:
+            self.panel.draw()
+        glfw.swap_buffers(self.window)
+        self.frames += 1
+
+    def _frame(self) -> None:
+        s = self.session
+        try:
+            style = s.style(self.settings.colormap, self.settings.value_range, self.settings.background)
+            self.last_passes = s.frame(self.camera, style, self.settings.effects)
+        except ProgressiveError as exc:
+            self.fail(f"{exc} (showing the {s.renderer.scene.loaded:,} points read before)")
+            s.stop_loading()
+
+    def run(self) -> None:
+        while self.running:
+            self.step()
+        self.close()
+
+    def close(self) -> None:
+        if self.panel is not None:
+            self.panel.release()
+            self.panel = None
+        if self.session is not None:
+            self.session.close()
+            self.session = None
+        self.present.release()
+        self.glc.release()
+
+    # ---- actions -------------------------------------------------------------------
+    def act(self, action: Action) -> None:
+        s = self.settings
+        if action is Action.QUIT:
+            self.running = False
+        elif action is Action.RESET and self.navigator is not None:
+            self.orbit, self.pasted = self.navigator.home, None
+        elif action is Action.SCREENSHOT:
+            self.screenshot()
+        elif action is Action.POINT_BIGGER:
+            self.settings = s.point_size_by(1)
+        elif action is Action.POINT_SMALLER:
+            self.settings = s.point_size_by(-1)
+        elif action in (Action.NEXT_ATTRIBUTE, Action.PREVIOUS_ATTRIBUTE):
+            step = 1 if action is Action.NEXT_ATTRIBUTE else -1
+            self.switch_attribute(cycle(self.attribute_names, s.attribute, step))
+        elif action is Action.EYE_DOME:
+            self.settings = replace(s, eye_dome=not s.eye_dome)
+        elif action is Action.HELP:
+            self.settings = replace(s, help=not s.help)
+        elif action is Action.PANEL:
+            self.settings = replace(s, panel=not s.panel)
+        elif action is Action.FLY:
+            self.settings = replace(s, fly=not s.fly)
+        elif action is Action.COPY_CAMERA and self.navigator is not None:
+            glfw.set_clipboard_string(self.window, self.camera.to_json())
+        elif action is Action.PASTE_CAMERA:
+            self.paste_camera(glfw.get_clipboard_string(self.window) or b"")
+
+    def paste_camera(self, text: bytes | str) -> None:
+        """Show exactly the render contract's camera given as JSON."""
+        try:
+            camera = Camera.from_json(text.decode("utf-8", "replace") if isinstance(text, bytes) else text)
+        except CameraError as exc:
+            self.fail(f"pasted camera: {exc}")
+            return
+        self.pasted, self.orbit = camera, Orbit.from_camera(camera)
+
+    def set_budget(self, mode: BudgetMode, target_fps: float | None = None, fixed: int | None = None) -> None:
+        self.settings = replace(self.settings, budget_mode=mode, target_fps=target_fps or self.settings.target_fps,
+                                fixed_budget=fixed or self.settings.fixed_budget)
+        if self.session is not None:
+            self.session.set_budget(self._budget())
+
+    def screenshot(self, path: Path | None = None) -> Path | None:
+        """The frame as shown, as PNG (P); the path is new each time."""
+        if self.session is None:
+            return None
+        if path is None:
+            stamp = time.strftime("%Y%m%d-%H%M%S")
+            path = self.options.screenshot_dir / f"progressive-{stamp}.png"
+            k = 1
+            while path.exists():
+                path = self.options.screenshot_dir / f"progressive-{stamp}-{k}.png"
+                k += 1
+        try:
+            write_png(path, self.session.image())
+        except (ProgressiveError, OSError) as exc:
+            self.fail(f"screenshot: {exc}")
+            return None
+        self.last_screenshot = path
+        self.messages.append(f"saved {path}")
+        return path
+
+    def capture_window(self) -> np.ndarray:
+        """(H, W, 3) uint8 of the window's back buffer as drawn, panel included, row 0
+        at the top (moderngl's screen.read fails on some default framebuffers)."""
+        from OpenGL import GL
+
+        w, h = self.framebuffer_size
+        self.glc.ctx.screen.use()
+        GL.glReadBuffer(GL.GL_BACK)
+        GL.glPixelStorei(GL.GL_PACK_ALIGNMENT, 1)
+        data = GL.glReadPixels(0, 0, w, h, GL.GL_RGB, GL.GL_UNSIGNED_BYTE)
+        return np.frombuffer(data, dtype=np.uint8).reshape(h, w, 3)[::-1].copy()
+
+    # ---- picking -------------------------------------------------------------------
+    def pick(self, x: float, y: float) -> tuple[int, float] | None:
+        """(file-order index, depth) of the point shown nearest to window pixel (x, y)."""
+        if self.session is None:
+            return None
+        vis = self.session.shown_visibility
+        w, h = vis.width, vis.height
+        px, py = int(x), int(y)
+        x0, x1 = max(0, px - CURSOR_SEARCH), min(w, px + CURSOR_SEARCH + 1)
+        y0, y1 = max(0, py - CURSOR_SEARCH), min(h, py + CURSOR_SEARCH + 1)
+        if x0 >= x1 or y0 >= y1:
+            return None
+        rows = [np.frombuffer(vis.buffer.read(size=(x1 - x0) * 8, offset=(yy * w + x0) * 8), dtype=np.uint32)
+                for yy in range(y0, y1)]
+        block = np.stack(rows).reshape(y1 - y0, x1 - x0, 2)
+        ys, xs = np.nonzero(block[:, :, 0] != EMPTY)
+        if ys.size == 0:
+            return None
+        k = int(np.argmin((ys + y0 - py) ** 2 + (xs + x0 - px) ** 2))
+        slot, depth = block[ys[k], xs[k]]
+        perm: Permutation = self.session.renderer.store.permutation
+        return int(perm.inverse(np.array([slot], dtype=np.uint64))[0]), float(np.array(depth, np.uint32).view(np.float32))
+
+    def point_at(self, x: float, y: float) -> np.ndarray | None:
+        """Exact float64 file coordinates of the point under the cursor (read from its file)."""
+        hit = self.pick(x, y)
+        if hit is None:
+            return None
+        try:
+            return read_point(self.session.info, hit[0])
+        except (OSError, ValueError, ProgressiveError) as exc:
+            self.fail(f"reading the picked point: {exc}")
+            return None
+
+    def focus(self, x: float, y: float) -> None:
+        point = self.point_at(x, y)
+        if point is not None:
+            self.last_focus = point
+            self.orbit, self.pasted = self.navigator.focus(self.orbit, point), None
+            self.messages.append("focus " + ", ".join(f"{v:.6f}" for v in point))
+
+    # ---- input ---------------------------------------------------------------------
+    def _install_callbacks(self) -> None:
+        glfw.set_mouse_button_callback(self.window, self.on_mouse_button)
+        glfw.set_cursor_pos_callback(self.window, self.on_cursor)
+        glfw.set_scroll_callback(self.window, self.on_scroll)
+        glfw.set_key_callback(self.window, self.on_key)
+        glfw.set_char_callback(self.window, self.on_char)
+        glfw.set_drop_callback(self.window, self.on_drop)
+
+    def _ui_wants_mouse(self) -> bool:
+        return self.panel is not None and self.settings.panel and self.panel.wants_mouse()
+
+    def on_mouse_button(self, window, button: int, action: int, mods: int) -> None:
+        if self.panel is not None:
+            self.panel.renderer.mouse_button_callback(window, button, action, mods)
+        x, y = glfw.get_cursor_pos(self.window)
+        self.mouse_button(button, action == glfw.PRESS, x, y, bool(mods & glfw.MOD_SHIFT))
+
+    def mouse_button(self, button: int, pressed: bool, x: float, y: float, shift: bool = False) -> None:
+        """A press starts a drag (orbit, pan, or look in fly mode); two quick presses focus."""
+        if not pressed:
+            self._drag = None
+            return
+        if self._ui_wants_mouse() or self.navigator is None:
+            return
+        if button == glfw.MOUSE_BUTTON_LEFT:
+            t, lx, ly = self._last_click
+            now = time.perf_counter()
+            if now - t < DOUBLE_CLICK_SECONDS and abs(x - lx) + abs(y - ly) < DOUBLE_CLICK_PIXELS:
+                self._last_click = (0.0, -1e9, -1e9)
+                self.focus(x, y)
+                return
+            self._last_click = (now, x, y)
+            kind = DragKind.PAN if shift else (DragKind.LOOK if self.settings.fly else DragKind.ORBIT)
+        elif button in (glfw.MOUSE_BUTTON_RIGHT, glfw.MOUSE_BUTTON_MIDDLE):
+            kind = DragKind.PAN
+        else:
+            return
+        self._drag = Drag(kind, x, y)
+
+    def on_cursor(self, window, x: float, y: float) -> None:
+        if self.panel is not None:
+            self.panel.renderer.mouse_callback(window, x, y)
+        self.cursor(x, y)
+
+    def cursor(self, x: float, y: float) -> None:
+        d = self._drag
+        if d is None or self.navigator is None:
+            return
+        dx, dy = x - d.x, y - d.y
+        nav, o = self.navigator, self.orbit
+        if d.kind is DragKind.ORBIT:
+            o = nav.orbit(o, dx, dy)
+        elif d.kind is DragKind.LOOK:
+            o = nav.look(o, dx, dy)
+        else:
+            o = nav.pan(o, dx, dy, self.framebuffer_size[1])
+        self.orbit, self.pasted = o, None
+        self._drag = Drag(d.kind, x, y)
+
+    def on_scroll(self, window, dx: float, dy: float) -> None:
+        if self.panel is not None:
+            self.panel.renderer.scroll_callback(window, dx, dy)
+        if not self._ui_wants_mouse():
+            self.scroll(dy, *glfw.get_cursor_pos(self.window))
+
+    def scroll(self, notches: float, x: float, y: float) -> None:
+        """Zoom about the point under the cursor (else about the target's depth)."""
+        if self.navigator is None or notches == 0:
+            return
+        o = self.orbit
+        ray = self.navigator.cursor_ray(o, x, y, self.framebuffer_size)
+        forward = -o.backward
+        hit = self.pick(x, y)
+        depth = hit[1] if hit is not None else o.distance
+        anchor = o.position + ray * depth / max(float(ray @ forward), 1e-6)
+        self.orbit, self.pasted = self.navigator.zoom(o, notches, anchor), None
+
+    def on_key(self, window, key: int, scancode: int, action: int, mods: int) -> None:
+        if self.panel is not None:
+            self.panel.renderer.keyboard_callback(window, key, scancode, action, mods)
+            if self.settings.panel and self.panel.wants_keyboard():
+                return
+        if action != glfw.PRESS:
+            return
+        table = CTRL_KEYS if mods & glfw.MOD_CONTROL else GLFW_KEYS
+        if key in table:
+            self.act(table[key])
+
+    def on_char(self, window, char: int) -> None:
+        if self.panel is not None:
+            self.panel.renderer.char_callback(window, char)
+
+    def on_drop(self, window, paths: list[str]) -> None:
+        shift = glfw.get_key(self.window, glfw.KEY_LEFT_SHIFT) == glfw.PRESS or \
+            glfw.get_key(self.window, glfw.KEY_RIGHT_SHIFT) == glfw.PRESS
+        self.drop(list(paths), add=shift)
+
+    def drop(self, paths: list[str], add: bool = False) -> None:
+        """Opened at the start of the next step, outside glfw's callback."""
+        self._dropped = (paths, add)
+
+    def _fly(self, seconds: float) -> None:
+        if not self.settings.fly or self.navigator is None or self._ui_keyboard():
+            return
+        move = np.zeros(3)
+        for key, v in FLY_KEYS.items():
+            if glfw.get_key(self.window, key) == glfw.PRESS:
+                move += v
+        if move.any():
+            self.orbit, self.pasted = self.navigator.fly(self.orbit, *move, min(seconds, 0.1)), None
+
+    def _ui_keyboard(self) -> bool:
+        return self.panel is not None and self.settings.panel and self.panel.wants_keyboard()

@@ -1,0 +1,78 @@
+"""What the viewer's keys and the panel change: actions, and the frozen settings
+each action replaces. GPU-free and glfw-free, so the mapping is testable as is."""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field, replace
+
+from progressive.colors import Colormap
+from progressive.effects import MAX_POINT_SIZE, Effects, EyeDome
+
+
+class Action(enum.Enum):
+    RESET = "reset view"
+    SCREENSHOT = "save a PNG screenshot"
+    POINT_BIGGER = "larger points"
+    POINT_SMALLER = "smaller points"
+    PREVIOUS_ATTRIBUTE = "previous attribute"
+    NEXT_ATTRIBUTE = "next attribute"
+    EYE_DOME = "eye-dome lighting on/off"
+    HELP = "help on/off"
+    PANEL = "panel on/off"
+    FLY = "fly mode on/off (WASD, Space/Z up/down, drag to look)"
+    COPY_CAMERA = "copy the camera as JSON"
+    PASTE_CAMERA = "paste a camera JSON"
+    QUIT = "quit"
+
+
+KEYS: dict[str, Action] = {
+    "R": Action.RESET, "P": Action.SCREENSHOT, "+": Action.POINT_BIGGER, "-": Action.POINT_SMALLER,
+    "[": Action.PREVIOUS_ATTRIBUTE, "]": Action.NEXT_ATTRIBUTE, "E": Action.EYE_DOME, "H": Action.HELP,
+    "Tab": Action.PANEL, "F": Action.FLY, "Ctrl+C": Action.COPY_CAMERA, "Ctrl+V": Action.PASTE_CAMERA,
+    "Esc": Action.QUIT, "Q": Action.QUIT,
+}
+"""Key names as shown in the help; app.py maps glfw key codes onto them."""
+
+MOUSE_HELP = (
+    ("Left drag", "orbit"), ("Right drag / Shift+left drag", "pan"), ("Wheel", "zoom to the cursor"),
+    ("Double-click", "focus the point under the cursor"), ("Drop files", "open (Shift: add to the cloud)"),
+)
+
+
+class BudgetMode(enum.Enum):
+    ADAPTIVE = "adaptive"      # fill what fits in the frame time of the target rate
+    FIXED = "fixed"            # fill a fixed number of points a frame
+
+
+@dataclass(frozen=True)
+class ViewSettings:
+    attribute: str = ""
+    colormap: Colormap = Colormap.VIRIDIS
+    value_range: tuple[float, float] | None = None     # None: robust 1-99 % of the data
+    hidden_classes: frozenset[int] = frozenset()
+    point_size: int = 1
+    eye_dome: bool = False
+    eye_dome_params: EyeDome = field(default_factory=EyeDome)
+    budget_mode: BudgetMode = BudgetMode.ADAPTIVE
+    target_fps: float = 60.0
+    fixed_budget: int = 1_000_000
+    background: tuple[int, int, int] = (0, 0, 0)
+    panel: bool = True
+    help: bool = False
+    fly: bool = False
+
+    @property
+    def effects(self) -> Effects:
+        return Effects(self.point_size, self.eye_dome_params if self.eye_dome else None)
+
+    def point_size_by(self, step: int) -> ViewSettings:
+        return replace(self, point_size=max(1, min(MAX_POINT_SIZE, self.point_size + step)))
+
+
+def cycle(names: list[str], current: str, step: int) -> str:
+    """The attribute `step` places after `current`, wrapping around."""
+    if not names:
+        return current
+    i = names.index(current) if current in names else -1
+    return names[(i + step) % len(names)]

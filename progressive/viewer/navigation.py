@@ -1,0 +1,143 @@
+"""Z-up navigation in float64, GPU-free: an orbit around a target (yaw, pitch,
+distance) that every gesture maps to, and back to a look-at Camera.
+
+Gestures take pixels and the viewport, so speeds follow what the user sees: a pan
+keeps the point under the cursor under it, a zoom scales the view about the point
+under the cursor, fly speed is a share of the cloud's size per second."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from progressive.camera import Camera, auto_camera
+
+MAX_PITCH = math.radians(89.5)
+ZOOM_STEP = 0.85               # distance factor per wheel notch
+ORBIT_RADIANS_PER_PIXEL = 0.005
+FLY_EXTENTS_PER_SECOND = 0.25  # share of the cloud's diagonal flown per second
+NEAR_OVER_FAR = 1e-6           # depth is linear float32: near costs no precision
+
+
+@dataclass(frozen=True)
+class Orbit:
+    target: tuple[float, float, float]
+    distance: float
+    yaw: float                 # azimuth of the camera seen from the target, radians
+    pitch: float               # elevation of the camera above the target, radians
+    fov_y_deg: float = 60.0
+
+    @property
+    def backward(self) -> np.ndarray:
+        """Unit vector from the target towards the camera."""
+        cp = math.cos(self.pitch)
+        return np.array([cp * math.cos(self.yaw), cp * math.sin(self.yaw), math.sin(self.pitch)])
+
+    @property
+    def position(self) -> np.ndarray:
+        return np.asarray(self.target, dtype=np.float64) + self.distance * self.backward
+
+    def basis(self) -> tuple[np.ndarray, np.ndarray]:
+        """(right, up) of the screen, in file coordinates."""
+        forward = -self.backward
+        right = np.cross(forward, (0.0, 0.0, 1.0))
+        right /= np.linalg.norm(right)
+        return right, np.cross(right, forward)
+
+    @classmethod
+    def from_camera(cls, camera: Camera) -> Orbit:
+        back = np.subtract(camera.position, camera.target, dtype=np.float64)
+        distance = float(np.linalg.norm(back))
+        back /= distance
+        pitch = max(-MAX_PITCH, min(MAX_PITCH, math.asin(max(-1.0, min(1.0, back[2])))))
+        return cls(tuple(float(v) for v in camera.target), distance, math.atan2(back[1], back[0]), pitch,
+                   camera.fov_y_deg)
+
+
+@dataclass(frozen=True)
+class Navigator:
+    """The cloud's extent (for clipping planes and speeds) and the home view."""
+
+    bounds_min: tuple[float, float, float]
+    bounds_max: tuple[float, float, float]
+    home: Orbit
+
+    @classmethod
+    def for_bounds(cls, bounds_min, bounds_max, aspect: float) -> Navigator:
+        lo, hi = (tuple(float(v) for v in b) for b in (bounds_min, bounds_max))
+        return cls(lo, hi, Orbit.from_camera(auto_camera(np.array(lo), np.array(hi), aspect)))
+
+    @property
+    def centre(self) -> np.ndarray:
+        return (np.asarray(self.bounds_min) + np.asarray(self.bounds_max)) / 2.0
+
+    @property
+    def diagonal(self) -> float:
+        return max(float(np.linalg.norm(np.subtract(self.bounds_max, self.bounds_min))), 1e-3)
+
+    def camera(self, o: Orbit) -> Camera:
+        """Far reaches past the whole cloud from wherever the camera is."""
+        position = o.position
+        far = 1.05 * (float(np.linalg.norm(position - self.centre)) + self.diagonal / 2.0)
+        far = max(far, o.distance * 1.05)
+        return Camera(tuple(position.tolist()), o.target, (0.0, 0.0, 1.0), o.fov_y_deg, far * NEAR_OVER_FAR, far)
+
+    def orbit(self, o: Orbit, dx: float, dy: float) -> Orbit:
+        """Drag right turns the cloud right; drag down tilts the view down onto it."""
+        pitch = max(-MAX_PITCH, min(MAX_PITCH, o.pitch + dy * ORBIT_RADIANS_PER_PIXEL))
+        return replace(o, yaw=o.yaw - dx * ORBIT_RADIANS_PER_PIXEL, pitch=pitch)
+
+    def pan(self, o: Orbit, dx: float, dy: float, viewport_height: int) -> Orbit:
+        """Move the target in the screen plane so the target's depth follows the cursor."""
+        per_pixel = 2.0 * o.distance * math.tan(math.radians(o.fov_y_deg) / 2.0) / max(1, viewport_height)
+        right, up = o.basis()
+        shift = (-dx * right + dy * up) * per_pixel
+        return replace(o, target=tuple((np.asarray(o.target) + shift).tolist()))
+
+    def cursor_ray(self, o: Orbit, x: float, y: float, size: tuple[int, int]) -> np.ndarray:
+        """Unit direction through window pixel (x, y), row 0 at the top (camera.project's inverse)."""
+        w, h = size
+        f = 1.0 / math.tan(math.radians(o.fov_y_deg) / 2.0)
+        vx = (2.0 * x / w - 1.0) * w / (h * f)
+        vy = (1.0 - 2.0 * y / h) / f
+        right, up = o.basis()
+        d = -o.backward + vx * right + vy * up
+        return d / np.linalg.norm(d)
+
+    def zoom(self, o: Orbit, steps: float, anchor: np.ndarray | None = None) -> Orbit:
+        """Scale the view about `anchor` (the point under the cursor, file coordinates):
+        it stays under the cursor. Without one, about the target."""
+        factor = ZOOM_STEP ** steps
+        if anchor is None:
+            return replace(o, distance=o.distance * factor)
+        anchor = np.asarray(anchor, dtype=np.float64)
+        target = anchor + (np.asarray(o.target) - anchor) * factor
+        return replace(o, target=tuple(target.tolist()), distance=o.distance * factor)
+
+    def focus(self, o: Orbit, point: np.ndarray) -> Orbit:
+        """Orbit about `point` from where the camera is now (no jump of the view direction)."""
+        point = np.asarray(point, dtype=np.float64)
+        back = o.position - point
+        distance = float(np.linalg.norm(back))
+        if distance <= 0.0:
+            return replace(o, target=tuple(point.tolist()))
+        back /= distance
+        pitch = max(-MAX_PITCH, min(MAX_PITCH, math.asin(max(-1.0, min(1.0, back[2])))))
+        return replace(o, target=tuple(point.tolist()), distance=distance, yaw=math.atan2(back[1], back[0]), pitch=pitch)
+
+    def fly(self, o: Orbit, forward: float, right: float, up: float, seconds: float) -> Orbit:
+        """Move camera and target together; speed is a share of the cloud's size."""
+        step = FLY_EXTENTS_PER_SECOND * self.diagonal * seconds
+        r, _ = o.basis()
+        move = (-o.backward * forward + r * right + np.array([0.0, 0.0, 1.0]) * up) * step
+        return replace(o, target=tuple((np.asarray(o.target) + move).tolist()))
+
+    def look(self, o: Orbit, dx: float, dy: float) -> Orbit:
+        """Turn the view about the camera position (fly mode's mouse)."""
+        position = o.position
+        turned = replace(o, yaw=o.yaw - dx * ORBIT_RADIANS_PER_PIXEL,
+                         pitch=max(-MAX_PITCH, min(MAX_PITCH, o.pitch - dy * ORBIT_RADIANS_PER_PIXEL)))
+        target = position - turned.distance * turned.backward
+        return replace(turned, target=tuple(target.tolist()))

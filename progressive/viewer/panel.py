@@ -1,0 +1,210 @@
+"""The Dear ImGui panel (imgui-bundle): files and loading, colouring, effects,
+budget, live statistics, messages and errors. It reads the viewer's state and
+calls the viewer to change it; it owns no state of its own but imgui's."""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import OpenGL
+
+OpenGL.ERROR_CHECKING = False   # the backend's PyOpenGL calls would raise on errors left by others; tests check ctx.error
+
+from imgui_bundle import imgui  # noqa: E402
+from imgui_bundle.python_backends.glfw_backend import GlfwRenderer  # noqa: E402
+
+from progressive.colors import ASPRS_CLASSES, ColorMode, Colormap
+from progressive.effects import MAX_POINT_SIZE, EyeDome
+from progressive.loaders.types import AttributeKind
+from progressive.viewer.controls import KEYS, MOUSE_HELP, BudgetMode
+
+ERROR_COLOUR = imgui.ImVec4(1.0, 0.35, 0.3, 1.0)
+NOTE_COLOUR = imgui.ImVec4(0.95, 0.8, 0.4, 1.0)
+COLORMAPS = list(Colormap)
+PASSES = ("reproject", "fill", "prepare", "resolve", "frame")
+
+
+class Panel:
+    def __init__(self, viewer):
+        self.viewer = viewer
+        self.context = imgui.create_context()
+        imgui.get_io().set_ini_filename("")
+        self.renderer = GlfwRenderer(viewer.window, attach_callbacks=False)
+        self.frame_times: deque[float] = deque(maxlen=60)
+        self._last = time.perf_counter()
+
+    def wants_mouse(self) -> bool:
+        return bool(imgui.get_io().want_capture_mouse)
+
+    def wants_keyboard(self) -> bool:
+        return bool(imgui.get_io().want_capture_keyboard)
+
+    def draw(self) -> None:
+        now = time.perf_counter()
+        self.frame_times.append(now - self._last)
+        self._last = now
+        imgui.set_current_context(self.context)
+        self.renderer.process_inputs()
+        imgui.new_frame()
+        v = self.viewer
+        if v.settings.panel:
+            self._panel()
+        if v.error:
+            self._error()
+        if v.settings.help:
+            self._help()
+        imgui.render()
+        self.renderer.render(imgui.get_draw_data())
+
+    # ---- windows -------------------------------------------------------------------
+    def _panel(self) -> None:
+        imgui.set_next_window_pos(imgui.ImVec2(8, 8), imgui.Cond_.first_use_ever)
+        imgui.begin("progressive  (Tab hides, H help)", None, imgui.WindowFlags_.always_auto_resize)
+        imgui.push_item_width(180)
+        s = self.viewer.session
+        if s is None:
+            imgui.text("no cloud: drop a LAS/LAZ file here")
+        else:
+            self._files(s)
+            self._colouring(s)
+            self._effects()
+            self._budget()
+            self._stats(s)
+        self._messages()
+        imgui.pop_item_width()
+        imgui.end()
+
+    def _files(self, s) -> None:
+        if imgui.collapsing_header("Files", imgui.TreeNodeFlags_.default_open):
+            for f in s.info.files:
+                imgui.text(f"{Path(f.path).name}: {f.points:,} points ({f.format} {f.version})")
+            loaded = s.renderer.scene.loaded
+            total = s.info.points
+            imgui.progress_bar(loaded / max(1, total), imgui.ImVec2(320, 0), f"{loaded:,} / {total:,} loaded")
+
+    def _colouring(self, s) -> None:
+        v = self.viewer
+        if not imgui.collapsing_header("Colour", imgui.TreeNodeFlags_.default_open):
+            return
+        names = v.attribute_names
+        current = names.index(v.settings.attribute) if v.settings.attribute in names else 0
+        changed, index = imgui.combo("attribute ([ ])", current, names)
+        if changed:
+            v.switch_attribute(names[index])
+        switch = s.renderer.scene.switch
+        if switch is not None and not switch.done:
+            imgui.progress_bar(switch.streamed / max(1, switch.total), imgui.ImVec2(-1, 0), "streaming")
+        elif switch is not None and switch.rate:
+            imgui.text(f"switched at {switch.rate / 1e6:.1f} M points/s")
+        attribute = s.attribute
+        if attribute.kind is AttributeKind.SCALAR:
+            changed, index = imgui.combo("colormap", COLORMAPS.index(v.settings.colormap),
+                                         [c.name.lower() for c in COLORMAPS])
+            if changed:
+                v.settings = replace(v.settings, colormap=COLORMAPS[index])
+            lo, hi = v.settings.value_range or s.renderer.scene.value_range()
+            speed = max(abs(hi - lo), 1e-6) / 200.0
+            changed, values = imgui.drag_float2("range", [lo + attribute.offset, hi + attribute.offset], speed)
+            if changed:
+                v.settings = replace(v.settings, value_range=(values[0] - attribute.offset, values[1] - attribute.offset))
+            imgui.same_line()
+            if imgui.small_button("auto"):
+                v.settings = replace(v.settings, value_range=None)
+        elif ColorMode.for_kind(attribute.kind) is ColorMode.CATEGORY:
+            self._legend()
+        changed, colour = imgui.color_edit3("background", [c / 255.0 for c in v.settings.background])
+        if changed:
+            v.settings = replace(v.settings, background=tuple(int(round(c * 255)) for c in colour))
+
+    def _legend(self) -> None:
+        for code, (name, rgb) in ASPRS_CLASSES.items():
+            imgui.color_button(f"##class{code}", imgui.ImVec4(*(c / 255.0 for c in rgb), 1.0),
+                               0, imgui.ImVec2(12, 12))
+            imgui.same_line()
+            imgui.text(f"{code:2d} {name}")
+
+    def _effects(self) -> None:
+        v = self.viewer
+        if not imgui.collapsing_header("Points and lighting", imgui.TreeNodeFlags_.default_open):
+            return
+        changed, size = imgui.slider_int("point size (+ -)", v.settings.point_size, 1, MAX_POINT_SIZE)
+        if changed:
+            v.settings = replace(v.settings, point_size=size)
+        changed, on = imgui.checkbox("eye-dome lighting (E)", v.settings.eye_dome)
+        if changed:
+            v.settings = replace(v.settings, eye_dome=on)
+        if v.settings.eye_dome:
+            p = v.settings.eye_dome_params
+            c1, strength = imgui.slider_float("strength", p.strength, 0.0, 5.0)
+            c2, radius = imgui.slider_float("radius", p.radius, 0.5, 8.0)
+            if c1 or c2:
+                v.settings = replace(v.settings, eye_dome_params=EyeDome(strength, radius))
+
+    def _budget(self) -> None:
+        v = self.viewer
+        if not imgui.collapsing_header("Budget"):
+            return
+        s = v.settings
+        if imgui.radio_button("adaptive", s.budget_mode is BudgetMode.ADAPTIVE):
+            v.set_budget(BudgetMode.ADAPTIVE)
+        imgui.same_line()
+        if imgui.radio_button("fixed", s.budget_mode is BudgetMode.FIXED):
+            v.set_budget(BudgetMode.FIXED)
+        if s.budget_mode is BudgetMode.ADAPTIVE:
+            changed, fps = imgui.slider_float("target fps", s.target_fps, 10.0, 240.0)
+            if changed:
+                v.set_budget(BudgetMode.ADAPTIVE, target_fps=fps)
+        else:
+            changed, points = imgui.input_int("points a frame", s.fixed_budget, 100_000, 1_000_000)
+            if changed and points > 0:
+                v.set_budget(BudgetMode.FIXED, fixed=points)
+
+    def _stats(self, s) -> None:
+        if not imgui.collapsing_header("Statistics", imgui.TreeNodeFlags_.default_open):
+            return
+        mean = float(np.mean(self.frame_times)) if self.frame_times else 0.0
+        imgui.text(f"{1.0 / mean if mean > 0 else 0.0:.0f} fps ({mean * 1e3:.1f} ms a frame on the CPU)")
+        history = s.renderer.history if s.progressive else []
+        measured = next((h for h in reversed(history) if h.gpu_ms), None)
+        if measured is not None:
+            imgui.text("GPU ms: " + "  ".join(f"{k} {measured.gpu_ms[k]:.2f}" for k in PASSES))
+            imgui.text(f"budget {measured.budget:,} points; {measured.covered_pixels:,} pixels covered")
+            share = min(1.0, measured.filled_since_change / max(1, s.renderer.store.capacity))
+            label = "exact (every point filled since the last change)" if s.converged else "points filled since the last change"
+            imgui.progress_bar(share, imgui.ImVec2(-1, 0), label)
+        imgui.text("last frame: " + (" ".join(self.viewer.last_passes) or "idle"))
+
+    def _messages(self) -> None:
+        for m in self.viewer.messages[-6:]:
+            imgui.text_colored(NOTE_COLOUR, m)
+
+    def _error(self) -> None:
+        v = self.viewer
+        io = imgui.get_io()
+        imgui.set_next_window_pos(imgui.ImVec2(io.display_size.x / 2, io.display_size.y / 2),
+                                  imgui.Cond_.always, imgui.ImVec2(0.5, 0.5))
+        imgui.begin("Error", None, imgui.WindowFlags_.always_auto_resize | imgui.WindowFlags_.no_collapse)
+        imgui.push_text_wrap_pos(480)
+        imgui.text_colored(ERROR_COLOUR, v.error)
+        imgui.pop_text_wrap_pos()
+        if imgui.button("OK"):
+            v.error = None
+        imgui.end()
+
+    def _help(self) -> None:
+        imgui.begin("Help (H)", None, imgui.WindowFlags_.always_auto_resize)
+        for label, what in MOUSE_HELP:
+            imgui.text(f"{label:32s} {what}")
+        imgui.separator()
+        for key, action in KEYS.items():
+            imgui.text(f"{key:32s} {action.value}")
+        imgui.end()
+
+    def release(self) -> None:
+        imgui.set_current_context(self.context)
+        self.renderer.shutdown()
+        imgui.destroy_context(self.context)
