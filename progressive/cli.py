@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import enum
+import os
 import sys
 from importlib import resources
 from pathlib import Path
@@ -14,6 +15,7 @@ import numpy as np
 from progressive.errors import ProgressiveError
 
 MAX_SIZE = 16384
+MAX_HEADLESS_FRAMES = 1000
 
 
 class UsageError(ProgressiveError):
@@ -256,6 +258,57 @@ def _stats(session, camera, frames: int, converged_at: int | None) -> dict:
     return out
 
 
+def has_display() -> bool:
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def cmd_view(args) -> int:
+    """A window where there is a display; elsewhere the same cloud rendered headless
+    to a PNG, so the README's first command works on any machine."""
+    from progressive.context import GLCapabilityError
+
+    paths = input_paths(args.files)
+    if has_display():
+        from progressive.viewer.app import Viewer, ViewerOptions
+
+        try:
+            viewer = Viewer(paths, ViewerOptions(width=args.width, height=args.height, color_by=args.color_by,
+                                                 partial=args.partial, gpu_memory_limit=args.gpu_memory_limit,
+                                                 ui=not args.no_ui))
+        except GLCapabilityError as exc:
+            print(f"progressive: cannot open a window ({exc}); rendering headless instead", file=sys.stderr)
+        else:
+            viewer.run()
+            return 0
+    else:
+        print(f"progressive: no display (DISPLAY and WAYLAND_DISPLAY are unset); rendering headless to {args.out}",
+              file=sys.stderr)
+    return _view_headless(paths, args)
+
+
+def _view_headless(paths: list[str], args) -> int:
+    from progressive.output import check_writable, write_png
+    from progressive.session import Session, SessionOptions
+
+    check_writable(args.out)
+    options = SessionOptions(width=args.width, height=args.height, color_by=args.color_by, partial=args.partial,
+                             gpu_memory_limit=args.gpu_memory_limit)
+    with Session(paths, options) as session:
+        camera = session.auto_camera()
+        frames = 0
+        while not session.converged and frames < MAX_HEADLESS_FRAMES:
+            session.frame(camera)
+            session.stats()
+            frames += 1
+        for w in session.warnings:
+            print(f"progressive: warning: {w}", file=sys.stderr)
+        write_png(args.out, session.image())
+        state = "exact" if session.converged else f"not converged after {frames} frames"
+        print(f"wrote {Path(args.out).resolve()} ({session.info.points:,} points, {state} after {frames} frames, "
+              f"first image {session.first_image_seconds:.2f} s after opening)")
+    return 0
+
+
 def cmd_convert(args) -> int:
     from progressive.attributes import default_attribute, find_attribute
     from progressive.loaders import CloudLoader, write_fast
@@ -311,6 +364,17 @@ def build_parser() -> Parser:
     render.add_argument("--gpu-memory-limit", type=bytes_arg, help="GPU memory to use, e.g. 4G; a larger cloud shows "
                         "a uniform random subset (the free memory the driver reports also counts)")
     render.set_defaults(func=cmd_render)
+
+    view = sub.add_parser("view", help="open a window on the cloud (without a display: render it to a PNG)")
+    view.add_argument("files", nargs="*", help="LAS/LAZ/fast-format files, one cloud (default: the bundled sample)")
+    view.add_argument("--width", type=size_arg, default=1280)
+    view.add_argument("--height", type=size_arg, default=720)
+    view.add_argument("--color-by", help="attribute to colour by first ([ and ] switch in the window)")
+    view.add_argument("--partial", action="store_true", help="show what a truncated file holds, with a warning")
+    view.add_argument("--gpu-memory-limit", type=bytes_arg, help="GPU memory to use, e.g. 4G")
+    view.add_argument("--no-ui", action="store_true", help="no panel (keys still work)")
+    view.add_argument("--out", default="progressive-view.png", help="PNG written when there is no display")
+    view.set_defaults(func=cmd_view)
 
     convert = sub.add_parser("convert", help="write the fast GPU-layout format")
     convert.add_argument("inputs", nargs="+", metavar="IN")

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# Set up, then render the given files (default: the bundled sample) to progressive.png.
+# Set up, then view the given files (default: the bundled sample): a window where
+# there is a display, else a headless render to progressive-view.png.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/setup.sh
-.venv/bin/progressive render "$@" --out progressive.png --stats progressive-stats.json
-echo "wrote $(pwd)/progressive.png and progressive-stats.json"
+exec .venv/bin/progressive view "$@"

@@ -238,9 +238,9 @@ class Viewer:
         elif action is Action.FLY:
             self.settings = replace(s, fly=not s.fly)
         elif action is Action.COPY_CAMERA and self.navigator is not None:
-            glfw.set_clipboard_string(self.window, self.camera.to_json())
+            glfw.set_clipboard_string(None, self.camera.to_json())
         elif action is Action.PASTE_CAMERA:
-            self.paste_camera(glfw.get_clipboard_string(self.window) or b"")
+            self.paste_camera(glfw.get_clipboard_string(None) or b"")
 
     def paste_camera(self, text: bytes | str) -> None:
         """Show exactly the render contract's camera given as JSON."""

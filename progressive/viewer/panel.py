@@ -10,14 +10,9 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-import OpenGL
+from imgui_bundle import imgui
 
-OpenGL.ERROR_CHECKING = False   # the backend's PyOpenGL calls would raise on errors left by others; tests check ctx.error
-
-from imgui_bundle import imgui  # noqa: E402
-from imgui_bundle.python_backends.glfw_backend import GlfwRenderer  # noqa: E402
-
-from progressive.colors import ASPRS_CLASSES, ColorMode, Colormap
+from progressive.colors import ASPRS_CLASSES, Colormap, ColorMode
 from progressive.effects import MAX_POINT_SIZE, EyeDome
 from progressive.loaders.types import AttributeKind
 from progressive.viewer.controls import KEYS, MOUSE_HELP, BudgetMode
@@ -31,6 +26,13 @@ PASSES = ("reproject", "fill", "prepare", "resolve", "frame")
 class Panel:
     def __init__(self, viewer):
         self.viewer = viewer
+        import OpenGL
+
+        # Before the backend imports OpenGL.GL: its calls would raise on GL errors left
+        # by moderngl's; the tests check ctx.error after every viewer step instead.
+        OpenGL.ERROR_CHECKING = False
+        from imgui_bundle.python_backends.glfw_backend import GlfwRenderer
+
         self.context = imgui.create_context()
         imgui.get_io().set_ini_filename("")
         self.renderer = GlfwRenderer(viewer.window, attach_callbacks=False)
