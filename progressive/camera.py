@@ -106,14 +106,27 @@ class ViewUniforms:
     translation: np.ndarray   # (3,) float32 = R @ (origin - position), in float64 first
     projection: np.ndarray    # (4,) float32: f/aspect, f, near, far
     size: tuple[int, int]
+    hidden: np.ndarray        # (8,) uint32: bit c set = category code c not drawn
 
 
-def view_uniforms(camera: Camera, origin: np.ndarray, width: int, height: int) -> ViewUniforms:
+def hidden_mask(hidden: frozenset[int]) -> np.ndarray:
+    """The 256-bit mask of category codes (0..255) left out of the raster."""
+    mask = np.zeros(8, dtype=np.uint32)
+    for code in hidden:
+        if not 0 <= code <= 255:
+            raise ValueError(f"category code {code} outside 0..255")
+        mask[code >> 5] |= np.uint32(1 << (code & 31))
+    return mask
+
+
+def view_uniforms(camera: Camera, origin: np.ndarray, width: int, height: int,
+                  hidden: frozenset[int] = frozenset()) -> ViewUniforms:
     r = camera.rotation()
     t = r @ (np.asarray(origin, dtype=np.float64) - np.asarray(camera.position, dtype=np.float64))
     f = camera.focal()
     proj = np.array([f * height / width, f, camera.near, camera.far], dtype=np.float64)
-    return ViewUniforms(r.astype(np.float32), t.astype(np.float32), proj.astype(np.float32), (width, height))
+    return ViewUniforms(r.astype(np.float32), t.astype(np.float32), proj.astype(np.float32), (width, height),
+                        hidden_mask(hidden))
 
 
 def auto_camera(bounds_min: np.ndarray, bounds_max: np.ndarray, aspect: float, fov_y_deg: float = 60.0) -> Camera:

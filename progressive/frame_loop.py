@@ -95,7 +95,7 @@ class ProgressiveRenderer:
         self.change = 0
         self.converged_change = -1
         self.history: list[FrameStats] = []
-        self._camera: Camera | None = None
+        self._camera: tuple[Camera, frozenset[int]] | None = None
         self._look: tuple[ColorStyle, Effects] | None = None
         self._regather = False
         self._has_visible = False
@@ -131,8 +131,10 @@ class ProgressiveRenderer:
     def switching(self) -> bool:
         return self.scene.switch is not None and not self.scene.switch.done
 
-    def frame(self, camera: Camera, style: ColorStyle, effects: Effects = Effects()) -> tuple[str, ...]:
-        """Issue one frame's GPU work; returns the passes that ran."""
+    def frame(self, camera: Camera, style: ColorStyle, effects: Effects = Effects(),
+              hidden: frozenset[int] = frozenset()) -> tuple[str, ...]:
+        """Issue one frame's GPU work; returns the passes that ran. `hidden`: category
+        codes left out (with a category attribute shown), a change like a camera move."""
         self._pace()
         self._take(self.stats_ring.collect())
         if self.switching:
@@ -141,11 +143,12 @@ class ProgressiveRenderer:
         for _ in range(min(self.options.batches_per_frame, len(self.pending))):
             self.scene.add_batch(self.pending.popleft())
             passes.append("distribute")
-        moved = camera != self._camera
+        hidden = self.scene.drawable(hidden)
+        moved = (camera, hidden) != self._camera
         if passes or moved:
             self.change += 1
         restyled = (style, effects) != self._look
-        self._camera, self._look = camera, (style, effects)
+        self._camera, self._look = (camera, hidden), (style, effects)
         if self.scene.loaded == 0:
             self.vis.clear()
             passes += self.shading.run(style, effects, self.prepare.pixel_words)
@@ -157,7 +160,7 @@ class ProgressiveRenderer:
             if restyled or "prepare" in passes:
                 passes += self.shading.run(style, effects, self.prepare.pixel_words)
         else:
-            return self._render(camera, style, effects, passes, reset=bool(passes) or moved)
+            return self._render(camera, hidden, style, effects, passes, reset=bool(passes) or moved)
         self.budget.end_frame(complete=False)
         self._idle_frame(tuple(passes))
         return tuple(passes)
@@ -178,9 +181,9 @@ class ProgressiveRenderer:
         self._idle_frame(("stream",))
         return ("stream",)
 
-    def _render(self, camera: Camera, style: ColorStyle, effects: Effects, passes: list[str],
-                reset: bool) -> tuple[str, ...]:
-        view = view_uniforms(camera, self.info.origin, self.vis.width, self.vis.height)
+    def _render(self, camera: Camera, hidden: frozenset[int], style: ColorStyle, effects: Effects,
+                passes: list[str], reset: bool) -> tuple[str, ...]:
+        view = view_uniforms(camera, self.info.origin, self.vis.width, self.vis.height, hidden)
         b, raster = self.budget, self.raster
         if self._has_visible:
             passes.append("reproject")

@@ -80,9 +80,9 @@ class Renderer:
             pass
 
     def render(self, camera: Camera, width: int, height: int, style: ColorStyle,
-               effects: Effects = Effects()) -> Frame:
+               effects: Effects = Effects(), hidden: frozenset[int] = frozenset()) -> Frame:
         self.vis.resize(width, height)
-        view = view_uniforms(camera, self.info.origin, width, height)
+        view = view_uniforms(camera, self.info.origin, width, height, self.scene.drawable(hidden))
         t = self.timestamps
         t.reset()
         t.stamp("start")

@@ -126,6 +126,21 @@ class Scene:
         sw.seconds += time.perf_counter() - t0
         return sw.done
 
+    def drawable(self, hidden: frozenset[int]) -> frozenset[int]:
+        """Category codes to leave out: only while a category attribute is shown."""
+        return frozenset(hidden) if self.attribute.kind is AttributeKind.CATEGORY else frozenset()
+
+    def categories(self) -> list[int]:
+        """Codes present in the kept batches of the shown category attribute."""
+        if self.attribute.kind is not AttributeKind.CATEGORY:
+            return []
+        seen = np.zeros(256, dtype=bool)
+        for b in self.batches:
+            values = b.attributes.get(self.attribute.name) if b.records is None else b.records[:, 3]
+            if values is not None:
+                seen[np.unique(np.minimum(values, 255))] = True
+        return np.flatnonzero(seen).tolist()
+
     @property
     def positions_changed(self) -> bool:
         """The switch in progress rewrote whole records: which points are drawn changed."""

@@ -170,16 +170,18 @@ class Session:
         if self.load_seconds is None and self.loader.done:
             self.load_seconds = time.perf_counter() - self.opened
 
-    def frame(self, camera: Camera, style: ColorStyle | None = None, effects: Effects = Effects()) -> tuple[str, ...]:
-        """Progressive: one frame with whatever has loaded. Brute: load all, render."""
+    def frame(self, camera: Camera, style: ColorStyle | None = None, effects: Effects = Effects(),
+              hidden: frozenset[int] = frozenset()) -> tuple[str, ...]:
+        """Progressive: one frame with whatever has loaded. Brute: load all, render.
+        `hidden`: category codes not drawn while a category attribute is shown."""
         style = style or self.style()
         if not self.progressive:
             self._pump(block=True)
-            self._last = self.renderer.render(camera, *self.size, style, effects)
+            self._last = self.renderer.render(camera, *self.size, style, effects, hidden)
             passes = ("distribute", "raster", "resolve")
         else:
             self._pump(block=False)
-            passes = self.renderer.frame(camera, style, effects)
+            passes = self.renderer.frame(camera, style, effects, hidden)
         if self.first_image_seconds is None and self.renderer.scene.loaded > 0:
             self.first_image_seconds = time.perf_counter() - self.opened
         return passes

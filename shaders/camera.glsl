@@ -7,6 +7,14 @@ uniform mat3 u_view_rotation;
 uniform vec3 u_view_translation;
 uniform vec4 u_projection;   // f/aspect, f, near, far
 uniform uvec2 u_size;        // width, height
+uniform uint u_hidden[8];    // category codes not drawn, a bit each (classification toggles)
+
+// Hidden categories are left out of the raster, so points behind them show. All bits
+// are zero unless the shown attribute is a category (its code is the record's word).
+bool category_shown(uint word) {
+    uint c = min(word, 255u);
+    return (u_hidden[c >> 5u] & (1u << (c & 31u))) == 0u;
+}
 
 vec3 to_view(vec3 p) {
     return u_view_rotation * p + u_view_translation;

@@ -21,7 +21,7 @@ void main() {
     if (!range_index(source_count(), i)) return;
     uint slot = source_slot(i);
     uvec4 record = source_record(i, slot);
-    if (!finite_position(record)) return;
+    if (!finite_position(record) || !category_shown(record.w)) return;
     uint pixel;
     float depth;
     if (!project(uintBitsToFloat(record.xyz), pixel, depth)) return;

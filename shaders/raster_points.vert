@@ -11,6 +11,7 @@
 #include "sources.glsl"
 #else
 in vec3 a_position;
+in uint a_word;
 uniform uint u_chunk_base;   // slot of the chunk's first record
 #endif
 #include "camera.glsl"
@@ -28,11 +29,11 @@ void main() {
     uvec4 record = source_record(i, v_slot);
 #else
     v_slot = u_chunk_base + uint(gl_VertexID);
-    uvec4 record = uvec4(floatBitsToUint(a_position), 0u);
+    uvec4 record = uvec4(floatBitsToUint(a_position), a_word);
 #endif
     uint pixel;
     float depth;
-    if (!finite_position(record) || !project(uintBitsToFloat(record.xyz), pixel, depth)) return;
+    if (!finite_position(record) || !category_shown(record.w) || !project(uintBitsToFloat(record.xyz), pixel, depth)) return;
     v_depth_bits = floatBitsToUint(depth);
     uint row = pixel / u_size.x;
     uint col = pixel - row * u_size.x;

@@ -244,3 +244,41 @@ def test_effects_run_only_when_asked(gl, cloud):
 def test_bad_effects_are_refused(make):
     with pytest.raises(ValueError):
         make()
+
+
+def test_hidden_classes_are_left_out_and_show_what_is_behind(gl, cloud):
+    """Hiding a class removes its points from the raster (not just the colour): the
+    converged image equals a brute render with the same classes hidden, none of its
+    points is visible, and points that were behind them now are."""
+    info, batches = cloud
+    classes = np.concatenate([b.attributes["classification"] for b in batches])
+    cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
+    attr = info.attribute("classification")
+    r = Renderer(gl, info, attr, width=W, height=H, keep_batches=True)
+    for b in batches:
+        r.add_batch(b)
+    assert r.scene.categories() == sorted(set(classes.tolist()))
+    common = int(np.bincount(classes).argmax())
+    shown = r.render(cam, W, H, r.style())
+    hidden = r.render(cam, W, H, r.style(), hidden=frozenset({common}))
+    visible = hidden.ids[hidden.ids != EMPTY]
+    assert visible.size and not np.any(classes[visible] == common)
+    newly = set(visible.tolist()) - set(shown.ids[shown.ids != EMPTY].tolist())
+    assert newly, "nothing behind the hidden class became visible"
+    pr = progressive_renderer(gl, cloud)
+    pr.switch_attribute(attr)
+    style = pr.scene.style()
+    for _ in range(60):
+        pr.frame(cam, style, hidden=frozenset({common}))
+        pr.flush()
+        if pr.converged:
+            break
+    pr.frame(cam, style, hidden=frozenset({common}))
+    np.testing.assert_array_equal(pr.read_ids(), hidden.ids)
+    np.testing.assert_array_equal(pr.read_image(), hidden.image)
+    # with a scalar shown the mask does nothing
+    pr.switch_attribute(info.attribute("intensity"))
+    r.switch_attribute(info.attribute("intensity"))
+    assert r.scene.drawable(frozenset({common})) == frozenset()
+    pr.release()
+    r.release()

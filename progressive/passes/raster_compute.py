@@ -21,6 +21,8 @@ def set_view(program, view: ViewUniforms) -> None:
     program["u_projection"].write(view.projection.tobytes())
     if "u_size" in program:
         program["u_size"] = view.size
+    if "u_hidden" in program:
+        program["u_hidden"].write(view.hidden.tobytes())
 
 
 class ComputeRaster:

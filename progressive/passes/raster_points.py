@@ -29,7 +29,7 @@ class PointsRaster:
         self.glc, self.store, self.vis = glc, store, vis
         ctx = glc.ctx
         self.program = self._program({"VERTEX_PULLING": 0}, "raster points")
-        self.vaos = [ctx.vertex_array(self.program, [(buf, "3f4 x4", "a_position")]) for buf in store.buffers]
+        self.vaos = [ctx.vertex_array(self.program, [(buf, "3f4 u4", "a_position", "a_word")]) for buf in store.buffers]
         defines = dict(store.defines, **layout_defines(), **Meta.defines(), VERTEX_PULLING=1)
         self.pulling = {s: self._program(dict(defines, **Source.defines(s)), f"raster points {s.name.lower()}")
                         for s in (Source.PIECE, Source.LIST)}

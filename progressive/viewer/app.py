@@ -93,6 +93,7 @@ class Viewer:
         self._drag: Drag | None = None
         self._last_click = (0.0, -1e9, -1e9)
         self._dropped: tuple[list[str], bool] | None = None
+        self._categories: list[int] | None = None
         self._last_time = time.perf_counter()
         self.panel = None
         if options.ui:
@@ -124,7 +125,18 @@ class Viewer:
         self.settings = replace(self.settings, attribute=session.attribute.name, value_range=None,
                                 hidden_classes=frozenset())
         self.messages = [*session.warnings]
+        self._categories = None
         return True
+
+    def categories(self) -> list[int]:
+        """Category codes present in the shown attribute (for the legend), once loaded."""
+        if self._categories is None and self.session is not None and self.session.loader.done \
+                and not self.session.renderer.pending:
+            self._categories = self.session.renderer.scene.categories()
+        return self._categories or []
+
+    def toggle_class(self, code: int) -> None:
+        self.settings = replace(self.settings, hidden_classes=self.settings.hidden_classes ^ {code})
 
     def fail(self, message: str) -> None:
         self.error = message
@@ -141,7 +153,8 @@ class Viewer:
         except ProgressiveError as exc:
             self.fail(str(exc))
             return
-        self.settings = replace(self.settings, attribute=name, value_range=None)
+        self.settings = replace(self.settings, attribute=name, value_range=None, hidden_classes=frozenset())
+        self._categories = None
 
     # ---- the loop ------------------------------------------------------------------
     @property
@@ -193,7 +206,7 @@ class Viewer:
         s = self.session
         try:
             style = s.style(self.settings.colormap, self.settings.value_range, self.settings.background)
-            self.last_passes = s.frame(self.camera, style, self.settings.effects)
+            self.last_passes = s.frame(self.camera, style, self.settings.effects, self.settings.hidden_classes)
         except ProgressiveError as exc:
             self.fail(f"{exc} (showing the {s.renderer.scene.loaded:,} points read before)")
             s.stop_loading()

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 from imgui_bundle import imgui
 
-from progressive.colors import ASPRS_CLASSES, Colormap, ColorMode
+from progressive.colors import ASPRS_CLASSES, UNKNOWN_CLASS, Colormap, ColorMode
 from progressive.effects import MAX_POINT_SIZE, EyeDome
 from progressive.loaders.types import AttributeKind
 from progressive.viewer.controls import KEYS, MOUSE_HELP, BudgetMode
@@ -123,11 +123,16 @@ class Panel:
             v.settings = replace(v.settings, background=tuple(int(round(c * 255)) for c in colour))
 
     def _legend(self) -> None:
-        for code, (name, rgb) in ASPRS_CLASSES.items():
+        """The classes present, each with its colour and a visibility toggle."""
+        v = self.viewer
+        for code in v.categories():
+            name, rgb = ASPRS_CLASSES.get(code, (f"class {code}", UNKNOWN_CLASS))
             imgui.color_button(f"##class{code}", imgui.ImVec4(*(c / 255.0 for c in rgb), 1.0),
                                0, imgui.ImVec2(12, 12))
             imgui.same_line()
-            imgui.text(f"{code:2d} {name}")
+            changed, _ = imgui.checkbox(f"{code:3d} {name}", code not in v.settings.hidden_classes)
+            if changed:
+                v.toggle_class(code)
 
     def _effects(self) -> None:
         v = self.viewer

@@ -1,0 +1,268 @@
+"""The viewer in real windows on a virtual X server (Xvfb, started here): frames,
+the app's own capture, scripted input through the handlers glfw's callbacks call,
+resizing, attribute switching, and bad files dropped in. Run in a process of their
+own by test_viewer.py (a GLX window cannot be made current in a process that
+already made an EGL context current, as the rest of the suite does)."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import time
+
+import glfw
+import laspy
+import numpy as np
+import pytest
+from PIL import Image
+
+from conftest import SAMPLE
+from progressive.camera import Camera
+from progressive.reference import EMPTY
+from progressive.viewer.controls import Action
+
+W, H = 320, 240
+
+
+@pytest.fixture(scope="module")
+def display():
+    """A private X display for this module's windows."""
+    if shutil.which("Xvfb") is None:
+        pytest.skip("Xvfb not installed (scripts/setup.sh installs it)")
+    read, write = os.pipe()
+    proc = subprocess.Popen(["Xvfb", "-displayfd", str(write), "-screen", "0", "1280x1024x24", "-nolisten", "tcp"],
+                            pass_fds=(write,), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    os.close(write)
+    with os.fdopen(read) as f:
+        number = f.readline().strip()
+    old = os.environ.get("DISPLAY")
+    os.environ["DISPLAY"] = f":{number}"
+    yield os.environ["DISPLAY"]
+    glfw.terminate()
+    proc.terminate()
+    proc.wait(timeout=10)
+    if old is None:
+        os.environ.pop("DISPLAY", None)
+    else:
+        os.environ["DISPLAY"] = old
+
+
+@pytest.fixture
+def viewer(display, tmp_path):
+    from progressive.viewer.app import Viewer, ViewerOptions
+
+    v = Viewer([str(SAMPLE)], ViewerOptions(width=W, height=H, screenshot_dir=tmp_path))
+    yield v
+    v.close()
+
+
+def settle(v, limit=200):
+    """Steps until the image is exact (every point filled since the last change)."""
+    for _ in range(limit):
+        v.step()
+        v.session.stats()
+        if v.session.converged and not v.session.renderer.switching:
+            v.step()
+            return
+    raise AssertionError("viewer did not converge")
+
+
+def no_gl_error(v):
+    assert v.glc.ctx.error == "GL_NO_ERROR"
+
+
+def test_window_shows_the_cloud_and_p_saves_the_frame(viewer, tmp_path):
+    settle(viewer)
+    frame = viewer.session.image()
+    covered = (viewer.session.ids() != EMPTY).mean()
+    assert 0.1 < covered < 0.95, covered
+    viewer.act(Action.SCREENSHOT)
+    saved = np.asarray(Image.open(viewer.last_screenshot))
+    assert viewer.last_screenshot.parent == tmp_path
+    np.testing.assert_array_equal(saved, frame[:, :, :3])
+    no_gl_error(viewer)
+
+
+def test_present_puts_the_frame_on_the_window(viewer, monkeypatch):
+    """The window's back buffer (panel hidden) is the frame, pixel for pixel."""
+    viewer.act(Action.PANEL)
+    settle(viewer)
+    shots = []
+    swap = glfw.swap_buffers
+    monkeypatch.setattr(glfw, "swap_buffers", lambda w: (shots.append(viewer.capture_window()), swap(w)))
+    viewer.step()
+    np.testing.assert_array_equal(shots[-1], viewer.session.image()[:, :, :3])
+
+
+def test_panel_draws_over_the_frame(viewer, monkeypatch):
+    settle(viewer)
+    shots = []
+    swap = glfw.swap_buffers
+    monkeypatch.setattr(glfw, "swap_buffers", lambda w: (shots.append(viewer.capture_window()), swap(w)))
+    viewer.settings = viewer.settings.__class__(**{**viewer.settings.__dict__, "help": True})
+    viewer.step()
+    differs = (shots[-1] != viewer.session.image()[:, :, :3]).any(axis=2)
+    assert differs[:40, :40].mean() > 0.3      # the panel sits in the top-left corner
+    no_gl_error(viewer)
+
+
+def test_switching_attribute_changes_the_image_and_streams_the_words(viewer):
+    settle(viewer)
+    before = viewer.session.image()
+    viewer.act(Action.NEXT_ATTRIBUTE)
+    assert viewer.settings.attribute == viewer.attribute_names[1]
+    settle(viewer)
+    after = viewer.session.image()
+    assert not np.array_equal(before, after)
+    s = viewer.session
+    switch = s.renderer.scene.switch
+    assert switch.done and switch.rate > 0
+    words = s.renderer.store.read_records()[:, 3]
+    from progressive.packing import attribute_word
+
+    expected = np.concatenate([attribute_word(b, s.attribute, float(s.info.origin[2]))
+                               for b in sorted(s.renderer.scene.batches, key=lambda b: b.start)])
+    slots = s.renderer.store.permutation.forward(np.arange(s.info.points))
+    np.testing.assert_array_equal(words[slots], expected)
+    no_gl_error(viewer)
+
+
+def test_orbit_pan_zoom_and_reset(viewer):
+    settle(viewer)
+    viewer.act(Action.PANEL)
+    home = viewer.orbit
+    viewer.mouse_button(glfw.MOUSE_BUTTON_LEFT, True, 100, 100)
+    viewer.cursor(160, 90)
+    viewer.mouse_button(glfw.MOUSE_BUTTON_LEFT, False, 160, 90)
+    assert viewer.orbit.target == home.target and viewer.orbit.distance == home.distance
+    assert viewer.orbit.yaw < home.yaw and viewer.orbit.pitch < home.pitch
+    orbited = viewer.orbit
+    viewer.mouse_button(glfw.MOUSE_BUTTON_RIGHT, True, 100, 100)
+    viewer.cursor(130, 100)
+    viewer.mouse_button(glfw.MOUSE_BUTTON_RIGHT, False, 130, 100)
+    assert viewer.orbit.target != orbited.target and viewer.orbit.yaw == orbited.yaw
+    settle(viewer)
+    ids = viewer.session.ids()
+    ys, xs = np.nonzero(ids != EMPTY)
+    k = len(ys) // 2
+    x, y = float(xs[k]) + 0.5, float(ys[k]) + 0.5
+    anchor_id = int(ids[ys[k], xs[k]])
+    distance = viewer.orbit.distance
+    viewer.scroll(2, x, y)
+    assert viewer.orbit.distance == pytest.approx(distance * 0.85 ** 2)
+    settle(viewer)
+    # the point under the cursor is still under it after zooming about it
+    near = viewer.session.ids()[max(0, ys[k] - 1): ys[k] + 2, max(0, xs[k] - 1): xs[k] + 2]
+    assert anchor_id in near
+    viewer.act(Action.RESET)
+    assert viewer.orbit == home
+    no_gl_error(viewer)
+
+
+def test_double_click_reports_the_files_coordinates(viewer):
+    viewer.act(Action.PANEL)
+    settle(viewer)
+    ids = viewer.session.ids()
+    ys, xs = np.nonzero(ids != EMPTY)
+    k = len(ys) // 3
+    las = laspy.read(SAMPLE)
+    pid = int(ids[ys[k], xs[k]])
+    viewer.mouse_button(glfw.MOUSE_BUTTON_LEFT, True, xs[k] + 0.5, ys[k] + 0.5)
+    viewer.mouse_button(glfw.MOUSE_BUTTON_LEFT, False, xs[k] + 0.5, ys[k] + 0.5)
+    viewer.mouse_button(glfw.MOUSE_BUTTON_LEFT, True, xs[k] + 0.5, ys[k] + 0.5)
+    viewer.mouse_button(glfw.MOUSE_BUTTON_LEFT, False, xs[k] + 0.5, ys[k] + 0.5)
+    expected = np.array([las.x[pid], las.y[pid], las.z[pid]])
+    np.testing.assert_array_equal(viewer.last_focus, expected)
+    assert viewer.orbit.target == tuple(expected.tolist())
+
+
+def test_keys_through_the_glfw_callback(viewer):
+    viewer.act(Action.PANEL)
+    press = lambda key, mods=0: viewer.on_key(viewer.window, key, 0, glfw.PRESS, mods)  # noqa: E731
+    press(glfw.KEY_E)
+    press(glfw.KEY_EQUAL)
+    press(glfw.KEY_EQUAL)
+    assert viewer.settings.eye_dome and viewer.settings.point_size == 3
+    viewer.step()
+    assert viewer.last_passes[-3:] == ("dilate", "resolve", "eye_dome")
+    press(glfw.KEY_MINUS)
+    press(glfw.KEY_MINUS)
+    press(glfw.KEY_E)
+    viewer.step()
+    assert "dilate" not in viewer.last_passes and "eye_dome" not in viewer.last_passes
+    press(glfw.KEY_Q)
+    assert not viewer.running
+    no_gl_error(viewer)
+
+
+def test_camera_copy_and_paste(viewer):
+    viewer.act(Action.PANEL)
+    viewer.orbit = viewer.navigator.orbit(viewer.orbit, 40, 10)
+    viewer.act(Action.COPY_CAMERA)
+    text = glfw.get_clipboard_string(None).decode()
+    assert Camera.from_json(text) == viewer.camera
+    viewer.act(Action.RESET)
+    viewer.paste_camera(text)
+    assert viewer.camera == Camera.from_json(text)
+    viewer.paste_camera("{not json")
+    assert "pasted camera" in viewer.error
+    viewer.step()
+
+
+def test_resize_reallocates_per_pixel_buffers(viewer):
+    settle(viewer)
+    glfw.set_window_size(viewer.window, 400, 180)
+    for _ in range(20):
+        viewer.step()
+        if viewer.framebuffer_size == (400, 180):
+            break
+    settle(viewer)
+    assert viewer.session.size == (400, 180)
+    assert viewer.session.image().shape == (180, 400, 4)
+    assert viewer.session.renderer.vis.pixels == 400 * 180
+    no_gl_error(viewer)
+
+
+def test_a_bad_file_dropped_in_is_an_error_in_the_window(viewer, tmp_path):
+    settle(viewer)
+    bad = tmp_path / "bad.las"
+    bad.write_bytes(b"LASF" + bytes(50))
+    viewer.drop([str(bad)])
+    viewer.step()
+    assert viewer.error and "bad.las" in viewer.error
+    assert viewer.running and viewer.session.info.points == 110_000
+    settle(viewer)
+    viewer.drop([str(SAMPLE)], add=True)
+    viewer.step()
+    assert viewer.error is None and viewer.session.info.points == 220_000
+    settle(viewer)
+    no_gl_error(viewer)
+
+
+def test_view_without_a_display_renders_a_png(tmp_path):
+    out = tmp_path / "view.png"
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    r = subprocess.run([sys.executable, "-m", "progressive", "view", "--width", "200", "--height", "120",
+                        "--out", str(out)], env=env, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "no display" in r.stderr and str(out) in r.stdout
+    assert np.asarray(Image.open(out)).shape[:2] == (120, 200)
+
+
+def test_first_image_arrives_before_loading_finishes(display, tmp_path):
+    """A cloud of several copies of the sample: the window shows points while loading."""
+    from progressive.viewer.app import Viewer, ViewerOptions
+
+    v = Viewer([str(SAMPLE)] * 6, ViewerOptions(width=W, height=H))
+    t0 = time.perf_counter()
+    seen = False
+    while not v.session.loader.done or v.session.renderer.pending:
+        v.step()
+        loaded = v.session.renderer.scene.loaded
+        if 0 < loaded < v.session.info.points and (v.session.image()[:, :, 3] > 0).any():
+            seen = True
+        assert time.perf_counter() - t0 < 60
+    v.close()
+    assert seen
