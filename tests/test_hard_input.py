@@ -120,6 +120,113 @@ def test_scale_1e7_real_file_bounds_and_zero_colours():
     assert desc["attributes"]["intensity"] == {"kind": "scalar", "min": 0, "max": 0}
 
 
+# --- header bounds the records cannot reach --------------------------------------------------
+
+MAX_X, MIN_Z = 179, 219
+"""Byte offsets of two header bounds (float64) in a LAS 1.0-1.4 header."""
+UNREACHABLE = {
+    "max x 1e300": [(MAX_X, 1e300)],
+    "min z beyond int32": [(MIN_Z, -1e8)],          # scale 0.01, offset 0: |z| <= 2.2e7
+    "every max far away": [(MAX_X, 4e13), (MAX_X + 16, -7e12), (MAX_X + 32, 1e18)],
+}
+
+
+@pytest.fixture(scope="module")
+def exact_sample(tmp_path_factory) -> Path:
+    """The sample as laspy writes it: header bounds equal to the points' extremes."""
+    path = tmp_path_factory.mktemp("exact") / "exact.las"
+    laspy.read(SAMPLE).write(path)
+    return path
+
+
+@pytest.mark.parametrize("case", list(UNREACHABLE))
+def test_unreachable_header_bounds_are_ignored(tmp_path, capsys, exact_sample, case):
+    """Header bounds that no int32 coordinate can reach under the scale and offset once
+    set the origin, and every position overflowed float32 ('not drawn'). They are now
+    replaced by the points' bounds: the same ids as the intact file, one warning."""
+    data = bytearray(exact_sample.read_bytes())
+    for offset, value in UNREACHABLE[case]:
+        struct.pack_into("<d", data, offset, value)
+    bad = tmp_path / "bad_bounds.las"
+    bad.write_bytes(data)
+    ids = {}
+    for name, path in (("good", exact_sample), ("bad", bad)):
+        code, _, err = cli(capsys, "render", *TINY, path, "--ids", tmp_path / f"{name}.npy",
+                           "--stats", tmp_path / f"{name}.json")
+        assert code == 0, err
+        ids[name] = np.load(tmp_path / f"{name}.npy")
+        warnings = err.splitlines()
+        assert json.loads((tmp_path / f"{name}.json").read_text())["points_not_drawn"] == 0
+    assert len(warnings) == 1 and warnings[0].startswith("progressive: warning: ") and "header bounds" in warnings[0]
+    assert (ids["good"] != EMPTY_ID).sum() > 300
+    np.testing.assert_array_equal(ids["bad"], ids["good"])
+    code, out, err = cli(capsys, "info", "--json", bad)
+    assert code == 0, err
+    desc, las = json.loads(out), laspy.read(exact_sample)
+    assert desc["header_bounds"] == {"min": las.header.mins.tolist(), "max": las.header.maxs.tolist()}
+    assert desc["origin"] == ((las.header.mins + las.header.maxs) / 2).tolist()
+    assert len(desc["warnings"]) == 1 and "header bounds" in desc["warnings"][0]
+
+
+def test_reachable_header_bounds_are_kept(tmp_path, exact_sample):
+    """Bounds the records could reach are trusted, even where they are not the points' own
+    (a cheaper header check, not a second pass over every file)."""
+    data = bytearray(exact_sample.read_bytes())
+    struct.pack_into("<d", data, MAX_X, 2e7)
+    path = tmp_path / "wide.las"
+    path.write_bytes(data)
+    with CloudLoader([path]) as loader:
+        assert loader.info.bounds_max[0] == 2e7 and not loader.warnings
+
+
+# --- VLR text that is not UTF-8 -------------------------------------------------------------
+
+def vlr_offsets(data: bytes) -> list[int]:
+    """Where each VLR of a LAS/LAZ file starts."""
+    (at,), (count,) = struct.unpack_from("<H", data, 94), struct.unpack_from("<I", data, 100)
+    offsets = []
+    for _ in range(count):
+        offsets.append(at)
+        at += 54 + struct.unpack_from("<H", data, at + 20)[0]
+    return offsets
+
+
+def test_vlr_text_not_utf8_loads(tmp_path, capsys):
+    """A Latin-1 'é' in a VLR's user_id made laspy (strict UTF-8) reject the file; one in a
+    description laspy keeps as bytes. Both are read with '?' and one warning line."""
+    data = bytearray(SAMPLE.read_bytes())
+    vlrs = vlr_offsets(data)
+    data[vlrs[4] + 2:vlrs[4] + 8] = "élias".encode("latin-1") + b"\0"      # user_id 'liblas'
+    data[vlrs[1] + 22:vlrs[1] + 29] = "Géotiff".encode("latin-1")             # a description
+    path = tmp_path / "latin1.las"
+    path.write_bytes(data)
+    loader, batches = load(path)
+    original, expected = load(SAMPLE)
+    assert loader.loaded == loader.total == 110_000
+    np.testing.assert_array_equal(column(batches), column(expected))
+    assert loader.info.files[0].crs == original.info.files[0].crs is not None
+    assert len(loader.warnings) == 1 and "not UTF-8" in loader.warnings[0], loader.warnings
+    code, _, err = cli(capsys, "render", *TINY, path, "--out", tmp_path / "x.png")
+    assert code == 0 and len(err.splitlines()) == 1 and err.startswith("progressive: warning: "), err
+    code, out, err = cli(capsys, "info", "--json", path)
+    assert code == 0 and len(json.loads(out)["warnings"]) == 1, err
+
+
+def test_extra_bytes_name_not_utf8_laz(tmp_path):
+    """An extra-bytes dimension named in Latin-1, in a LAZ read through lazrs: the
+    dimension keeps its values under its name with '?' for the bad byte."""
+    source = shared_file("las_with_several_extra_byte_bloc.laz")
+    data = bytearray(source.read_bytes())
+    data[data.index(b"Deviation\0") + 4] = 0xE9
+    path = tmp_path / "latin1.laz"
+    path.write_bytes(data)
+    loader, batches = load(path, batch_points=100_000)
+    las = laspy.read(source)
+    assert loader.loaded == loader.total == len(las.points)
+    np.testing.assert_array_equal(column(batches, "Devi?tion"), las["Deviation"])
+    assert len(loader.warnings) == 1 and "Devi\\xe9tion" in loader.warnings[0], loader.warnings
+
+
 # --- colour depth ------------------------------------------------------------------------
 
 def colour_file(path: Path, sample: laspy.LasData, index: int, value: int) -> laspy.LasData:
