@@ -40,6 +40,7 @@ PROBE_PIECE = 65_536                    # points per read while looking for 16-b
 SALVAGE_PIECE = 1_000                   # points per read while salvaging a damaged LAZ
 LAZ_POINTWISE = 1                       # LASzip compressor without chunks or chunk table
 MIN_CHUNK_BYTES = 20                    # a LAZ chunk starts with one raw point record
+TAIL_GAP = 1                            # bytes of end of file before a stand-in chunk table
 RECORD_INT = (-2**31, 2**31 - 1)        # the int32 X, Y, Z of a point record
 BOUNDS_SLACK = 1e-9                     # relative rounding allowed to header bounds
 STANDARD = (
@@ -187,7 +188,8 @@ class LazLayout:
             entries = [(self.chunk_size, 1)] * min(math.ceil(self.points / self.chunk_size),
                                                    size // MIN_CHUNK_BYTES + 1)
             lazrs.write_chunk_table(table, entries, lazrs.LazVlr(self.vlr_data))
-        return open_patched(path, (*self.patches, (self.point_data, struct.pack("<q", size))), table.getvalue())
+        return open_patched(path, (*self.patches, (self.point_data, struct.pack("<q", size + TAIL_GAP))),
+                            table.getvalue())
 
 
 def open_patched(path: str, patches: tuple[Patch, ...] = (), tail: bytes = b""):
@@ -198,8 +200,10 @@ def open_patched(path: str, patches: tuple[Patch, ...] = (), tail: bytes = b""):
 
 
 class PatchedFile(io.RawIOBase):
-    """A file as stored but for the bytes of `patches`, with `tail` appended after its
-    last byte: laspy and lazrs read it without anything being written."""
+    """A file as stored but for the bytes of `patches`, with `tail` stored TAIL_GAP bytes
+    past its end: laspy and lazrs read it without anything being written. A read at the
+    end sees the end of the file, so that a decoder running off truncated point data
+    fails there rather than decoding the tail."""
 
     def __init__(self, stream, patches: tuple[Patch, ...], tail: bytes):
         super().__init__()
@@ -207,6 +211,7 @@ class PatchedFile(io.RawIOBase):
         self._size = os.fstat(stream.fileno()).st_size
         self._patches = patches
         self._tail = tail
+        self._tail_at = self._size + TAIL_GAP if tail else self._size
         self._pos = 0
 
     def readable(self) -> bool:
@@ -219,20 +224,22 @@ class PatchedFile(io.RawIOBase):
         return self._pos
 
     def seek(self, pos: int, whence: int = io.SEEK_SET) -> int:
-        base = {io.SEEK_SET: 0, io.SEEK_CUR: self._pos, io.SEEK_END: self._size + len(self._tail)}[whence]
+        base = {io.SEEK_SET: 0, io.SEEK_CUR: self._pos, io.SEEK_END: self._tail_at + len(self._tail)}[whence]
         self._pos = base + pos
         return self._pos
 
     def readinto(self, buffer) -> int:
-        want = len(buffer)
-        self._stream.seek(self._pos)
-        data = bytearray(self._stream.read(max(0, min(want, self._size - self._pos))))
-        into_tail = max(0, self._pos + len(data) - self._size)
-        data += self._tail[into_tail:into_tail + want - len(data)]
-        for at, patch in self._patches:
-            lo, hi = max(at, self._pos), min(at + len(patch), self._pos + len(data))
-            if lo < hi:
-                data[lo - self._pos:hi - self._pos] = patch[lo - at:hi - at]
+        """At most up to the end of the file, of the gap or of the tail: a short read."""
+        if self._pos >= self._size:
+            skip = self._pos - self._tail_at
+            data = self._tail[skip:skip + len(buffer)] if skip >= 0 else b""
+        else:
+            self._stream.seek(self._pos)
+            data = bytearray(self._stream.read(min(len(buffer), self._size - self._pos)))
+            for at, patch in self._patches:
+                lo, hi = max(at, self._pos), min(at + len(patch), self._pos + len(data))
+                if lo < hi:
+                    data[lo - self._pos:hi - self._pos] = patch[lo - at:hi - at]
         buffer[:len(data)] = data
         self._pos += len(data)
         return len(data)
@@ -332,33 +339,72 @@ def decode(path: str, laz: LazLayout | None, count: int, piece: int, *, salvage:
 
 def _salvage(path: str, laz: LazLayout, count: int, start: int,
              piece: int) -> Iterator[laspy.ScaleAwarePointRecord]:
-    """Decode again from the start with the sequential decoder, in small reads merged into
-    chunks of `piece`, yielding from `start` on all that still decodes."""
-    stream = laz.salvage_stream(path)
-    if stream is None:
-        return
-    kept: list[laspy.ScaleAwarePointRecord] = []
-    try:
-        with _reader(stream, path, laspy.LazBackend.Lazrs, count) as reader:
-            skipped = 0
-            while skipped < start:
-                skipped += len(reader.read_points(min(piece, start - skipped)))
-            for small in reader.chunk_iterator(min(piece, SALVAGE_PIECE)):
-                kept.append(small)
-                if sum(map(len, kept)) >= piece:
-                    yield _merged(kept)
-                    kept = []
-    except BaseException as exc:
-        if not is_decode_error(exc):
-            raise
-    if kept:
-        yield _merged(kept)
+    """Decode again with lazrs's sequential decoder and yield, in chunks of `piece`, every
+    point from `start` on that decodes before its first failure. The decoder cannot go on
+    (or back) after a failed read, and a failed read of n points tells nothing of how many
+    decoded: so the read that failed first (start to start + piece) is read again one point
+    at a time, further on reads are of SALVAGE_PIECE, and should one of those fail, the
+    decoder starts over and reads its points one at a time."""
+    at, careful = start, min(start + piece, count)
+    while at < count:
+        stream = laz.salvage_stream(path)
+        if stream is None:
+            return
+        failed = 0
+        with stream:
+            try:
+                decoder = _Sequential(stream, laz, at, piece)
+            except BaseException as exc:
+                if not is_decode_error(exc):
+                    raise
+                return
+            buffer, filled = bytearray(piece * decoder.size), 0
+            while at < count:
+                n = 1 if at < careful else min(SALVAGE_PIECE, count - at, piece - filled)
+                try:
+                    decoder.read_into(buffer, filled, n)
+                except BaseException as exc:
+                    if not is_decode_error(exc):
+                        raise
+                    failed = n
+                    break
+                at, filled = at + n, filled + n
+                if filled == piece:
+                    yield decoder.records(buffer, filled)
+                    filled = 0
+            if filled:
+                yield decoder.records(buffer, filled)
+        if failed <= 1:
+            return
+        careful = at + failed
 
 
-def _merged(records: list[laspy.ScaleAwarePointRecord]) -> laspy.ScaleAwarePointRecord:
-    first = records[0]
-    return laspy.ScaleAwarePointRecord(np.concatenate([r.array for r in records]),
-                                       first.point_format, first.scales, first.offsets)
+class _Sequential:
+    """lazrs's sequential decoder on a salvage stream, at a given point, and what turns
+    its bytes into laspy records. It skips points by decoding them, never by seeking: a
+    seek trusts the byte offsets of a chunk table that may be the damaged part."""
+
+    def __init__(self, stream, laz: LazLayout, at: int, piece: int):
+        header = laspy.LasHeader.read_from(stream, read_evlrs=False)
+        self._format, self._scales, self._offsets = header.point_format, header.scales, header.offsets
+        self.size = header.point_format.size
+        stream.seek(laz.point_data)
+        self._decoder = lazrs.LasZipDecompressor(stream, laz.vlr_data)
+        scratch, skipped = bytearray(min(at, piece) * self.size), 0
+        while skipped < at:
+            n = min(piece, at - skipped)
+            self.read_into(scratch, 0, n)
+            skipped += n
+
+    def read_into(self, buffer: bytearray, first: int, n: int) -> None:
+        """Decode n points into buffer, from point slot `first` on."""
+        with memoryview(buffer) as view:
+            self._decoder.decompress_many(view[first * self.size:(first + n) * self.size])
+
+    def records(self, buffer: bytearray, n: int) -> laspy.ScaleAwarePointRecord:
+        """The first n points of buffer, copied."""
+        array = np.frombuffer(buffer[:n * self.size], dtype=self._format.dtype())
+        return laspy.ScaleAwarePointRecord(array, self._format, self._scales, self._offsets)
 
 
 def _reader(stream, path: str, backend: laspy.LazBackend | None, count: int) -> laspy.LasReader:

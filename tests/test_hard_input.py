@@ -8,6 +8,7 @@ CLI cases in test_cli.py; this file adds the rest.
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import os
@@ -15,6 +16,7 @@ import struct
 from pathlib import Path
 
 import laspy
+import lazrs
 import numpy as np
 import pytest
 from PIL import Image
@@ -538,6 +540,83 @@ def test_partial_corrupt_laz_keeps_what_decodes(folders, fast_sample):
     with CloudLoader([path], partial=True) as loader:
         read = sum(b.count for b in loader)
     assert loader.total // 4 < read < loader.total and len(loader.warnings) == 1
+
+
+class EndsAt(io.RawIOBase):
+    """A file's bytes that end at `cut` for the point data but still hold its header and
+    its chunk table (at `table` and after): the truncated file as laspy could open it."""
+
+    def __init__(self, data: bytes, cut: int, table: int):
+        super().__init__()
+        self._data, self._cut, self._table, self._pos = data, cut, table, 0
+
+    def readable(self) -> bool:
+        return True
+
+    def seekable(self) -> bool:
+        return True
+
+    def seek(self, pos: int, whence: int = io.SEEK_SET) -> int:
+        self._pos = {io.SEEK_SET: 0, io.SEEK_CUR: self._pos, io.SEEK_END: len(self._data)}[whence] + pos
+        return self._pos
+
+    def tell(self) -> int:
+        return self._pos
+
+    def readinto(self, buffer) -> int:
+        end = self._cut if self._pos < self._cut else len(self._data) if self._pos >= self._table else self._pos
+        data = self._data[self._pos:min(end, self._pos + len(buffer))]
+        buffer[:len(data)] = data
+        self._pos += len(data)
+        return len(data)
+
+
+def decodable_points(stream) -> np.ndarray:
+    """x, y, z of the points laspy's sequential LAZ reader gives one at a time before its
+    first failure. (Where bytes are damaged rather than missing, some are garbage: LAZ has
+    no checksum.)"""
+    points = []
+    with laspy.LasReader(stream, laz_backend=laspy.LazBackend.Lazrs) as reader:
+        try:
+            while len(points) < reader.header.point_count:
+                point = reader.read_points(1)
+                points.append([point.x[0], point.y[0], point.z[0]])
+        except lazrs.LazrsError:
+            pass
+    return np.array(points)
+
+
+def truncated_in_chunk(source: Path, folder: Path) -> tuple[Path, np.ndarray]:
+    """`source` cut 30 % into its second chunk, and how many points laspy decodes from
+    the bytes before the cut (its chunk table left where it can find it)."""
+    data = source.read_bytes()
+    header = laspy.LasHeader.read_from(io.BytesIO(data))
+    point_data = header.offset_to_point_data
+    (table,) = struct.unpack_from("<q", data, point_data)
+    stream = io.BytesIO(data)
+    stream.seek(point_data)
+    chunks = lazrs.read_chunk_table(stream, lazrs.LazVlr(header.vlrs.get("LasZipVlr")[0].record_data))
+    second = point_data + 8 + chunks[0][1]
+    cut = second + int(chunks[1][1] * 0.3)
+    path = folder / f"cut{source.suffix}"
+    path.write_bytes(data[:cut])
+    return path, decodable_points(io.BufferedReader(EndsAt(data, cut, table)))
+
+
+@pytest.mark.parametrize("case", ["truncated in a chunk", "laz corrupt chunk"])
+def test_partial_laz_keeps_every_decodable_point(folders, fast_sample, case):
+    """--partial keeps every point that decodes before the damage, not whole reads of
+    1000: as many as laspy reading one point at a time gets, and the same points."""
+    if case == "truncated in a chunk":
+        path, expected = truncated_in_chunk(shared_file("pine_plot.laz"), folders[0])
+    else:
+        path = bad_file(case, folders[0], fast_sample)
+        expected = decodable_points(path.open("rb"))
+    with CloudLoader([path], partial=True, batch_points=20_000) as loader:
+        batches = sorted(loader, key=lambda b: b.start)
+    assert 50_000 < len(expected) < loader.total and len(expected) % 1000, len(expected)
+    assert loader.loaded == len(expected) and len(loader.warnings) == 1, loader.warnings
+    np.testing.assert_array_equal(column(batches), np.float32(expected - loader.info.origin))
 
 
 @pytest.mark.parametrize("name", ["extrabytes.las", "fullwave.laz"])
