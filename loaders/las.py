@@ -25,16 +25,24 @@ from progressive.loaders.types import (BATCH_POINTS, AttributeInfo, AttributeKin
                                       nonfinite_count, nonfinite_rows, quiet_nans)
 
 SIGNATURE = b"LASF"
+Patch = tuple[int, bytes]
+"""Bytes read in place of the file's own at an offset."""
 MAX_POINT_FORMAT = 10
 MAX_MINOR_VERSION = 4
 HEADER_PREFIX = 375                     # the LAS 1.4 header; older ones are shorter
 MIN_HEADER = {0: 227, 1: 227, 2: 227, 3: 235, 4: 375}
 VLR_HEADER = 54                         # bytes of each VLR before its data
+VLR_TEXT = ((2, 16), (22, 32))          # user_id, description: offset, length in the VLR header
+EXTRA_BYTES_STRUCT = 192                # one extra-bytes dimension in the LASF_Spec VLR 4
+EXTRA_BYTES_TEXT = ((4, 32), (160, 32))  # name, description
 SCAN_ANGLE_STEP = 0.006                 # degrees per unit of the PF 6-10 scan_angle
 PROBE_PIECE = 65_536                    # points per read while looking for 16-bit colour
 SALVAGE_PIECE = 1_000                   # points per read while salvaging a damaged LAZ
 LAZ_POINTWISE = 1                       # LASzip compressor without chunks or chunk table
 MIN_CHUNK_BYTES = 20                    # a LAZ chunk starts with one raw point record
+TAIL_GAP = 1                            # bytes of end of file before a stand-in chunk table
+RECORD_INT = (-2**31, 2**31 - 1)        # the int32 X, Y, Z of a point record
+BOUNDS_SLACK = 1e-9                     # relative rounding allowed to header bounds
 STANDARD = (
     "rgb", "intensity", "classification", "elevation", "return_number",
     "number_of_returns", "gps_time", "point_source_id", "user_data", "scan_angle",
@@ -68,9 +76,7 @@ def is_decode_error(exc: BaseException) -> bool:
 
 
 def header_error(path: str, exc: Exception) -> InputError:
-    """laspy's complaint about a header; it decodes VLR names and texts strictly."""
-    if isinstance(exc, UnicodeDecodeError):
-        return fail(path, f"invalid LAS header: text in a VLR is not UTF-8 ({exc})")
+    """laspy's complaint about a header."""
     return fail(path, f"invalid LAS header: {exc}")
 
 
@@ -88,6 +94,8 @@ class RawHeader:
     """The few fixed-header fields needed before trusting laspy with the file."""
 
     version: tuple[int, int]
+    header_size: int
+    vlr_count: int
     point_data: int
     point_format: int
     compressed: bool
@@ -124,7 +132,8 @@ class RawHeader:
         if pf & 0x3F > MAX_POINT_FORMAT:
             raise fail(path, f"unsupported point format {pf & 0x3F}")
         return cls(
-            version=(major, minor), point_data=point_data, point_format=pf & 0x3F,
+            version=(major, minor), header_size=header_size, vlr_count=vlrs, point_data=point_data,
+            point_format=pf & 0x3F,
             compressed=bool(pf & 0x80), record_length=record_length,
             count=(count64 or legacy) if minor >= 4 else legacy, waveform_start=waveform,
             evlr_start=evlr_start, evlr_count=evlr_count, internal_waveform=bool(encoding & 2),
@@ -155,10 +164,12 @@ class LazLayout:
     lazrs must not see it: it allocates for every chunk declared (and aborts the process
     when it cannot), and without a table it may take garbage for a chunk header and
     allocate gigabytes."""
+    patches: tuple[Patch, ...] = ()
+    """The file's text patches (text_patches), applied wherever laspy reads the header."""
 
     def open(self, path: str):
         """The file as lazrs may see it."""
-        return self._stand_in(path) if self.stand_in else open_binary(path)
+        return self._stand_in(path) if self.stand_in else open_patched(path, self.patches)
 
     def salvage_stream(self, path: str):
         """A stream the sequential decoder can start on, or None when nothing can be read.
@@ -166,31 +177,41 @@ class LazLayout:
         chunks a stand-in table of full chunks lets decoding start again."""
         pointwise = struct.unpack_from("<H", self.vlr_data, 0)[0] == LAZ_POINTWISE
         if pointwise or self.table_ok:
-            return open_binary(path)
+            return open_patched(path, self.patches)
         return None if self.chunk_size is None else self._stand_in(path)
 
     def _stand_in(self, path: str):
         """The file with a table of full fixed-size chunks (as many as it has room for) in
         place of its own; with variable-size chunks, with none, which fails cleanly."""
-        table = io.BytesIO()
+        table, size = io.BytesIO(), os.path.getsize(path)
         if self.chunk_size is not None:
-            room = os.path.getsize(path) // MIN_CHUNK_BYTES + 1
-            entries = [(self.chunk_size, 1)] * min(math.ceil(self.points / self.chunk_size), room)
+            entries = [(self.chunk_size, 1)] * min(math.ceil(self.points / self.chunk_size),
+                                                   size // MIN_CHUNK_BYTES + 1)
             lazrs.write_chunk_table(table, entries, lazrs.LazVlr(self.vlr_data))
-        return io.BufferedReader(StandInTable(open_binary(path), self.point_data, table.getvalue()), 1 << 20)
+        return open_patched(path, (*self.patches, (self.point_data, struct.pack("<q", size + TAIL_GAP))),
+                            table.getvalue())
 
 
-class StandInTable(io.RawIOBase):
-    """A file as stored, with `table` appended after its last byte and the chunk-table
-    offset at the start of its point data pointing there."""
+def open_patched(path: str, patches: tuple[Patch, ...] = (), tail: bytes = b""):
+    """The file, or a read-only view of it with patches applied and `tail` after its end."""
+    if not patches and not tail:
+        return open_binary(path)
+    return io.BufferedReader(PatchedFile(open_binary(path), patches, tail), 1 << 20)
 
-    def __init__(self, stream, point_data: int, table: bytes):
+
+class PatchedFile(io.RawIOBase):
+    """A file as stored but for the bytes of `patches`, with `tail` stored TAIL_GAP bytes
+    past its end: laspy and lazrs read it without anything being written. A read at the
+    end sees the end of the file, so that a decoder running off truncated point data
+    fails there rather than decoding the tail."""
+
+    def __init__(self, stream, patches: tuple[Patch, ...], tail: bytes):
         super().__init__()
         self._stream = stream
         self._size = os.fstat(stream.fileno()).st_size
-        self._patch_at = point_data
-        self._patch = struct.pack("<q", self._size)
-        self._table = table
+        self._patches = patches
+        self._tail = tail
+        self._tail_at = self._size + TAIL_GAP if tail else self._size
         self._pos = 0
 
     def readable(self) -> bool:
@@ -203,19 +224,22 @@ class StandInTable(io.RawIOBase):
         return self._pos
 
     def seek(self, pos: int, whence: int = io.SEEK_SET) -> int:
-        base = {io.SEEK_SET: 0, io.SEEK_CUR: self._pos, io.SEEK_END: self._size + len(self._table)}[whence]
+        base = {io.SEEK_SET: 0, io.SEEK_CUR: self._pos, io.SEEK_END: self._tail_at + len(self._tail)}[whence]
         self._pos = base + pos
         return self._pos
 
     def readinto(self, buffer) -> int:
-        want = len(buffer)
-        self._stream.seek(self._pos)
-        data = bytearray(self._stream.read(max(0, min(want, self._size - self._pos))))
-        tail = max(0, self._pos + len(data) - self._size)
-        data += self._table[tail:tail + want - len(data)]
-        for i, byte in enumerate(self._patch):
-            if 0 <= self._patch_at + i - self._pos < len(data):
-                data[self._patch_at + i - self._pos] = byte
+        """At most up to the end of the file, of the gap or of the tail: a short read."""
+        if self._pos >= self._size:
+            skip = self._pos - self._tail_at
+            data = self._tail[skip:skip + len(buffer)] if skip >= 0 else b""
+        else:
+            self._stream.seek(self._pos)
+            data = bytearray(self._stream.read(min(len(buffer), self._size - self._pos)))
+            for at, patch in self._patches:
+                lo, hi = max(at, self._pos), min(at + len(patch), self._pos + len(data))
+                if lo < hi:
+                    data[lo - self._pos:hi - self._pos] = patch[lo - at:hi - at]
         buffer[:len(data)] = data
         self._pos += len(data)
         return len(data)
@@ -244,11 +268,14 @@ class LasSource:
     first_gps_time: float | None
     laz: LazLayout | None
     warnings: tuple[str, ...] = ()
+    patches: tuple[Patch, ...] = ()
+    """Text patches (text_patches) for an uncompressed file; a LAZ layout holds its own."""
 
     def chunks(self, batch_points: int, *, salvage: bool = False) -> Iterator[laspy.ScaleAwarePointRecord]:
         """Raw laspy chunks of at most batch_points, info.points in total, else TruncatedInput;
         with salvage, a damaged LAZ first yields what still decodes."""
-        return decode(self.info.path, self.laz, self.info.points, batch_points, salvage=salvage)
+        return decode(self.info.path, self.laz, self.info.points, batch_points, salvage=salvage,
+                      patches=self.patches)
 
     def parse(self, chunk: laspy.ScaleAwarePointRecord, start: int, origin: np.ndarray,
               names: tuple[str, ...]) -> Batch:
@@ -287,12 +314,12 @@ class LasSource:
         return np.ascontiguousarray(values)
 
 
-def decode(path: str, laz: LazLayout | None, count: int, piece: int, *,
-           salvage: bool = False) -> Iterator[laspy.ScaleAwarePointRecord]:
+def decode(path: str, laz: LazLayout | None, count: int, piece: int, *, salvage: bool = False,
+           patches: tuple[Patch, ...] = ()) -> Iterator[laspy.ScaleAwarePointRecord]:
     """Chunks of at most `piece` points, `count` in total, else TruncatedInput."""
     read = 0
     try:
-        with _reader(laz.open(path) if laz else open_binary(path), path, laz.backend if laz else None,
+        with _reader(laz.open(path) if laz else open_patched(path, patches), path, laz.backend if laz else None,
                      count) as reader:
             for chunk in reader.chunk_iterator(piece):
                 read += len(chunk)
@@ -312,33 +339,72 @@ def decode(path: str, laz: LazLayout | None, count: int, piece: int, *,
 
 def _salvage(path: str, laz: LazLayout, count: int, start: int,
              piece: int) -> Iterator[laspy.ScaleAwarePointRecord]:
-    """Decode again from the start with the sequential decoder, in small reads merged into
-    chunks of `piece`, yielding from `start` on all that still decodes."""
-    stream = laz.salvage_stream(path)
-    if stream is None:
-        return
-    kept: list[laspy.ScaleAwarePointRecord] = []
-    try:
-        with _reader(stream, path, laspy.LazBackend.Lazrs, count) as reader:
-            skipped = 0
-            while skipped < start:
-                skipped += len(reader.read_points(min(piece, start - skipped)))
-            for small in reader.chunk_iterator(min(piece, SALVAGE_PIECE)):
-                kept.append(small)
-                if sum(map(len, kept)) >= piece:
-                    yield _merged(kept)
-                    kept = []
-    except BaseException as exc:
-        if not is_decode_error(exc):
-            raise
-    if kept:
-        yield _merged(kept)
+    """Decode again with lazrs's sequential decoder and yield, in chunks of `piece`, every
+    point from `start` on that decodes before its first failure. The decoder cannot go on
+    (or back) after a failed read, and a failed read of n points tells nothing of how many
+    decoded: so the read that failed first (start to start + piece) is read again one point
+    at a time, further on reads are of SALVAGE_PIECE, and should one of those fail, the
+    decoder starts over and reads its points one at a time."""
+    at, careful = start, min(start + piece, count)
+    while at < count:
+        stream = laz.salvage_stream(path)
+        if stream is None:
+            return
+        failed = 0
+        with stream:
+            try:
+                decoder = _Sequential(stream, laz, at, piece)
+            except BaseException as exc:
+                if not is_decode_error(exc):
+                    raise
+                return
+            buffer, filled = bytearray(piece * decoder.size), 0
+            while at < count:
+                n = 1 if at < careful else min(SALVAGE_PIECE, count - at, piece - filled)
+                try:
+                    decoder.read_into(buffer, filled, n)
+                except BaseException as exc:
+                    if not is_decode_error(exc):
+                        raise
+                    failed = n
+                    break
+                at, filled = at + n, filled + n
+                if filled == piece:
+                    yield decoder.records(buffer, filled)
+                    filled = 0
+            if filled:
+                yield decoder.records(buffer, filled)
+        if failed <= 1:
+            return
+        careful = at + failed
 
 
-def _merged(records: list[laspy.ScaleAwarePointRecord]) -> laspy.ScaleAwarePointRecord:
-    first = records[0]
-    return laspy.ScaleAwarePointRecord(np.concatenate([r.array for r in records]),
-                                       first.point_format, first.scales, first.offsets)
+class _Sequential:
+    """lazrs's sequential decoder on a salvage stream, at a given point, and what turns
+    its bytes into laspy records. It skips points by decoding them, never by seeking: a
+    seek trusts the byte offsets of a chunk table that may be the damaged part."""
+
+    def __init__(self, stream, laz: LazLayout, at: int, piece: int):
+        header = laspy.LasHeader.read_from(stream, read_evlrs=False)
+        self._format, self._scales, self._offsets = header.point_format, header.scales, header.offsets
+        self.size = header.point_format.size
+        stream.seek(laz.point_data)
+        self._decoder = lazrs.LasZipDecompressor(stream, laz.vlr_data)
+        scratch, skipped = bytearray(min(at, piece) * self.size), 0
+        while skipped < at:
+            n = min(piece, at - skipped)
+            self.read_into(scratch, 0, n)
+            skipped += n
+
+    def read_into(self, buffer: bytearray, first: int, n: int) -> None:
+        """Decode n points into buffer, from point slot `first` on."""
+        with memoryview(buffer) as view:
+            self._decoder.decompress_many(view[first * self.size:(first + n) * self.size])
+
+    def records(self, buffer: bytearray, n: int) -> laspy.ScaleAwarePointRecord:
+        """The first n points of buffer, copied."""
+        array = np.frombuffer(buffer[:n * self.size], dtype=self._format.dtype())
+        return laspy.ScaleAwarePointRecord(array, self._format, self._scales, self._offsets)
 
 
 def _reader(stream, path: str, backend: laspy.LazBackend | None, count: int) -> laspy.LasReader:
@@ -362,16 +428,21 @@ def open_las(path: str | os.PathLike, *, partial: bool = False) -> LasSource:
             raw = RawHeader.parse(path, stream.read(HEADER_PREFIX))
             if raw.count == 0:
                 raise fail(path, "has no points")
-            stream.seek(0)
-            header = laspy.LasHeader.read_from(stream, read_evlrs=False)
+            patches, bad_text = text_patches(stream, raw)
+            with open_patched(path, patches) as patched:
+                header = laspy.LasHeader.read_from(patched, read_evlrs=False)
         except InputError:
             raise
         except Exception as exc:
             raise header_error(path, exc) from exc
+        if bad_text:
+            warnings.append(f"{path}: {len(bad_text)} text field(s) of its VLRs are not UTF-8 "
+                            f"({bad_text[0]}{', ...' if len(bad_text) > 1 else ''}); read them with '?' "
+                            f"for the bad bytes")
         _check_numbers(path, header)
         count, laz = raw.count, None
         if raw.compressed:
-            laz = _laz_layout(path, stream, header, count, size)
+            laz = _laz_layout(path, stream, header, count, size, patches)
             if laz.stand_in and not partial:
                 raise fail(path, "point data is truncated or corrupt (its LAZ chunk table is missing or "
                                  "corrupt; a partial load reads what decodes)")
@@ -379,7 +450,7 @@ def open_las(path: str | os.PathLike, *, partial: bool = False) -> LasSource:
             count = _checked_count(path, raw, size, partial, warnings)
     pf = header.point_format
     has_rgb = "red" in pf.dimension_names
-    max_rgb, first = _probe(path, laz, count, has_rgb, partial)
+    max_rgb, first = _probe(path, laz, count, has_rgb, partial, patches)
     columns = _columns(pf)
     info = FileInfo(
         path=path,
@@ -397,13 +468,52 @@ def open_las(path: str | os.PathLike, *, partial: bool = False) -> LasSource:
     names = tuple(n for n in STANDARD if n in columns or n in ("scan_angle", "elevation")
                   or (n == "rgb" and has_rgb)) + tuple(n for n in columns if n not in STANDARD)
     first_gps = float(first["gps_time"][0]) if "gps_time" in columns else None
-    source = LasSource(info, (), columns, first_gps, laz, tuple(warnings))
+    if unreachable := _unreachable_bounds(header):
+        lo, hi = _data_bounds(path, laz, count, partial, patches)
+        info = dataclasses.replace(info, bounds_min=lo, bounds_max=hi)
+        warnings.append(f"{path}: header bounds cannot be reached with its scale and offset ({unreachable}); "
+                        f"ignored them and used the bounds of the points")
+    source = LasSource(info, (), columns, first_gps, laz, tuple(warnings), patches)
     sample = source.parse(first, 0, np.zeros(3), names).attributes
     attributes = tuple(
         AttributeInfo(n, _kind(n), np.dtype(np.float64) if n == "elevation" else sample[n].dtype)
         for n in names
     )
     return dataclasses.replace(source, attributes=attributes)
+
+
+def text_patches(stream, raw: RawHeader) -> tuple[tuple[Patch, ...], list[str]]:
+    """Patches that make every VLR user_id and description, and every extra-bytes name and
+    description, valid UTF-8 ('?' for each bad byte, so lengths stay), and the fields they
+    fix. laspy decodes these strictly and rejected the whole file (a Latin-1 'é' in a
+    VLR's user_id, say); patching what laspy reads leaves laspy itself untouched."""
+    patches: list[Patch] = []
+    bad: list[str] = []
+
+    def check(at: int, field: bytes, name: str) -> None:
+        text = field.decode("utf-8", errors="surrogateescape")
+        if any("\udc80" <= c <= "\udcff" for c in text):
+            patches.append((at, "".join("?" if "\udc80" <= c <= "\udcff" else c for c in text).encode()))
+            bad.append(f"{name} {field.rstrip(bytes(1))!r}")
+
+    at = raw.header_size
+    for index in range(raw.vlr_count):
+        stream.seek(at)
+        head = stream.read(VLR_HEADER)
+        if len(head) < VLR_HEADER:
+            break
+        for (offset, length), name in zip(VLR_TEXT, ("user_id", "description"), strict=True):
+            check(at + offset, head[offset:offset + length], f"VLR {index} {name}")
+        record_id, length = struct.unpack_from("<HH", head, 18)
+        if head[2:18].rstrip(bytes(1)) == b"LASF_Spec" and record_id == 4:
+            data = stream.read(length)
+            for i in range(len(data) // EXTRA_BYTES_STRUCT):
+                base = i * EXTRA_BYTES_STRUCT
+                for (offset, size), name in zip(EXTRA_BYTES_TEXT, ("name", "description"), strict=True):
+                    check(at + VLR_HEADER + base + offset, data[base + offset:base + offset + size],
+                          f"extra bytes {i} {name}")
+        at += VLR_HEADER + length
+    return tuple(patches), bad
 
 
 def _check_numbers(path: str, header: laspy.LasHeader) -> None:
@@ -415,6 +525,37 @@ def _check_numbers(path: str, header: laspy.LasHeader) -> None:
             raise fail(path, f"invalid LAS header: {name} is not finite ({', '.join(map(str, values))})")
     if np.any(header.scales == 0):
         raise fail(path, f"invalid LAS header: scale is 0 ({', '.join(map(str, header.scales))})")
+
+
+def _unreachable_bounds(header: laspy.LasHeader) -> str | None:
+    """The header bounds no int32 record coordinate can give under the header's scale and
+    offset, described, or None. Such bounds (1e300, say) must not set the cloud's origin:
+    positions relative to it would overflow float32."""
+    bad = []
+    for axis, name in enumerate("xyz"):
+        scale, offset = float(header.scales[axis]), float(header.offsets[axis])
+        lo, hi = sorted(offset + scale * v for v in RECORD_INT)
+        slack = abs(scale) + BOUNDS_SLACK * max(abs(lo), abs(hi))
+        for bound, value in (("min", header.mins[axis]), ("max", header.maxs[axis])):
+            if not lo - slack <= value <= hi + slack:
+                bad.append(f"{bound} {name} {float(value):g} is outside [{lo:g}, {hi:g}]")
+    return "; ".join(bad) or None
+
+
+def _data_bounds(path: str, laz: LazLayout | None, count: int, partial: bool,
+                 patches: tuple[Patch, ...]) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """Exact min and max of the file coordinates, computed as LasSource.parse computes them;
+    with partial, of the points that can be read. One extra pass over the file."""
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    try:
+        for chunk in decode(path, laz, count, BATCH_POINTS, salvage=partial, patches=patches):
+            for axis, dim in enumerate("xyz"):
+                coords = np.asarray(getattr(chunk, dim))
+                lo[axis], hi[axis] = min(lo[axis], coords.min()), max(hi[axis], coords.max())
+    except TruncatedInput as exc:
+        if not (partial and exc.read):
+            raise fail(path, f"point data is truncated or corrupt ({one_line(exc.__cause__ or exc)})") from exc
+    return tuple(map(float, lo)), tuple(map(float, hi))
 
 
 def _kind(name: str) -> AttributeKind:
@@ -477,7 +618,8 @@ def _declared_chunks(stream, point_data: int, size: int) -> int | None:
     return struct.unpack("<II", stream.read(8))[1]
 
 
-def _laz_layout(path: str, stream, header: laspy.LasHeader, count: int, size: int) -> LazLayout:
+def _laz_layout(path: str, stream, header: laspy.LasHeader, count: int, size: int,
+                patches: tuple[Patch, ...]) -> LazLayout:
     """LazrsParallel where a readable chunk table allows it (and then the count is checked
     against the table); the sequential decoder otherwise, which fails on a short read."""
     if not laspy.LazBackend.Lazrs.is_available():
@@ -490,7 +632,7 @@ def _laz_layout(path: str, stream, header: laspy.LasHeader, count: int, size: in
     variable = vlr.uses_variable_size_chunks()
     chunked = struct.unpack_from("<H", vlr_data, 0)[0] != LAZ_POINTWISE
     layout = LazLayout(laspy.LazBackend.Lazrs, vlr_data, header.offset_to_point_data, count,
-                       None if variable or not chunked else vlr.chunk_size(), table_ok=False)
+                       None if variable or not chunked else vlr.chunk_size(), table_ok=False, patches=patches)
     if not chunked:
         return layout
     chunks = _declared_chunks(stream, header.offset_to_point_data, size)
@@ -512,14 +654,14 @@ def _laz_layout(path: str, stream, header: laspy.LasHeader, count: int, size: in
                                backend=parallel if parallel.is_available() else layout.backend)
 
 
-def _probe(path: str, laz: LazLayout | None, count: int, has_rgb: bool,
-           partial: bool) -> tuple[int, laspy.ScaleAwarePointRecord]:
+def _probe(path: str, laz: LazLayout | None, count: int, has_rgb: bool, partial: bool,
+           patches: tuple[Patch, ...]) -> tuple[int, laspy.ScaleAwarePointRecord]:
     """Max of R, G, B over the first BATCH_POINTS points (the rule of FileInfo.rgb_16bit),
     read in pieces that stop once it exceeds 255, and the first point."""
     wanted = min(count, BATCH_POINTS if has_rgb else 1)
     max_rgb, first = 0, None
     try:
-        for chunk in decode(path, laz, wanted, min(wanted, PROBE_PIECE), salvage=partial):
+        for chunk in decode(path, laz, wanted, min(wanted, PROBE_PIECE), salvage=partial, patches=patches):
             first = chunk[:1] if first is None else first
             if has_rgb:
                 max_rgb = max(max_rgb, *(int(np.max(chunk[c])) for c in ("red", "green", "blue")))

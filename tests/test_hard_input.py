@@ -8,6 +8,7 @@ CLI cases in test_cli.py; this file adds the rest.
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import os
@@ -15,6 +16,7 @@ import struct
 from pathlib import Path
 
 import laspy
+import lazrs
 import numpy as np
 import pytest
 from PIL import Image
@@ -118,6 +120,113 @@ def test_scale_1e7_real_file_bounds_and_zero_colours():
     assert desc["files"][0]["rgb_16bit"] is False
     assert desc["attributes"]["rgb"] == {"kind": "rgb", "min": [0, 0, 0], "max": [0, 0, 0]}
     assert desc["attributes"]["intensity"] == {"kind": "scalar", "min": 0, "max": 0}
+
+
+# --- header bounds the records cannot reach --------------------------------------------------
+
+MAX_X, MIN_Z = 179, 219
+"""Byte offsets of two header bounds (float64) in a LAS 1.0-1.4 header."""
+UNREACHABLE = {
+    "max x 1e300": [(MAX_X, 1e300)],
+    "min z beyond int32": [(MIN_Z, -1e8)],          # scale 0.01, offset 0: |z| <= 2.2e7
+    "every max far away": [(MAX_X, 4e13), (MAX_X + 16, -7e12), (MAX_X + 32, 1e18)],
+}
+
+
+@pytest.fixture(scope="module")
+def exact_sample(tmp_path_factory) -> Path:
+    """The sample as laspy writes it: header bounds equal to the points' extremes."""
+    path = tmp_path_factory.mktemp("exact") / "exact.las"
+    laspy.read(SAMPLE).write(path)
+    return path
+
+
+@pytest.mark.parametrize("case", list(UNREACHABLE))
+def test_unreachable_header_bounds_are_ignored(tmp_path, capsys, exact_sample, case):
+    """Header bounds that no int32 coordinate can reach under the scale and offset once
+    set the origin, and every position overflowed float32 ('not drawn'). They are now
+    replaced by the points' bounds: the same ids as the intact file, one warning."""
+    data = bytearray(exact_sample.read_bytes())
+    for offset, value in UNREACHABLE[case]:
+        struct.pack_into("<d", data, offset, value)
+    bad = tmp_path / "bad_bounds.las"
+    bad.write_bytes(data)
+    ids = {}
+    for name, path in (("good", exact_sample), ("bad", bad)):
+        code, _, err = cli(capsys, "render", *TINY, path, "--ids", tmp_path / f"{name}.npy",
+                           "--stats", tmp_path / f"{name}.json")
+        assert code == 0, err
+        ids[name] = np.load(tmp_path / f"{name}.npy")
+        warnings = err.splitlines()
+        assert json.loads((tmp_path / f"{name}.json").read_text())["points_not_drawn"] == 0
+    assert len(warnings) == 1 and warnings[0].startswith("progressive: warning: ") and "header bounds" in warnings[0]
+    assert (ids["good"] != EMPTY_ID).sum() > 300
+    np.testing.assert_array_equal(ids["bad"], ids["good"])
+    code, out, err = cli(capsys, "info", "--json", bad)
+    assert code == 0, err
+    desc, las = json.loads(out), laspy.read(exact_sample)
+    assert desc["header_bounds"] == {"min": las.header.mins.tolist(), "max": las.header.maxs.tolist()}
+    assert desc["origin"] == ((las.header.mins + las.header.maxs) / 2).tolist()
+    assert len(desc["warnings"]) == 1 and "header bounds" in desc["warnings"][0]
+
+
+def test_reachable_header_bounds_are_kept(tmp_path, exact_sample):
+    """Bounds the records could reach are trusted, even where they are not the points' own
+    (a cheaper header check, not a second pass over every file)."""
+    data = bytearray(exact_sample.read_bytes())
+    struct.pack_into("<d", data, MAX_X, 2e7)
+    path = tmp_path / "wide.las"
+    path.write_bytes(data)
+    with CloudLoader([path]) as loader:
+        assert loader.info.bounds_max[0] == 2e7 and not loader.warnings
+
+
+# --- VLR text that is not UTF-8 -------------------------------------------------------------
+
+def vlr_offsets(data: bytes) -> list[int]:
+    """Where each VLR of a LAS/LAZ file starts."""
+    (at,), (count,) = struct.unpack_from("<H", data, 94), struct.unpack_from("<I", data, 100)
+    offsets = []
+    for _ in range(count):
+        offsets.append(at)
+        at += 54 + struct.unpack_from("<H", data, at + 20)[0]
+    return offsets
+
+
+def test_vlr_text_not_utf8_loads(tmp_path, capsys):
+    """A Latin-1 'é' in a VLR's user_id made laspy (strict UTF-8) reject the file; one in a
+    description laspy keeps as bytes. Both are read with '?' and one warning line."""
+    data = bytearray(SAMPLE.read_bytes())
+    vlrs = vlr_offsets(data)
+    data[vlrs[4] + 2:vlrs[4] + 8] = "élias".encode("latin-1") + b"\0"      # user_id 'liblas'
+    data[vlrs[1] + 22:vlrs[1] + 29] = "Géotiff".encode("latin-1")             # a description
+    path = tmp_path / "latin1.las"
+    path.write_bytes(data)
+    loader, batches = load(path)
+    original, expected = load(SAMPLE)
+    assert loader.loaded == loader.total == 110_000
+    np.testing.assert_array_equal(column(batches), column(expected))
+    assert loader.info.files[0].crs == original.info.files[0].crs is not None
+    assert len(loader.warnings) == 1 and "not UTF-8" in loader.warnings[0], loader.warnings
+    code, _, err = cli(capsys, "render", *TINY, path, "--out", tmp_path / "x.png")
+    assert code == 0 and len(err.splitlines()) == 1 and err.startswith("progressive: warning: "), err
+    code, out, err = cli(capsys, "info", "--json", path)
+    assert code == 0 and len(json.loads(out)["warnings"]) == 1, err
+
+
+def test_extra_bytes_name_not_utf8_laz(tmp_path):
+    """An extra-bytes dimension named in Latin-1, in a LAZ read through lazrs: the
+    dimension keeps its values under its name with '?' for the bad byte."""
+    source = shared_file("las_with_several_extra_byte_bloc.laz")
+    data = bytearray(source.read_bytes())
+    data[data.index(b"Deviation\0") + 4] = 0xE9
+    path = tmp_path / "latin1.laz"
+    path.write_bytes(data)
+    loader, batches = load(path, batch_points=100_000)
+    las = laspy.read(source)
+    assert loader.loaded == loader.total == len(las.points)
+    np.testing.assert_array_equal(column(batches, "Devi?tion"), las["Deviation"])
+    assert len(loader.warnings) == 1 and "Devi\\xe9tion" in loader.warnings[0], loader.warnings
 
 
 # --- colour depth ------------------------------------------------------------------------
@@ -431,6 +540,83 @@ def test_partial_corrupt_laz_keeps_what_decodes(folders, fast_sample):
     with CloudLoader([path], partial=True) as loader:
         read = sum(b.count for b in loader)
     assert loader.total // 4 < read < loader.total and len(loader.warnings) == 1
+
+
+class EndsAt(io.RawIOBase):
+    """A file's bytes that end at `cut` for the point data but still hold its header and
+    its chunk table (at `table` and after): the truncated file as laspy could open it."""
+
+    def __init__(self, data: bytes, cut: int, table: int):
+        super().__init__()
+        self._data, self._cut, self._table, self._pos = data, cut, table, 0
+
+    def readable(self) -> bool:
+        return True
+
+    def seekable(self) -> bool:
+        return True
+
+    def seek(self, pos: int, whence: int = io.SEEK_SET) -> int:
+        self._pos = {io.SEEK_SET: 0, io.SEEK_CUR: self._pos, io.SEEK_END: len(self._data)}[whence] + pos
+        return self._pos
+
+    def tell(self) -> int:
+        return self._pos
+
+    def readinto(self, buffer) -> int:
+        end = self._cut if self._pos < self._cut else len(self._data) if self._pos >= self._table else self._pos
+        data = self._data[self._pos:min(end, self._pos + len(buffer))]
+        buffer[:len(data)] = data
+        self._pos += len(data)
+        return len(data)
+
+
+def decodable_points(stream) -> np.ndarray:
+    """x, y, z of the points laspy's sequential LAZ reader gives one at a time before its
+    first failure. (Where bytes are damaged rather than missing, some are garbage: LAZ has
+    no checksum.)"""
+    points = []
+    with laspy.LasReader(stream, laz_backend=laspy.LazBackend.Lazrs) as reader:
+        try:
+            while len(points) < reader.header.point_count:
+                point = reader.read_points(1)
+                points.append([point.x[0], point.y[0], point.z[0]])
+        except lazrs.LazrsError:
+            pass
+    return np.array(points)
+
+
+def truncated_in_chunk(source: Path, folder: Path) -> tuple[Path, np.ndarray]:
+    """`source` cut 30 % into its second chunk, and how many points laspy decodes from
+    the bytes before the cut (its chunk table left where it can find it)."""
+    data = source.read_bytes()
+    header = laspy.LasHeader.read_from(io.BytesIO(data))
+    point_data = header.offset_to_point_data
+    (table,) = struct.unpack_from("<q", data, point_data)
+    stream = io.BytesIO(data)
+    stream.seek(point_data)
+    chunks = lazrs.read_chunk_table(stream, lazrs.LazVlr(header.vlrs.get("LasZipVlr")[0].record_data))
+    second = point_data + 8 + chunks[0][1]
+    cut = second + int(chunks[1][1] * 0.3)
+    path = folder / f"cut{source.suffix}"
+    path.write_bytes(data[:cut])
+    return path, decodable_points(io.BufferedReader(EndsAt(data, cut, table)))
+
+
+@pytest.mark.parametrize("case", ["truncated in a chunk", "laz corrupt chunk"])
+def test_partial_laz_keeps_every_decodable_point(folders, fast_sample, case):
+    """--partial keeps every point that decodes before the damage, not whole reads of
+    1000: as many as laspy reading one point at a time gets, and the same points."""
+    if case == "truncated in a chunk":
+        path, expected = truncated_in_chunk(shared_file("pine_plot.laz"), folders[0])
+    else:
+        path = bad_file(case, folders[0], fast_sample)
+        expected = decodable_points(path.open("rb"))
+    with CloudLoader([path], partial=True, batch_points=20_000) as loader:
+        batches = sorted(loader, key=lambda b: b.start)
+    assert 50_000 < len(expected) < loader.total and len(expected) % 1000, len(expected)
+    assert loader.loaded == len(expected) and len(loader.warnings) == 1, loader.warnings
+    np.testing.assert_array_equal(column(batches), np.float32(expected - loader.info.origin))
 
 
 @pytest.mark.parametrize("name", ["extrabytes.las", "fullwave.laz"])
