@@ -11,6 +11,7 @@ from progressive.colors import ColorStyle, Colormap, robust_range
 from progressive.context import GLContext
 from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, CloudInfo, nonfinite_records
 from progressive.packing import pack_records
+from progressive.permutation import FillOrder
 from progressive.passes.distribute import DistributePass
 from progressive.pointstore import PointStore
 
@@ -19,10 +20,11 @@ RANGE_SAMPLE_PER_BATCH = 20_000
 
 class Scene:
     def __init__(self, glc: GLContext, info: CloudInfo, attribute: AttributeInfo, *, chunk_points: int | None = None,
-                 capacity: int | None = None):
-        """capacity: points kept on the GPU (default all; see progressive/memory.py)."""
+                 capacity: int | None = None, order: FillOrder = FillOrder.SHUFFLED):
+        """capacity: points kept on the GPU (default all; see progressive/memory.py).
+        order: FILE stores points in file order (the unshuffled baseline, for benchmarks)."""
         self.glc, self.info, self.attribute = glc, info, attribute
-        self.store = PointStore(glc, info.points, capacity=capacity, chunk_points=chunk_points)
+        self.store = PointStore(glc, info.points, capacity=capacity, chunk_points=chunk_points, order=order)
         self.distribute = DistributePass(glc, self.store)
         self.loaded = 0
         self.skipped = 0            # points never drawn: non-finite coordinates or shown value
