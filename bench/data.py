@@ -18,6 +18,8 @@ from progressive import cli
 
 CACHE = Path(__file__).resolve().parent / ".cache"
 SAMPLE = Path(__file__).resolve().parents[1] / "progressive" / "data" / "autzen_trim.las"
+WRITE_POINTS = 2_000_000
+"""Points per write: large writes let lazrs compress chunks in parallel."""
 SHARED = Path(os.environ.get("PROGRESSIVE_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
 
 
@@ -58,17 +60,19 @@ def write_tiled(source: Path, out: Path, points: int, compress: bool) -> None:
     gx = math.ceil(math.sqrt(tiles))
     backend = laspy.LazBackend.LazrsParallel if compress else None
     tmp = out.with_suffix(out.suffix + ".tmp")
-    written = 0
     with laspy.open(tmp, mode="w", header=laspy.LasHeader(point_format=header.point_format, version=header.version),
                     do_compress=compress, laz_backend=backend) as writer:
         writer.header.scales, writer.header.offsets = header.scales, header.offsets
-        for t in range(tiles):
-            count = min(n, points - written)
-            part = src.points[:count].copy()
-            part.array["X"] += int(step[0] * (t % gx))
-            part.array["Y"] += int(step[1] * (t // gx))
-            writer.write_points(part)
-            written += count
+        per_write = max(1, WRITE_POINTS // n)
+        for first in range(0, tiles, per_write):
+            parts = []
+            for t in range(first, min(tiles, first + per_write)):
+                part = src.points.array[: min(n, points - t * n)].copy()
+                part["X"] += int(step[0] * (t % gx))
+                part["Y"] += int(step[1] * (t // gx))
+                parts.append(part)
+            array = np.concatenate(parts)
+            writer.write_points(laspy.ScaleAwarePointRecord(array, header.point_format, header.scales, header.offsets))
     tmp.replace(out)
 
 
@@ -77,6 +81,12 @@ def real_files() -> list[Path]:
     terrestrial files of ../shared/data where present (MANIFEST.md gives licences)."""
     shared = [SHARED / name for name in ("wires.laz", "lone-star.copc.laz")]
     return [SAMPLE] + [p for p in shared if p.is_file()]
+
+
+def accuracy_file() -> Path:
+    """A real terrestrial scan (high depth complexity, BSD) where present, else the sample."""
+    tls = SHARED / "lone-star.copc.laz"
+    return tls if tls.is_file() else SAMPLE
 
 
 def drop_cache(path: Path) -> None:

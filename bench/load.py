@@ -5,6 +5,7 @@ time to first image and to fully loaded through `progressive.open()`."""
 
 from __future__ import annotations
 
+import functools
 import statistics
 import time
 from collections.abc import Callable
@@ -13,13 +14,13 @@ from pathlib import Path
 
 import laspy
 import numpy as np
+from progressive.loaders import CloudLoader
 
 import progressive
 from bench.data import drop_cache
 from bench.report import Table
 from progressive.budget import BudgetParams
 from progressive.context import GLContext
-from progressive.loaders import CloudLoader
 
 BLOCK = 8 << 20
 COLD_MIN_SLOWDOWN = 1.2
@@ -32,6 +33,7 @@ class LoadCase:
     format: str
     path: Path
     points: int
+    scaled: bool = False     # a generated file (the sample tiled), not a real file as it is
 
 
 def raw_read(path: Path) -> None:
@@ -111,6 +113,8 @@ def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats
     load = Table("load", "Load: points/s and GB/s, against laspy and raw reads", "", "", (
         "file", "format", "MB", "cache", "parser threads", "s", "Mpoints/s", "GB/s",
         "× laspy.read + convert", "share of raw read GB/s"))
+    load.columns = ("file", "format", "points", "MB", "cache", "parser threads", "s", "Mpoints/s", "GB/s",
+                    "× laspy.read + convert", "share of raw read GB/s")
     rows = []
     cold_forced = {}
     for case in cases:
@@ -118,13 +122,13 @@ def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats
         baseline_path = case.path if case.format != "fast" else next(
             (c.path for c in cases if c.format == "LAS" and c.points == case.points), None)
         for cold in (True, False):
-            raw_s = timed(lambda: raw_read(case.path), case.path, cold, repeats)
-            laspy_s = timed(lambda: laspy_user(baseline_path), baseline_path, cold, repeats) if baseline_path else None
+            raw_s = timed(functools.partial(raw_read, case.path), case.path, cold, repeats)
+            laspy_s = timed(functools.partial(laspy_user, baseline_path), baseline_path, cold, repeats) if baseline_path else None
             if cold:
                 cold_forced[case.label] = raw_s
             for t in threads:
-                s = timed(lambda: pipeline(case.path, t), case.path, cold, repeats)
-                row = {"file": case.label, "format": case.format, "bytes": size_b, "points": case.points,
+                s = timed(functools.partial(pipeline, case.path, t), case.path, cold, repeats)
+                row = {"file": case.label, "format": case.format, "scaled": case.scaled, "bytes": size_b, "points": case.points,
                        "cold": cold, "threads": t, "seconds": s, "points_per_s": case.points / s,
                        "gb_per_s": size_b / s / 1e9, "raw_seconds": raw_s, "laspy_seconds": laspy_s,
                        "laspy_file": baseline_path.name if baseline_path else None,
@@ -136,14 +140,14 @@ def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats
         forced = cold_forced[r["file"]] >= COLD_MIN_SLOWDOWN
         cache = ("cold" if forced else "cold (not forced)") if r["cold"] else "warm"
         r["cold_forced"] = forced if r["cold"] else None
-        load.rows.append((r["file"], r["format"], r["bytes"] / 1e6, cache, r["threads"], r["seconds"],
-                          r["points_per_s"] / 1e6, r["gb_per_s"], r["vs_laspy"], r["share_of_raw"]))
+        load.rows.append((r["file"], r["format"], r["points"], r["bytes"] / 1e6, cache, r["threads"], r["seconds"],
+                          r["points_per_s"] / 1e6, r["gb_per_s"], r["vs_laspy"], f"{r['share_of_raw']:.2g}"))
     load.notes = [
-        "Loader: `CloudLoader` (reader thread + parser threads) to float32 positions and attribute arrays. "
+        ("Loader: `CloudLoader` (reader thread + parser threads) to float32 positions and attribute arrays. "
         "× laspy = seconds of `laspy.read()` plus float32 positions relative to the bounds' centre and one attribute "
         "(RGB, else intensity), divided by the loader's seconds, same file and cache state, same run; for the fast "
         "format laspy reads the LAS file of the same cloud. Share of raw read = raw read seconds (8 MiB blocks, "
-        "Python `readinto`) / loader seconds (1.0 = as fast as reading the bytes).",
+        "Python `readinto`) / loader seconds (1.0 = as fast as reading the bytes)."),
         "Cold = `posix_fadvise(POSIX_FADV_DONTNEED)` after `fsync` before each run; it counts as forced only where "
         f"the cold raw read was ≥ {COLD_MIN_SLOWDOWN}× slower than the warm one (slowdown per file: "
         + ", ".join(f"{k} {v:.2f}×" for k, v in cold_forced.items()) + "). Where not forced, the cold rows "
@@ -152,17 +156,17 @@ def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats
     load.raw = {"rows": rows, "cold_slowdown_raw": cold_forced}
 
     first = Table("first_image", "Time to first image and to fully loaded, through progressive.open()", "", "", (
-        "file", "format", "cache", "first image s", "all points on GPU s", "converged s", "frames",
+        "file", "format", "points", "cache", "first image s", "all points on GPU s", "converged s", "frames",
         "first image / fully loaded"))
     for case in cases:
         for cold in (True, False):
             res = first_image(glc, case.path, *size, cold, max_frames)
-            res.update(file=case.label, format=case.format, cold=cold)
+            res.update(file=case.label, format=case.format, cold=cold, points=case.points, scaled=case.scaled)
             first.raw.setdefault("rows", []).append(res)
             ratio = res["first_image_s"] / res["loaded_s"] if res["loaded_s"] else None
-            first.rows.append((case.label, case.format, "cold" if cold else "warm", res["first_image_s"],
+            first.rows.append((case.label, case.format, case.points, "cold" if cold else "warm", res["first_image_s"],
                                res["loaded_s"], res["converged_s"], res["frames"], ratio))
-    first.notes = [f"Session with the progressive renderer at {size[0]}x{size[1]}, adaptive budget 16.6 ms, auto "
+    first.notes = [(f"Session with the progressive renderer at {size[0]}x{size[1]}, adaptive budget 16.6 ms, auto "
                    "camera; clock from before `progressive.open()` to `glFinish` after the first frame with points, "
-                   "after the frame that distributed the last batch, and to the frame that knew it had converged."]
+                   "after the frame that distributed the last batch, and to the frame that knew it had converged.")]
     return load, first

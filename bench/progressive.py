@@ -53,7 +53,7 @@ def camera_at(path: CameraPath, base: Camera, lo: np.ndarray, hi: np.ndarray, fr
     if path is CameraPath.FLY:
         extent = float(np.max(hi - lo))
         mid = (lo + hi) / 2
-        pos = np.array([lo[0] + (hi[0] - lo[0]) * (0.1 + 0.8 * t), mid[1], hi[2] + 0.05 * extent])
+        pos = np.array([lo[0] + (hi[0] - lo[0]) * (0.05 + 0.5 * t), mid[1], hi[2] + 0.05 * extent])
         target = pos + np.array([0.3 * extent, 0.0, -0.1 * extent])
         return Camera(tuple(pos.tolist()), tuple(target.tolist()), base.up, base.fov_y_deg, base.near, base.far)
     return base

@@ -87,7 +87,7 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
     rows = []
     for n in points:
         rows += measure(glc, tiled(str(SAMPLE), n), layouts, sizes, repeats)
-    table = Table("raster", "Brute-force rasterization of every point", f"{SAMPLE.name} tiled on a grid",
+    table = Table(f"raster_{max(points)}", "Brute-force rasterization of every point", f"{SAMPLE.name} tiled on a grid",
                   ", ".join(f"{n:,}" for n in points), (
                       "points", "size", "store order", "rasterizer", "ms (median)", "Mpoints/s", "GB/s read",
                       "share of copy bandwidth", "× GL_POINTS", "covered pixels"))
@@ -100,16 +100,16 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
                            r["points_per_s"] / 1e6, r["bytes_per_s"] / 1e9, r["share_of_copy"], r["vs_points"],
                            r["covered_pixels"]))
     missing = [] if glc.caps.atomic_int64 else [
-        "Compute 64-bit atomicMin: not run, this GPU lacks GL_NV_shader_atomic_int64 (llvmpipe has no 64-bit "
-        "atomics); `--raster compute` falls back to the 32-bit two-pass path here."]
+        ("Compute 64-bit atomicMin: not run, this GPU lacks GL_NV_shader_atomic_int64 (llvmpipe has no 64-bit "
+        "atomics); `--raster compute` falls back to the 32-bit two-pass path here.")]
     table.notes = missing + [
-        f"Same auto camera for every row; GPU time of the raster pass from timestamps, median of {repeats} after "
+        (f"Same auto camera for every row; GPU time of the raster pass from timestamps, median of {repeats} after "
         f"one warm-up. GB/s read = points × {RECORD_BYTES} B × passes over the store (the 32-bit path reads it "
         f"twice) / time. Copy bandwidth, measured in this run: glCopyNamedBufferSubData of {copy_bytes / 2**20:.0f} "
         f"MiB = {copy / 1e9:.2f} GB/s copied (each byte read and written). × GL_POINTS = GL_POINTS ms / this ms, "
         "same cloud, size and order. Store order: file/Morton/scan = points in the buffer in that file order "
         "(FillOrder.FILE); shuffled = the renderer's permutation of the file order. Scan order: a scanner station "
-        "per tile, vertical scan lines by azimuth (bench/synthetic.py)."]
+        "per tile, vertical scan lines by azimuth (bench/synthetic.py).")]
     table.raw = {"copy_bytes": copy_bytes, "copy_bytes_per_s": copy, "rows": rows}
     return table
 

@@ -70,10 +70,11 @@ class Table:
     def write(self, out: Path, run: RunInfo) -> None:
         out.mkdir(parents=True, exist_ok=True)
         (out / f"{self.name}.md").write_text(self.markdown(run))
-        payload = {"run": dataclasses.asdict(run), "title": self.title, "data": self.data, "points": self.points,
+        payload = {"name": self.name, "run": dataclasses.asdict(run), "title": self.title, "data": self.data, "points": self.points,
                    "columns": list(self.columns), "rows": [list(r) for r in self.rows], "notes": self.notes,
-                   "raw": self.raw}
-        (out / f"{self.name}.json").write_text(json.dumps(payload, indent=1, default=jsonable, allow_nan=False))
+                   "images": self.images, "raw": self.raw}
+        text = json.dumps(clean(payload), indent=1, default=jsonable, allow_nan=False)
+        (out / f"{self.name}.json").write_text(text)
 
 
 def cell(v) -> str:
@@ -95,6 +96,17 @@ def jsonable(v):
     if hasattr(v, "value"):
         return v.value
     return str(v)
+
+
+def clean(v):
+    """JSON has no infinity or NaN: they become null (an 'exact' flag says which null is ∞)."""
+    if isinstance(v, float):
+        return v if math.isfinite(v) else None
+    if isinstance(v, dict):
+        return {k: clean(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [clean(x) for x in v]
+    return v
 
 
 def finite(v: float | None) -> float | None:

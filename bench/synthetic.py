@@ -14,11 +14,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from progressive.loaders import CloudLoader
+from progressive.loaders.types import AttributeInfo, Batch, CloudInfo
 
 from progressive.attributes import default_attribute
 from progressive.context import GLContext, create_context
-from progressive.loaders import CloudLoader
-from progressive.loaders.types import AttributeInfo, Batch, CloudInfo
 from progressive.packing import pack_records
 from progressive.permutation import FillOrder
 from progressive.scene import Scene
