@@ -176,8 +176,9 @@ def main(argv=None) -> int:
         print(f"{section.value}: {time.perf_counter() - t0:.1f} s -> " + ", ".join(f"{t.name}.md" for t in tables),
               flush=True)
     text = headline.build(out)
-    (out / "headline.md").write_text(text)
-    if args.readme:
+    if text:
+        (out / "headline.md").write_text(text)
+    if text and args.readme:
         headline.insert(headline.README, out.name, text)
     print(text)
     print(f"all sections: {time.perf_counter() - t_start:.1f} s; results in {out}")

@@ -199,7 +199,7 @@ def run(glc: GLContext, data: str, info: CloudInfo, make: SceneMaker, size: tupl
         table.rows.append((label, order.value, f"{recs[0]['equal']:.1%}", recs[0]["psnr"], *cells))
     table.notes = [
         (f"{dims}, auto camera. Equal px = share of the pixels covered in this frame or in the brute-force render "
-        "that show the same point as the brute-force render (ids read back each frame; background pixels, equal "
+        "that show the same point as the brute-force render (visible slots read back each frame; background pixels, equal "
         "from the start, do not count; the share of all pixels is in the JSON); PSNR over RGB against the brute-force image (∞ = identical). GPU ms = sum "
         "of the frames' GPU times (timestamps) up to that frame. File order = FillOrder.FILE: the budget fills "
         "the file's first points first (paper Table 4 / Figure 5)."),

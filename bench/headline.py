@@ -90,7 +90,8 @@ def progressive_lines(prog: dict) -> list[str]:
 
 
 def build(folder: Path) -> str:
-    """headline.md for one results folder (a run of `python -m bench`, or its GPU chunks)."""
+    """headline.md for one results folder (a run of `python -m bench`, or its GPU chunks);
+    empty when the folder has none of the tables it quotes."""
     tables = {"raster": _largest(folder, "raster"), "progressive": _largest(folder, "progressive"),
               "load": _load(folder, "load"), "first_image": _load(folder, "first_image")}
     for t in tables.values():
@@ -98,7 +99,7 @@ def build(folder: Path) -> str:
             t["_file"] = f"{t['name']}.md"
     head = next((t for t in tables.values() if t), None)
     if head is None:
-        raise SystemExit(f"{folder}: no bench results")
+        return ""
     run = head["run"]
     lines = [(f"Measured by `python -m bench` ({run['mode']}) on {run['device']}, {run['driver']}, {run['date']}; "
              f"tables in `bench/results/{folder.name}/`."), ""]
@@ -130,6 +131,8 @@ def main(argv=None) -> int:
     ap.add_argument("--no-readme", action="store_true", help="only write headline.md")
     args = ap.parse_args(argv)
     text = build(args.folder)
+    if not text:
+        raise SystemExit(f"{args.folder}: no raster, load or progressive results")
     (args.folder / "headline.md").write_text(text)
     if not args.no_readme:
         insert(args.readme, args.folder.name, text)

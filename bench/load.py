@@ -125,7 +125,7 @@ def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats
             raw_s = timed(functools.partial(raw_read, case.path), case.path, cold, repeats)
             laspy_s = timed(functools.partial(laspy_user, baseline_path), baseline_path, cold, repeats) if baseline_path else None
             if cold:
-                cold_forced[case.label] = raw_s
+                cold_forced[f"{case.label} {case.format}"] = raw_s
             for t in threads:
                 s = timed(functools.partial(pipeline, case.path, t), case.path, cold, repeats)
                 row = {"file": case.label, "format": case.format, "scaled": case.scaled, "bytes": size_b, "points": case.points,
@@ -134,10 +134,11 @@ def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats
                        "laspy_file": baseline_path.name if baseline_path else None,
                        "vs_laspy": laspy_s / s if laspy_s else None, "share_of_raw": raw_s / s}
                 rows.append(row)
-        warm_raw = next(r["raw_seconds"] for r in rows if r["file"] == case.label and not r["cold"])
-        cold_forced[case.label] = cold_forced[case.label] / warm_raw
+        key = f"{case.label} {case.format}"
+        warm_raw = next(r["raw_seconds"] for r in rows if (r["file"], r["format"], r["cold"]) == (case.label, case.format, False))
+        cold_forced[key] = cold_forced[key] / warm_raw
     for r in rows:
-        forced = cold_forced[r["file"]] >= COLD_MIN_SLOWDOWN
+        forced = cold_forced[f"{r['file']} {r['format']}"] >= COLD_MIN_SLOWDOWN
         cache = ("cold" if forced else "cold (not forced)") if r["cold"] else "warm"
         r["cold_forced"] = forced if r["cold"] else None
         load.rows.append((r["file"], r["format"], r["points"], r["bytes"] / 1e6, cache, r["threads"], r["seconds"],
