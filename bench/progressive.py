@@ -1,25 +1,37 @@
-"""Progressive frames on a large cloud: frame time against the target with the
-adaptive budget (and fixed budgets), per-pass GPU times, the share of the frame
-spent filling, and frames and milliseconds to exact convergence, for a still camera
-and an orbit. Accuracy is the GPU-counted share of pixels equal to brute force."""
+"""Progressive frames on a large cloud: fixed budgets and the adaptive budget at
+16.6 and 11.1 ms, for a still camera and three camera paths (orbit, zoom-in,
+fly-through) that then stop: per-pass GPU ms, frame time median/p95/max against the
+target, the share of the frame spent filling, and frames and GPU ms to exact
+convergence once the camera stops. Accuracy lives in bench/accuracy.py."""
 
 from __future__ import annotations
 
 import argparse
-import datetime
-import json
+import enum
 import math
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from bench.synthetic import SAMPLE, add_cloud_args, setup
+from bench.report import RunInfo, Table
+from bench.synthetic import SAMPLE, TiledCloud, load, tiled
 from progressive.budget import BudgetParams
 from progressive.camera import Camera, auto_camera
-from progressive.frame_loop import ProgressiveOptions, ProgressiveRenderer
+from progressive.context import GLContext, create_context
+from progressive.frame_loop import FrameStats, ProgressiveOptions, ProgressiveRenderer
 from progressive.renderer import Renderer
+from progressive.scene import Scene
 
+
+class CameraPath(enum.Enum):
+    """Camera paths: `motion` frames of movement, then the last camera held still."""
+
+    STILL = "still"
+    ORBIT = "orbit 60°"
+    ZOOM = "zoom-in"
+    FLY = "fly-through"
 
 
 def orbit(cam: Camera, degrees: float) -> Camera:
@@ -29,122 +41,148 @@ def orbit(cam: Camera, degrees: float) -> Camera:
     return Camera(tuple(pos.tolist()), cam.target, cam.up, cam.fov_y_deg, cam.near, cam.far)
 
 
-def summarize(stats, label, target_ms, points, converge_after=0):
-    """Times from a run without a reference render; convergence is the first frame
-    after the motion by which every point was filled since the last change (the GPU's
-    count; exact by construction and by tests/test_progressive.py)."""
+def camera_at(path: CameraPath, base: Camera, lo: np.ndarray, hi: np.ndarray, frame: int, motion: int) -> Camera:
+    """The camera of `frame`: moving for `motion` frames, then still at the end of the path."""
+    t = 0.0 if path is CameraPath.STILL or motion == 0 else min(frame, motion) / motion
+    if path is CameraPath.ORBIT:
+        return orbit(base, 60.0 * t)
+    if path is CameraPath.ZOOM:
+        rel = np.subtract(base.position, base.target)
+        pos = np.asarray(base.target) + rel * (1.0 - 0.8 * t)
+        return Camera(tuple(pos.tolist()), base.target, base.up, base.fov_y_deg, base.near, base.far)
+    if path is CameraPath.FLY:
+        extent = float(np.max(hi - lo))
+        mid = (lo + hi) / 2
+        pos = np.array([lo[0] + (hi[0] - lo[0]) * (0.05 + 0.5 * t), mid[1], hi[2] + 0.05 * extent])
+        target = pos + np.array([0.3 * extent, 0.0, -0.1 * extent])
+        return Camera(tuple(pos.tolist()), tuple(target.tolist()), base.up, base.fov_y_deg, base.near, base.far)
+    return base
+
+
+@dataclass(frozen=True)
+class Budget:
+    label: str
+    params: BudgetParams
+
+    @property
+    def target_ms(self) -> float | None:
+        return None if self.params.fixed is not None else self.params.target_ns / 1e6
+
+
+def budgets(fixed: list[int], targets_ms: list[float]) -> list[Budget]:
+    return ([Budget(f"fixed {f:,}", BudgetParams(fixed=f)) for f in fixed] +
+            [Budget(f"adaptive {t} ms", BudgetParams(target_ns=round(t * 1e6))) for t in targets_ms])
+
+
+def summarize(stats: list[FrameStats], points: int, target_ms: float | None, motion: int) -> dict:
+    """From a run without a reference render. Converged = the first frame after the
+    motion by which every point was filled since the last change (the GPU's count;
+    exact by construction and by tests/test_progressive.py)."""
     timed = [s for s in stats if s.gpu_ms]
     frame = np.array([s.gpu_ms["frame"] for s in timed])
-    converged = next((s.frame for s in timed if s.frame >= converge_after and s.filled_since_change >= points), None)
-    until = [s for s in timed if converged is None or s.frame <= converged]
+    converged = next((s.frame for s in timed if s.frame >= motion and s.filled_since_change >= points), None)
+    after = [s for s in timed if s.frame >= motion and (converged is None or s.frame <= converged)]
     return {
-        "run": label, "target_ms": target_ms, "frames": len(timed),
-        "frame_ms_median": float(np.median(frame)), "frame_ms_p95": float(np.percentile(frame, 95)),
-        "frame_ms_max": float(frame.max()),
-        "pass_ms_median": {k: float(np.median([s.gpu_ms[k] for s in timed])) for k in ("reproject", "fill", "prepare", "resolve")},
-        "fill_fraction_median": float(np.median([s.gpu_ms["fill"] / s.gpu_ms["frame"] for s in timed])),
-        "budget_median": float(np.median([s.first_fill + s.budget for s in timed])),
-        "gathered_median": float(np.median([s.gathered for s in timed])),
-        "covered_median": float(np.median([s.covered_pixels for s in timed])),
+        "frames": len(timed), "frame_ms_median": float(np.median(frame)),
+        "frame_ms_p95": float(np.percentile(frame, 95)), "frame_ms_max": float(frame.max()),
+        "over_target": float(np.mean(frame > target_ms)) if target_ms else None,
+        "pass_ms_median": {k: float(np.median([s.gpu_ms[k] for s in timed]))
+                           for k in ("reproject", "fill", "prepare", "resolve")},
+        "fill_share_median": float(np.median([s.gpu_ms["fill"] / s.gpu_ms["frame"] for s in timed])),
+        "points_per_frame_median": float(np.median([s.first_fill + s.budget for s in timed])),
         "converged_frame": converged,
-        "ms_to_converge": float(sum(s.gpu_ms["frame"] for s in until)) if converged is not None else None,
+        "frames_to_converge": converged - motion + 1 if converged is not None else None,
+        "ms_to_converge": float(sum(s.gpu_ms["frame"] for s in after)) if converged is not None else None,
     }
 
 
-def run_frames(glc, scene, cloud, width, height, budget, max_frames, orbit_frames, reference):
+def run_case(glc: GLContext, scene: Scene, cloud: TiledCloud, size: tuple[int, int], budget: Budget,
+             path: CameraPath, motion: int, max_frames: int) -> tuple[dict, list[dict]]:
+    width, height = size
     r = ProgressiveRenderer(glc, cloud.info, cloud.attribute,
-                            ProgressiveOptions(width, height, budget=budget, reference=reference, frames_in_flight=2),
-                            scene=scene)
-    cam = auto_camera(cloud.info.bounds_min, cloud.info.bounds_max, width / height)
-    style = r.scene.style()
+                            ProgressiveOptions(width, height, budget=budget.params, frames_in_flight=2), scene=scene)
+    lo, hi = cloud.info.bounds_min, cloud.info.bounds_max
+    base = auto_camera(lo, hi, width / height)
+    style = scene.style()
+    motion = 0 if path is CameraPath.STILL else motion
     cpu_ms = []
     for k in range(max_frames):
         t0 = time.perf_counter()
-        r.frame(orbit(cam, min(k, orbit_frames)), style)
+        r.frame(camera_at(path, base, lo, hi, k, motion), style)
         cpu_ms.append((time.perf_counter() - t0) * 1e3)
-        if k > orbit_frames and r.converged:
+        if k >= motion and r.converged:
             break
     stats = r.flush()
-    extra = {"cpu_frame_ms_median": float(np.median(cpu_ms)), "stats_dropped": r.stats_ring.dropped,
-             "pacing_waits": r.pacing_waits}
+    summary = summarize(stats, cloud.points, budget.target_ms, motion)
+    summary.update(budget=budget.label, target_ms=budget.target_ms, path=path.value, motion_frames=motion,
+                   cpu_frame_ms_median=float(np.median(cpu_ms)), pacing_waits=r.pacing_waits)
     r.release()
-    return stats, extra
+    return summary, [s.as_dict() for s in stats]
 
 
-def run_case(glc, scene, cloud, width, height, budget: BudgetParams, label, max_frames, orbit_frames=0):
-    """A timing run, then the same frames with the reference for accuracy."""
-    stats, extra = run_frames(glc, scene, cloud, width, height, budget, max_frames, orbit_frames, reference=False)
-    target = budget.target_ns / 1e6 if budget.fixed is None else None
-    summary = summarize(stats, label, target, cloud.points, orbit_frames)
-    summary.update(extra)
-    accuracy, _ = run_frames(glc, scene, cloud, width, height, budget, max_frames, orbit_frames, reference=True)
-    motion = [s.equal_fraction for s in accuracy if s.frame < orbit_frames and s.equal_fraction is not None]
-    summary["equal_during_motion_median"] = float(np.median(motion)) if motion else None
-    summary["equal_frame"] = next((s.frame for s in accuracy if s.frame >= orbit_frames and s.equal_fraction == 1.0), None)
-    return summary, {"timing": [s.as_dict() for s in stats], "accuracy": [s.as_dict() for s in accuracy]}
-
-
-def brute_ms(glc, scene, cloud, width, height) -> float:
+def brute_ms(glc: GLContext, scene: Scene, cloud: TiledCloud, size: tuple[int, int], repeats: int = 3) -> float:
+    width, height = size
     r = Renderer(glc, cloud.info, cloud.attribute, width=width, height=height, scene=scene)
     cam = auto_camera(cloud.info.bounds_min, cloud.info.bounds_max, width / height)
-    times = [r.render(cam, width, height, r.style()).gpu_ms["raster"] for _ in range(4)]
+    times = [r.render(cam, width, height, r.style()).gpu_ms["raster"] for _ in range(repeats + 1)]
     r.release()
     return float(np.median(times[1:]))
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser()
-    add_cloud_args(ap)
-    ap.add_argument("--targets-ms", type=float, nargs="+", default=[16.6, 11.1])
-    ap.add_argument("--fixed", type=int, nargs="*", default=[])
-    ap.add_argument("--max-frames", type=int, default=400)
-    ap.add_argument("--orbit-frames", type=int, default=60)
-    args = ap.parse_args(argv)
-    s = setup(args)
-    glc, cloud, scene, load_s, width, height = s.glc, s.cloud, s.scene, s.upload_seconds, s.width, s.height
-    print(json.dumps({"points": args.points, "upload_s": load_s}), flush=True)
-    rows, raw = [], {}
-    rows.append({"run": "brute force (compute)", "frame_ms_median": brute_ms(glc, scene, cloud, width, height)})
-    print(json.dumps(rows[-1]), flush=True)
-    run_case(glc, scene, cloud, width, height, BudgetParams(fixed=1_000_000), "warm-up", 8)
-    cases = [(BudgetParams(target_ns=int(t * 1e6)), f"adaptive {t} ms") for t in args.targets_ms]
-    cases += [(BudgetParams(fixed=f), f"fixed {f:,}") for f in args.fixed]
-    for budget, label in cases:
-        for motion in (0, args.orbit_frames):
-            name = f"{label}, {'orbit then still' if motion else 'still'}"
-            summary, frames = run_case(glc, scene, cloud, width, height, budget, name, args.max_frames, motion)
+def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], targets_ms: list[float],
+        paths: list[CameraPath], motion: int, max_frames: int) -> Table:
+    cloud = tiled(str(SAMPLE), points)
+    scene, upload_s = load(glc, cloud)
+    brute = brute_ms(glc, scene, cloud, size)
+    run_case(glc, scene, cloud, size, Budget("warm-up", BudgetParams(fixed=max(1, points // 8))), CameraPath.STILL, 0, 4)
+    rows, frames = [], {}
+    for budget in budgets(fixed, targets_ms):
+        for path in paths:
+            summary, stats = run_case(glc, scene, cloud, size, budget, path, motion, max_frames)
             rows.append(summary)
-            raw[name] = frames
-            print(json.dumps(summary), flush=True)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    meta = {"device": glc.caps.description, "date": datetime.date.today().isoformat(), "points": args.points,
-            "upload_seconds": load_s,
-            "size": args.size, "data": f"{SAMPLE.name} tiled on a grid", "rows": rows}
-    (out / "progressive.json").write_text(json.dumps(meta, indent=2))
-    (out / "progressive_frames.json").write_text(json.dumps(raw))
-    lines = [f"# Progressive frames, {args.points:,} points, {args.size}", "",
-             f"Device: {meta['device']}  ", f"Date: {meta['date']}  ", f"Data: {meta['data']}", "",
-             "GPU times from timestamps, in runs without a reference render. Converged = the first frame after the "
-             "motion by which every point was filled since the camera last moved (counted on the GPU); ms to converge "
-             "= GPU frame time summed up to it. A second run with a per-frame brute-force reference gives the share "
-             "of pixels equal to brute force during the orbit and the first frame equal to it (exact).", "",
-             "| run | frame ms median | p95 | max | reproject | fill | prepare | resolve | fill share | points/frame | converged at frame | ms to converge | equal pixels during orbit | equal at frame | CPU ms/frame |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+            frames[f"{budget.label}, {path.value}"] = stats
+    scene.release()
+    table = Table(f"progressive_{points}", f"Progressive frames, {size[0]}x{size[1]}",
+                  f"{SAMPLE.name} tiled on a grid", f"{points:,}", (
+                      "budget", "camera", "frame ms median", "p95", "max", "target ms", "frames over target",
+                      "reproject", "fill", "prepare", "resolve", "fill share", "points/frame",
+                      "frames to converge", "ms to converge"))
     for r in rows:
-        if "pass_ms_median" not in r:
-            lines.append(f"| {r['run']} | {r['frame_ms_median']:.2f} | | | | | | | | {args.points:,} | 0 | {r['frame_ms_median']:.2f} | | 0 | |")
-            continue
         p = r["pass_ms_median"]
-        conv = r["converged_frame"]
-        converged = f"{conv} | {r['ms_to_converge']:.1f}" if conv is not None else "no | "
-        motion = f"{r['equal_during_motion_median']:.1%}" if r["equal_during_motion_median"] is not None else ""
-        lines.append(
-            f"| {r['run']} | {r['frame_ms_median']:.2f} | {r['frame_ms_p95']:.2f} | {r['frame_ms_max']:.2f} | "
-            f"{p['reproject']:.2f} | {p['fill']:.2f} | {p['prepare']:.2f} | {p['resolve']:.2f} | "
-            f"{r['fill_fraction_median']:.0%} | {r['budget_median']:,.0f} | {converged} | {motion} | {r['equal_frame']} | {r['cpu_frame_ms_median']:.2f} |")
-    (out / "progressive.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
+        table.rows.append((r["budget"], r["path"], r["frame_ms_median"], r["frame_ms_p95"], r["frame_ms_max"],
+                           r["target_ms"], f"{r['over_target']:.0%}" if r["over_target"] is not None else None,
+                           p["reproject"], p["fill"], p["prepare"], p["resolve"], f"{r['fill_share_median']:.0%}",
+                           round(r["points_per_frame_median"]), r["frames_to_converge"] or "no",
+                           r["ms_to_converge"]))
+    table.notes = [
+        f"One brute-force frame (compute, every point) takes {brute:.2f} ms here, same camera.",
+        (f"GPU milliseconds from timestamps (medians per pass over all frames of a run). Camera paths move for "
+         f"{motion} frames (orbit 60° about the target, zoom to 20 % of the distance, fly across the cloud at low "
+         f"height), then hold the last camera. Frames to converge count from the first still frame to the first "
+         f"frame by which every point was filled since the last change (exact: the image then equals brute "
+         f"force); ms to converge sums their GPU frame times. Runs stop there or at {max_frames} frames. "
+         f"Two frames in flight, as a swap chain paces a window.")]
+    table.raw = {"brute_ms": brute, "upload_s": upload_s, "rows": rows, "frames": frames}
+    return table
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description="progressive section alone (python -m bench runs every section)")
+    ap.add_argument("--points", type=int, default=1_000_000)
+    ap.add_argument("--size", default="1920x1080")
+    ap.add_argument("--targets-ms", type=float, nargs="+", default=[16.6, 11.1])
+    ap.add_argument("--fixed", type=int, nargs="*", default=[1_000_000])
+    ap.add_argument("--motion-frames", type=int, default=30)
+    ap.add_argument("--max-frames", type=int, default=400)
+    ap.add_argument("--out", default="bench/results/local")
+    args = ap.parse_args(argv)
+    glc = create_context()
+    size = tuple(int(v) for v in args.size.split("x"))
+    table = run(glc, args.points, size, args.fixed, args.targets_ms, list(CameraPath), args.motion_frames,
+                args.max_frames)
+    info = RunInfo.from_caps(glc.caps, "progressive only")
+    table.write(Path(args.out), info)
+    print(table.markdown(info))
     return 0
 
 

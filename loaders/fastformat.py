@@ -12,16 +12,15 @@ import math
 import os
 import struct
 import tempfile
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, Iterator
 
 import numpy as np
 
 from progressive.errors import InputError
 from progressive.loaders.las import fail, open_binary
-from progressive.loaders.types import (AttributeInfo, AttributeKind, Batch, CloudInfo, FileInfo,
-                                      nonfinite_records, quiet_nans)
+from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, CloudInfo, FileInfo, nonfinite_records, quiet_nans
 from progressive.packing import ELEVATION, RECORD_BYTES, pack_records
 
 MAGIC = b"PRGSPC\x00\x01"

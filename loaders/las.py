@@ -13,16 +13,24 @@ import math
 import os
 import re
 import struct
+from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Iterator
 
 import laspy
 import lazrs
 import numpy as np
 
 from progressive.errors import InputError
-from progressive.loaders.types import (BATCH_POINTS, AttributeInfo, AttributeKind, Batch, FileInfo,
-                                      nonfinite_count, nonfinite_rows, quiet_nans)
+from progressive.loaders.types import (
+    BATCH_POINTS,
+    AttributeInfo,
+    AttributeKind,
+    Batch,
+    FileInfo,
+    nonfinite_count,
+    nonfinite_rows,
+    quiet_nans,
+)
 
 SIGNATURE = b"LASF"
 Patch = tuple[int, bytes]

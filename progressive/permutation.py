@@ -10,6 +10,7 @@ paper's exact formula. Indices >= P stay where they are.
 
 from __future__ import annotations
 
+import enum
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -17,6 +18,14 @@ import numpy as np
 import sympy
 
 GOLDEN = 0.6180339887498949
+
+
+class FillOrder(enum.Enum):
+    """Which points a range of slots holds. FILE (the identity, prime 0) is the paper's
+    unshuffled baseline (Table 4, Figure 5): progressive fills then follow file order."""
+
+    SHUFFLED = "shuffled"
+    FILE = "file"
 
 
 @lru_cache(maxsize=256)
@@ -41,9 +50,11 @@ class Permutation:
     offset: int
 
     @classmethod
-    def for_count(cls, n: int, *, rotate: bool = True) -> Permutation:
+    def for_count(cls, n: int, *, rotate: bool = True, order: FillOrder = FillOrder.SHUFFLED) -> Permutation:
         if not 0 <= n < 2**32:
             raise ValueError(f"point count {n} outside [0, 2^32)")
+        if order is FillOrder.FILE:
+            return cls(n=n, prime=0, offset=0)
         p = prime_for(n)
         return cls(n=n, prime=p, offset=int(p * GOLDEN) if rotate else 0)
 

@@ -7,7 +7,7 @@ from progressive.bindings import MAX_POINT_CHUNKS, Binding
 from progressive.context import GLContext
 from progressive.errors import ProgressiveError
 from progressive.packing import RECORD_BYTES
-from progressive.permutation import Permutation
+from progressive.permutation import FillOrder, Permutation
 
 EMPTY_WORD = 0xFFFFFFFF
 """Every slot starts as NaN coordinates, which no pass draws: unloaded slots stay dark."""
@@ -26,7 +26,8 @@ class PointStore:
     A capacity below the count keeps a uniform random subset (progressive/memory.py)."""
 
     def __init__(self, glc: GLContext, count: int, *, capacity: int | None = None,
-                 chunk_points: int | None = None, rotate: bool = True):
+                 chunk_points: int | None = None, rotate: bool = True,
+                 order: FillOrder = FillOrder.SHUFFLED):
         limit = chunk_capacity(glc.caps.max_ssbo_bytes)
         self.chunk_points = min(chunk_points or limit, limit)
         self.count = count
@@ -36,7 +37,7 @@ class PointStore:
             raise ProgressiveError(
                 f"{self.capacity:,} points need {chunks} GPU buffers of {self.chunk_points:,} points; "
                 f"at most {MAX_POINT_CHUNKS} are supported")
-        self.permutation = Permutation.for_count(count, rotate=rotate)
+        self.permutation = Permutation.for_count(count, rotate=rotate, order=order)
         self._glc = glc
         self.buffers = []
         for c in range(chunks):

@@ -16,6 +16,7 @@ from progressive.errors import ProgressiveError
 from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, CloudInfo, nonfinite_records
 from progressive.packing import attribute_word, pack_records
 from progressive.passes.distribute import DistributePass
+from progressive.permutation import FillOrder
 from progressive.pointstore import PointStore
 
 RANGE_SAMPLE_PER_BATCH = 20_000
@@ -48,11 +49,12 @@ class AttributeSwitch:
 
 class Scene:
     def __init__(self, glc: GLContext, info: CloudInfo, attribute: AttributeInfo, *, chunk_points: int | None = None,
-                 capacity: int | None = None, keep_batches: bool = False):
+                 capacity: int | None = None, keep_batches: bool = False, order: FillOrder = FillOrder.SHUFFLED):
         """capacity: points kept on the GPU (default all; see progressive/memory.py).
-        keep_batches: keep the loaded attributes in host memory to switch attributes."""
+        keep_batches: keep the loaded attributes in host memory to switch attributes.
+        order: FILE stores points in file order (the unshuffled baseline, for benchmarks)."""
         self.glc, self.info, self.attribute = glc, info, attribute
-        self.store = PointStore(glc, info.points, capacity=capacity, chunk_points=chunk_points)
+        self.store = PointStore(glc, info.points, capacity=capacity, chunk_points=chunk_points, order=order)
         self.distribute = DistributePass(glc, self.store)
         self.loaded = 0
         self.skipped = 0            # points never drawn: non-finite coordinates or shown value

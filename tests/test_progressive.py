@@ -232,3 +232,27 @@ def test_points_baseline_progressive_converges(gl, cloud, brute):
     assert "reproject" in pr.frame(orbit(cam, 2.0), style)
     gl.check()
     pr.release()
+
+
+def test_file_fill_order_stores_file_order_and_converges(gl, cloud):
+    """FillOrder.FILE (the paper's unshuffled baseline): slot = file index, and the first
+    fill is the first points of the file; frames still converge to brute force."""
+    from progressive.permutation import FillOrder
+    from progressive.scene import Scene
+
+    info, batches = cloud
+    scene = Scene(gl, info, default_attribute(info), order=FillOrder.FILE)
+    for b in batches:
+        scene.add_batch(b)
+    assert np.array_equal(scene.store.read_records()[:, :3].view(np.float32)[:1000],
+                          np.concatenate([b.positions for b in batches])[:1000])
+    cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
+    r = Renderer(gl, info, scene.attribute, width=W, height=H, scene=scene)
+    expected = r.render(cam, W, H, r.style()).ids
+    pr = ProgressiveRenderer(gl, info, scene.attribute, ProgressiveOptions(W, H, budget=BudgetParams(fixed=B)), scene=scene)
+    pr.frame(cam, scene.style())
+    shown = pr.read_ids()
+    assert shown[shown != EMPTY].max() < B
+    assert frames_until_equal(gl, pr, cam, scene.style(), expected, math.ceil(info.points / B) + 1) is not None
+    for obj in (pr, r, scene):
+        obj.release()

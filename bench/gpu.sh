@@ -1,0 +1,36 @@
+#!/usr/bin/env bash
+# Full-size benchmarks on the GPU machine, one chunk per command (each well under the
+# 10-minute limit there). Results go to $OUT/<machine>/ (e.g. $OUT/nvidia-h100/); copy
+# each chunk's files into bench/results/<machine>/ here, then rebuild the headline and
+# the README from them: python -m bench.headline bench/results/<machine>
+#
+# On the GPU machine (checkout carried with .gpu, see ../shared/gpu/README.md):
+#   bash bench/gpu.sh raster-100M        # one chunk
+#   bash bench/gpu.sh list               # the chunks, in the order to run them
+#
+# Generated files (100M points as LAS, LAZ and fast format, ~5.5 GB) are cached in
+# bench/.cache/, kept while the machine stays warm; the load chunk makes them if absent.
+set -euo pipefail
+cd "$(dirname "${BASH_SOURCE[0]}")/.."
+
+CHUNKS=(load raster-100M raster-1B progressive-100M progressive-1B accuracy attributes)
+chunk="${1:-list}"
+if [ "$chunk" = list ]; then
+    printf '%s\n' "${CHUNKS[@]}"
+    exit 0
+fi
+
+[ -f .gpu/env.sh ] && source .gpu/env.sh >&2
+OUT="${OUT:-bench/results}"
+bench=("${PYTHON:-python3}" -m bench --full --out-root "$OUT")
+
+case "$chunk" in
+    load)             "${bench[@]}" --sections load ;;
+    raster-100M)      "${bench[@]}" --sections raster --raster-points 100000000 ;;
+    raster-1B)        "${bench[@]}" --sections raster --raster-points 1000000000 ;;
+    progressive-100M) "${bench[@]}" --sections progressive --progressive-points 100000000 ;;
+    progressive-1B)   "${bench[@]}" --sections progressive --progressive-points 1000000000 ;;
+    accuracy)         "${bench[@]}" --sections accuracy ;;
+    attributes)       "${bench[@]}" --sections attributes ;;
+    *) echo "unknown chunk '$chunk'; one of: ${CHUNKS[*]}" >&2; exit 2 ;;
+esac

@@ -1,0 +1,144 @@
+"""headline.md: the ratios the README quotes, computed from one results folder's JSON
+(every ratio measured side by side within one section of one run), and its insertion
+into README.md between `<!-- bench:headline:MACHINE -->` and
+`<!-- /bench:headline:MACHINE -->`, so no figure in the README is typed in.
+
+    python -m bench.headline bench/results/llvmpipe [--readme README.md]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+from pathlib import Path
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+
+
+def _load(folder: Path, stem: str) -> dict | None:
+    path = folder / f"{stem}.json"
+    return json.loads(path.read_text()) if path.exists() else None
+
+
+def _largest(folder: Path, prefix: str) -> dict | None:
+    """The table of that section with the most points (chunked GPU runs write one per N)."""
+    files = sorted(folder.glob(f"{prefix}_*.json"), key=lambda p: int(re.sub(r"\D", "", p.stem) or 0))
+    files = [f for f in files if re.fullmatch(rf"{prefix}_\d+", f.stem)]
+    return json.loads(files[-1].read_text()) if files else None
+
+
+def _x(v: float) -> str:
+    return f"{v:.1f}×" if v < 100 else f"{v:.0f}×"
+
+
+def raster_lines(raster: dict) -> list[str]:
+    rows = [r for r in raster["raw"]["rows"] if r["layout"] == "shuffled"]
+    n = max(r["points"] for r in rows)
+    width = max(r["width"] for r in rows)
+    rows = [r for r in rows if r["points"] == n and r["width"] == width]
+    points = next(r for r in rows if r["raster"] == "GL_POINTS")
+    out = []
+    for r in rows:
+        if r["raster"] != "GL_POINTS":
+            out.append(f"- Brute force, {n:,} points at {r['width']}x{r['height']} (shuffled store): {r['raster']} "
+                       f"{r['ms']:.2f} ms against GL_POINTS {points['ms']:.2f} ms: **{_x(points['ms'] / r['ms'])} "
+                       f"faster**; it streams {r['share_of_copy']:.0%} of the buffer-copy bandwidth "
+                       f"({raster['raw']['copy_bytes_per_s'] / 1e9:.1f} GB/s) (`{raster['_file']}`).")
+    missing = [n for n in raster.get("notes", []) if n.startswith("Compute 64-bit")]
+    return out + [f"- {m.split(';')[0]}." for m in missing]
+
+
+def load_lines(load: dict) -> list[str]:
+    scaled = [r for r in load["raw"]["rows"] if not r["cold"] and r["scaled"]]
+    threads = max(r["threads"] for r in scaled)
+    out = []
+    for r in scaled:
+        if r["threads"] != threads:
+            continue
+        out.append(f"- Load {r['format']}, {r['points']:,} points, warm cache, {threads} parser threads: "
+                   f"{r['points_per_s'] / 1e6:.1f} M points/s, {r['gb_per_s']:.2f} GB/s: "
+                   f"{_x(r['vs_laspy'])} `laspy.read()` plus conversion ({r['laspy_file']}), "
+                   f"{r['share_of_raw']:.2g}× the raw read bandwidth of the same file (`load.md`).")
+    cold = [r for r in load["raw"]["rows"] if r["cold"]]
+    if cold and not any(r["cold_forced"] for r in cold):
+        out.append("- Cold page cache could not be forced on this machine (`load.md`).")
+    return out
+
+
+def first_image_lines(first: dict) -> list[str]:
+    out = []
+    for r in first["raw"]["rows"]:
+        if not r["cold"] or not r["loaded_s"] or not r["scaled"]:
+            continue
+        out.append(f"- Open {r['file']} {r['format']}, {r['points']:,} points, cold: first image after {r['first_image_s']:.2f} s, all points on "
+                   f"the GPU after {r['loaded_s']:.2f} s ({r['first_image_s'] / r['loaded_s']:.0%} of it; "
+                   f"`first_image.md`).")
+    return out
+
+
+def progressive_lines(prog: dict) -> list[str]:
+    out = []
+    for r in prog["raw"]["rows"]:
+        if r["target_ms"] and r["path"] == "still":
+            conv = (f"exact after {r['frames_to_converge']} frames ({r['ms_to_converge']:.1f} ms of GPU time)"
+                    if r["frames_to_converge"] else "not converged within the run")
+            out.append(f"- Progressive, {prog['points']} points, {r['budget']}, still camera: frame median "
+                       f"{r['frame_ms_median']:.2f} ms, p95 {r['frame_ms_p95']:.2f} ms; {conv}; one brute-force "
+                       f"frame {prog['raw']['brute_ms']:.2f} ms (`{prog['_file']}`).")
+    return out
+
+
+def build(folder: Path) -> str:
+    """headline.md for one results folder (a run of `python -m bench`, or its GPU chunks);
+    empty when the folder has none of the tables it quotes."""
+    tables = {"raster": _largest(folder, "raster"), "progressive": _largest(folder, "progressive"),
+              "load": _load(folder, "load"), "first_image": _load(folder, "first_image")}
+    for t in tables.values():
+        if t is not None:
+            t["_file"] = f"{t['name']}.md"
+    head = next((t for t in tables.values() if t), None)
+    if head is None:
+        return ""
+    run = head["run"]
+    lines = [(f"Measured by `python -m bench` ({run['mode']}) on {run['device']}, {run['driver']}, {run['date']}; "
+             f"tables in `bench/results/{folder.name}/`."), ""]
+    if tables["raster"]:
+        lines += raster_lines(tables["raster"])
+    if tables["load"]:
+        lines += load_lines(tables["load"])
+    if tables["first_image"]:
+        lines += first_image_lines(tables["first_image"])
+    if tables["progressive"]:
+        lines += progressive_lines(tables["progressive"])
+    return "\n".join(lines) + "\n"
+
+
+def insert(readme: Path, machine: str, text: str) -> None:
+    """Replace what lies between the machine's markers; the markers must exist."""
+    start, end = f"<!-- bench:headline:{machine} -->", f"<!-- /bench:headline:{machine} -->"
+    body = readme.read_text()
+    pattern = re.compile(re.escape(start) + r".*?" + re.escape(end), re.DOTALL)
+    if not pattern.search(body):
+        raise SystemExit(f"{readme}: markers {start} ... {end} not found; add them where the headline belongs")
+    readme.write_text(pattern.sub(lambda _: f"{start}\n{text.rstrip()}\n{end}", body))
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description="rebuild headline.md from a results folder and put it in README.md")
+    ap.add_argument("folder", type=Path)
+    ap.add_argument("--readme", type=Path, default=README)
+    ap.add_argument("--no-readme", action="store_true", help="only write headline.md")
+    args = ap.parse_args(argv)
+    text = build(args.folder)
+    if not text:
+        raise SystemExit(f"{args.folder}: no raster, load or progressive results")
+    (args.folder / "headline.md").write_text(text)
+    if not args.no_readme:
+        insert(args.readme, args.folder.name, text)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,173 @@
+"""Load: points/s and GB/s of the loader for LAS, LAZ and the fast format at 1, 2, 4
+parser threads, cold and warm page cache, each beside what the same file costs to
+(a) `laspy.read()` plus the conversion a user would write, and (b) read raw; then
+time to first image and to fully loaded through `progressive.open()`."""
+
+from __future__ import annotations
+
+import functools
+import statistics
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import laspy
+import numpy as np
+
+import progressive
+from bench.data import drop_cache
+from bench.report import Table
+from progressive.budget import BudgetParams
+from progressive.context import GLContext
+from progressive.loaders import CloudLoader
+
+BLOCK = 8 << 20
+COLD_MIN_SLOWDOWN = 1.2
+"""A cold raw read must be at least this much slower than a warm one to count as cold."""
+
+
+@dataclass(frozen=True)
+class LoadCase:
+    label: str
+    format: str
+    path: Path
+    points: int
+    scaled: bool = False     # a generated file (the sample tiled), not a real file as it is
+
+
+def raw_read(path: Path) -> None:
+    """The file read in 8 MiB blocks into one buffer and dropped: the disk/cache ceiling."""
+    buf = bytearray(BLOCK)
+    view = memoryview(buf)
+    with open(path, "rb", buffering=0) as f:
+        while f.readinto(view):
+            pass
+
+
+def pipeline(path: Path, threads: int) -> None:
+    with CloudLoader([path], parser_threads=threads) as loader:
+        for _ in loader:
+            pass
+
+
+def laspy_user(path: Path) -> None:
+    """What a user would write: read everything, then float32 positions relative to
+    the centre of the bounds and one attribute (RGB where present, else intensity)."""
+    las = laspy.read(path)
+    origin = (las.header.mins + las.header.maxs) / 2
+    xyz = np.empty((len(las.points), 3), dtype=np.float32)
+    xyz[:, 0] = las.x - origin[0]
+    xyz[:, 1] = las.y - origin[1]
+    xyz[:, 2] = las.z - origin[2]
+    names = set(las.point_format.dimension_names)
+    if {"red", "green", "blue"} <= names:
+        np.stack([las.red, las.green, las.blue], axis=1)
+    else:
+        np.asarray(las.intensity, dtype=np.float32)
+
+
+def timed(fn: Callable[[], None], path: Path, cold: bool, repeats: int) -> float:
+    """Median seconds; cold drops the file's pages before each run, warm reads it once first."""
+    times = []
+    if not cold:
+        raw_read(path)
+    for _ in range(repeats):
+        if cold:
+            drop_cache(path)
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def first_image(glc: GLContext, path: Path, width: int, height: int, cold: bool, max_frames: int) -> dict:
+    """Seconds from progressive.open() to the first finished frame with points, to every
+    point on the GPU, and to the converged image (adaptive budget at 16.6 ms)."""
+    if cold:
+        drop_cache(path)
+    else:
+        raw_read(path)
+    opts = progressive.SessionOptions(width=width, height=height, budget=BudgetParams(target_ns=16_600_000))
+    t0 = time.perf_counter()
+    first = full = converged = None
+    with progressive.open([path], opts, glc=glc) as s:
+        cam = s.auto_camera()
+        for _ in range(max_frames):
+            s.frame(cam)
+            if first is None and s.renderer.scene.loaded > 0:
+                glc.ctx.finish()
+                first = time.perf_counter() - t0
+            if full is None and s.renderer.scene.complete:
+                glc.ctx.finish()
+                full = time.perf_counter() - t0
+            if s.converged:
+                converged = time.perf_counter() - t0
+                break
+        frames = s.renderer.frame_index
+    return {"first_image_s": first, "loaded_s": full, "converged_s": converged, "frames": frames}
+
+
+def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats: int,
+        size: tuple[int, int], max_frames: int) -> tuple[Table, Table]:
+    load = Table("load", "Load: points/s and GB/s, against laspy and raw reads", "", "", (
+        "file", "format", "MB", "cache", "parser threads", "s", "Mpoints/s", "GB/s",
+        "× laspy.read + convert", "share of raw read GB/s"))
+    load.columns = ("file", "format", "points", "MB", "cache", "parser threads", "s", "Mpoints/s", "GB/s",
+                    "× laspy.read + convert", "share of raw read GB/s")
+    rows = []
+    cold_forced = {}
+    for case in cases:
+        size_b = case.path.stat().st_size
+        baseline_path = case.path if case.format != "fast" else next(
+            (c.path for c in cases if c.format == "LAS" and c.points == case.points), None)
+        for cold in (True, False):
+            raw_s = timed(functools.partial(raw_read, case.path), case.path, cold, repeats)
+            laspy_s = timed(functools.partial(laspy_user, baseline_path), baseline_path, cold, repeats) if baseline_path else None
+            if cold:
+                cold_forced[f"{case.label} {case.format}"] = raw_s
+            for t in threads:
+                s = timed(functools.partial(pipeline, case.path, t), case.path, cold, repeats)
+                row = {"file": case.label, "format": case.format, "scaled": case.scaled, "bytes": size_b, "points": case.points,
+                       "cold": cold, "threads": t, "seconds": s, "points_per_s": case.points / s,
+                       "gb_per_s": size_b / s / 1e9, "raw_seconds": raw_s, "laspy_seconds": laspy_s,
+                       "laspy_file": baseline_path.name if baseline_path else None,
+                       "vs_laspy": laspy_s / s if laspy_s else None, "share_of_raw": raw_s / s}
+                rows.append(row)
+        key = f"{case.label} {case.format}"
+        warm_raw = next(r["raw_seconds"] for r in rows if (r["file"], r["format"], r["cold"]) == (case.label, case.format, False))
+        cold_forced[key] = cold_forced[key] / warm_raw
+    for r in rows:
+        forced = cold_forced[f"{r['file']} {r['format']}"] >= COLD_MIN_SLOWDOWN
+        cache = ("cold" if forced else "cold (not forced)") if r["cold"] else "warm"
+        r["cold_forced"] = forced if r["cold"] else None
+        load.rows.append((r["file"], r["format"], r["points"], r["bytes"] / 1e6, cache, r["threads"], r["seconds"],
+                          r["points_per_s"] / 1e6, r["gb_per_s"], r["vs_laspy"], f"{r['share_of_raw']:.2g}"))
+    load.notes = [
+        ("Loader: `CloudLoader` (reader thread + parser threads) to float32 positions and attribute arrays. "
+        "× laspy = seconds of `laspy.read()` plus float32 positions relative to the bounds' centre and one attribute "
+        "(RGB, else intensity), divided by the loader's seconds, same file and cache state, same run; for the fast "
+        "format laspy reads the LAS file of the same cloud. Share of raw read = raw read seconds (8 MiB blocks, "
+        "Python `readinto`) / loader seconds (1.0 = as fast as reading the bytes)."),
+        "Cold = `posix_fadvise(POSIX_FADV_DONTNEED)` after `fsync` before each run; it counts as forced only where "
+        f"the cold raw read was ≥ {COLD_MIN_SLOWDOWN}× slower than the warm one (slowdown per file: "
+        + ", ".join(f"{k} {v:.2f}×" for k, v in cold_forced.items()) + "). Where not forced, the cold rows "
+        "measure a cached file: the page cache could not be dropped here (e.g. a virtual disk cached by the host).",
+    ]
+    load.raw = {"rows": rows, "cold_slowdown_raw": cold_forced}
+
+    first = Table("first_image", "Time to first image and to fully loaded, through progressive.open()", "", "", (
+        "file", "format", "points", "cache", "first image s", "all points on GPU s", "converged s", "frames",
+        "first image / fully loaded"))
+    for case in cases:
+        for cold in (True, False):
+            res = first_image(glc, case.path, *size, cold, max_frames)
+            res.update(file=case.label, format=case.format, cold=cold, points=case.points, scaled=case.scaled)
+            first.raw.setdefault("rows", []).append(res)
+            ratio = res["first_image_s"] / res["loaded_s"] if res["loaded_s"] else None
+            first.rows.append((case.label, case.format, case.points, "cold" if cold else "warm", res["first_image_s"],
+                               res["loaded_s"], res["converged_s"], res["frames"], ratio))
+    first.notes = [(f"Session with the progressive renderer at {size[0]}x{size[1]}, adaptive budget 16.6 ms, auto "
+                   "camera; clock from before `progressive.open()` to `glFinish` after the first frame with points, "
+                   "after the frame that distributed the last batch, and to the frame that knew it had converged.")]
+    return load, first

@@ -1,0 +1,38 @@
+"""Smoke test of `python -m bench`: every section runs on a tiny cloud and writes
+well-formed tables, JSON and PNG plots (not a timed test)."""
+
+from __future__ import annotations
+
+import json
+
+from bench import headline
+from bench.__main__ import main
+
+
+def test_bench_writes_every_section(tmp_path):
+    out = tmp_path / "results"
+    assert main(["--smoke", "--out", str(out), "--cache", str(tmp_path / "cache")]) == 0
+    names = {"load", "first_image", "raster_30000", "progressive_30000", "accuracy", "accuracy_motion", "attributes"}
+    for name in names:
+        md = (out / f"{name}.md").read_text()
+        assert md.startswith("# ") and "Device: " in md and "Driver: " in md and "N: " in md
+        payload = json.loads((out / f"{name}.json").read_text())
+        assert payload["name"] == name and payload["run"]["device"]
+        widths = {len(payload["columns"])} | {len(r) for r in payload["rows"]}
+        assert len(widths) == 1, name
+        if payload["rows"]:
+            rows = [line for line in md.splitlines() if line.startswith("|")]
+            assert len(rows) == len(payload["rows"]) + 2
+            assert {line.count("|") for line in rows} == {len(payload["columns"]) + 1}
+        for image in payload["images"]:
+            assert (out / image).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert json.loads((out / "accuracy.json").read_text())["images"] == ["accuracy.png"]
+    text = (out / "headline.md").read_text()
+    assert "GL_POINTS" in text and "laspy" in text and "first image" in text
+
+
+def test_headline_goes_between_markers(tmp_path):
+    readme = tmp_path / "README.md"
+    readme.write_text("a\n<!-- bench:headline:m -->\nold\n<!-- /bench:headline:m -->\nb\n")
+    headline.insert(readme, "m", "- new\n")
+    assert readme.read_text() == "a\n<!-- bench:headline:m -->\n- new\n<!-- /bench:headline:m -->\nb\n"
