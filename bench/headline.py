@@ -41,10 +41,12 @@ def raster_lines(raster: dict) -> list[str]:
     out = []
     for r in rows:
         if r["raster"] != "GL_POINTS":
+            # Runs before the shader copy was measured compared with the driver's copy engine only.
+            share = (f"; it streams {r['share_of_copy']:.0%} of the copy bandwidth measured in the same run "
+                     f"({raster['raw']['copy_bytes_per_s'] / 1e9:.1f} GB/s)" if "copy_methods" in raster["raw"] else "")
             out.append(f"- Brute force, {n:,} points at {r['width']}x{r['height']} (shuffled store): {r['raster']} "
                        f"{r['ms']:.2f} ms against GL_POINTS {points['ms']:.2f} ms: **{_x(points['ms'] / r['ms'])} "
-                       f"faster**; it streams {r['share_of_copy']:.0%} of the buffer-copy bandwidth "
-                       f"({raster['raw']['copy_bytes_per_s'] / 1e9:.1f} GB/s) (`{raster['_file']}`).")
+                       f"faster**{share} (`{raster['_file']}`).")
     missing = [n for n in raster.get("notes", []) if n.startswith("Compute 64-bit")]
     return out + [f"- {m.split(';')[0]}." for m in missing]
 
@@ -89,11 +91,21 @@ def progressive_lines(prog: dict) -> list[str]:
     return out
 
 
+def attribute_lines(attrs: dict) -> list[str]:
+    rows = attrs["raw"].get("rows", [])
+    if not rows:
+        return []
+    rates = ", ".join(f"{r['attribute']} {r['points_per_s'] / 1e6:.1f}" for r in rows)
+    return [f"- Attribute switch, {rows[0]['points']:,} points kept in host memory: {rates} M points/s streamed to "
+            f"the shuffled buffer, no reload (`{attrs['_file']}`)."]
+
+
 def build(folder: Path) -> str:
     """headline.md for one results folder (a run of `python -m bench`, or its GPU chunks);
     empty when the folder has none of the tables it quotes."""
     tables = {"raster": _largest(folder, "raster"), "progressive": _largest(folder, "progressive"),
-              "load": _load(folder, "load"), "first_image": _load(folder, "first_image")}
+              "load": _load(folder, "load"), "first_image": _load(folder, "first_image"),
+              "attributes": _load(folder, "attributes")}
     for t in tables.values():
         if t is not None:
             t["_file"] = f"{t['name']}.md"
@@ -111,6 +123,8 @@ def build(folder: Path) -> str:
         lines += first_image_lines(tables["first_image"])
     if tables["progressive"]:
         lines += progressive_lines(tables["progressive"])
+    if tables["attributes"]:
+        lines += attribute_lines(tables["attributes"])
     return "\n".join(lines) + "\n"
 
 

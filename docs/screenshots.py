@@ -52,7 +52,7 @@ def main() -> int:
         from progressive.viewer.app import Viewer, ViewerOptions
 
         v = Viewer([str(SAMPLE)], ViewerOptions(width=SIZE[0], height=SIZE[1]))
-        v.orbit = v.navigator.zoom(v.navigator.orbit(v.orbit, -60, 25), 2)
+        v.orbit = v.navigator.zoom(v.orbit, 1)
         shoot(v, "viewer-rgb.png")
         shoot(v, "viewer-rgb-edl.png", eye_dome=True, point_size=2)
         v.switch_attribute("classification")

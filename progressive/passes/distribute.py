@@ -47,6 +47,7 @@ class DistributePass:
         self.stage.bind_to_storage_buffer(Binding.DISTRIBUTE)
         for off in range(0, n, self.batch_points):
             part = data[off: off + self.batch_points]
+            self.stage.orphan()   # fresh storage: no wait for the previous scatter to finish reading
             self.stage.write(part.tobytes())
             program["u_start"] = start + off
             program["u_count"] = part.shape[0]
