@@ -43,6 +43,18 @@ def gl():
 
 
 @pytest.fixture(scope="session")
+def sample_batches():
+    """(CloudInfo, batches in file order) of the bundled sample, in batches of 20,000."""
+    from progressive.loaders import CloudLoader
+
+    with CloudLoader([SAMPLE], batch_points=20_000) as loader:
+        info = loader.info
+        loader.start()
+        batches = sorted(loader, key=lambda b: b.start)
+    return info, batches
+
+
+@pytest.fixture(scope="session")
 def fast_sample(tmp_path_factory) -> Path:
     """The bundled sample in the fast format, its attribute word the intensity (a SCALAR)."""
     from progressive.loaders import CloudLoader, open_cloud, write_fast

@@ -7,6 +7,7 @@ import dataclasses
 import gc
 import json
 import math
+import os
 
 import laspy
 import moderngl
@@ -110,14 +111,20 @@ def gpu_objects() -> int:
     return sum(isinstance(o, kinds) for o in gc.get_objects())
 
 
+LEAK_FRAMES = int(os.environ.get("PROGRESSIVE_LEAK_FRAMES", "400"))
+
+
 def test_no_leaks_over_many_frames(gl):
-    """Camera motion, style switches and resizes for 400 frames (10,000 on a GPU in the
-    bench): GPU objects and fences stay bounded, Python memory flat."""
+    """Camera motion, colormap and attribute switches, point size, eye-dome lighting,
+    hidden classes and resizes for LEAK_FRAMES frames (400 in CI; 10,000 on the GPU
+    machine with PROGRESSIVE_LEAK_FRAMES=10000): GPU objects and fences stay bounded,
+    Python memory flat."""
     import tracemalloc
 
     from progressive.budget import BudgetParams
     from progressive.camera import auto_camera
     from progressive.colors import Colormap
+    from progressive.effects import Effects, EyeDome
     from progressive.frame_loop import ProgressiveOptions, ProgressiveRenderer
     from progressive.loaders import CloudLoader
 
@@ -126,18 +133,24 @@ def test_no_leaks_over_many_frames(gl):
         loader.start()
         batches = list(loader)
     pr = ProgressiveRenderer(gl, info, info.attribute("intensity"),
-                             ProgressiveOptions(64, 48, budget=BudgetParams(fixed=5000), frames_in_flight=2))
+                             ProgressiveOptions(64, 48, budget=BudgetParams(fixed=5000), frames_in_flight=2,
+                                                keep_batches=True))
     for b in batches:
         pr.add_batch(b)
     cam = auto_camera(info.bounds_min, info.bounds_max, 64 / 48)
     maps = list(Colormap)
+    attributes = [info.attribute(n) for n in ("intensity", "classification", "rgb", "gps_time")]
+    effects = [Effects(), Effects(point_size=3), Effects(eye_dome=EyeDome()), Effects(2, EyeDome(0.5, 2.0))]
 
     def run(frames, start):
         for k in range(start, start + frames):
             c = cam if k % 3 else dataclasses.replace(cam, position=tuple(np.add(cam.position, (k % 7, 0, 0))))
             if k % 50 == 0:
                 pr.resize(64 + 8 * (k // 50 % 2), 48)
-            pr.frame(c, pr.scene.style(maps[k % len(maps)]))
+            if k % 40 == 20:
+                pr.switch_attribute(attributes[k // 40 % len(attributes)])
+            hidden = frozenset({2}) if k % 60 < 30 else frozenset()
+            pr.frame(c, pr.scene.style(maps[k % len(maps)]), effects[k // 10 % len(effects)], hidden)
             if k % 25 == 0:
                 pr._take(pr.stats_ring.collect())
 
@@ -145,7 +158,7 @@ def test_no_leaks_over_many_frames(gl):
     objects = gpu_objects()
     tracemalloc.start()
     before = tracemalloc.take_snapshot()
-    run(300, 100)
+    run(LEAK_FRAMES - 100, 100)
     pr.flush()
     pr.history.clear()
     after = tracemalloc.take_snapshot()
@@ -153,7 +166,8 @@ def test_no_leaks_over_many_frames(gl):
     grown = sum(s.size_diff for s in after.compare_to(before, "filename"))
     assert gpu_objects() <= objects + 2
     assert len(pr.stats_ring.pending) == 0 and len(pr._in_flight) <= 2
-    assert grown < 2_000_000, f"Python memory grew by {grown} bytes"
+    assert grown < 2_000_000, f"Python memory grew by {grown} bytes over {LEAK_FRAMES} frames"
+    assert pr.scene.switch is not None and pr.scene.switch.streamed > 0
     gl.check()
     pr.release()
 

@@ -8,12 +8,10 @@ import math
 import numpy as np
 import pytest
 
-from conftest import SAMPLE
 from progressive.attributes import default_attribute
 from progressive.budget import BudgetParams
 from progressive.camera import Camera, auto_camera
 from progressive.frame_loop import ProgressiveOptions, ProgressiveRenderer
-from progressive.loaders import CloudLoader
 from progressive.reference import EMPTY
 from progressive.renderer import Renderer
 
@@ -22,12 +20,8 @@ B = 12_000
 
 
 @pytest.fixture(scope="module")
-def cloud():
-    with CloudLoader([SAMPLE], batch_points=20_000) as loader:
-        info = loader.info
-        loader.start()
-        batches = sorted(loader, key=lambda b: b.start)
-    return info, batches
+def cloud(sample_batches):
+    return sample_batches
 
 
 @pytest.fixture(scope="module")

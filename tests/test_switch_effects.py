@@ -7,7 +7,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conftest import SAMPLE
 from progressive.attributes import default_attribute
 from progressive.budget import BudgetParams
 from progressive.camera import auto_camera
@@ -15,7 +14,6 @@ from progressive.colors import ColorStyle
 from progressive.effects import Effects, EyeDome, footprint
 from progressive.errors import ProgressiveError
 from progressive.frame_loop import ProgressiveOptions, ProgressiveRenderer
-from progressive.loaders import CloudLoader
 from progressive.packing import attribute_word
 from progressive.reference import EMPTY
 from progressive.renderer import Renderer
@@ -24,12 +22,8 @@ W, H = 160, 120
 
 
 @pytest.fixture(scope="module")
-def cloud():
-    with CloudLoader([SAMPLE], batch_points=20_000) as loader:
-        info = loader.info
-        loader.start()
-        batches = sorted(loader, key=lambda b: b.start)
-    return info, batches
+def cloud(sample_batches):
+    return sample_batches
 
 
 def progressive_renderer(gl, cloud, **kw):
@@ -42,11 +36,16 @@ def progressive_renderer(gl, cloud, **kw):
     return pr
 
 
-def brute_frame(gl, cloud, attribute, cam, effects=Effects()):
+def brute_renderer(gl, cloud, attribute, **kw) -> Renderer:
     info, batches = cloud
-    r = Renderer(gl, info, attribute, width=W, height=H)
+    r = Renderer(gl, info, attribute, width=W, height=H, **kw)
     for b in batches:
         r.add_batch(b)
+    return r
+
+
+def brute_frame(gl, cloud, attribute, cam, effects=Effects()):
+    r = brute_renderer(gl, cloud, attribute)
     frame = r.render(cam, W, H, r.style(), effects)
     r.release()
     return frame
@@ -120,9 +119,7 @@ def test_switch_changes_the_image_and_back_restores_it(gl, cloud):
 def test_brute_renderer_switch_matches_a_fresh_load(gl, cloud):
     info, batches = cloud
     cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
-    r = Renderer(gl, info, default_attribute(info), width=W, height=H, keep_batches=True)
-    for b in batches:
-        r.add_batch(b)
+    r = brute_renderer(gl, cloud, default_attribute(info), keep_batches=True)
     r.switch_attribute(info.attribute("gps_time"))
     got = r.render(cam, W, H, r.style())
     r.release()
@@ -162,9 +159,7 @@ def test_point_size_dilation_matches_numpy(gl, cloud, size):
     info, _ = cloud
     cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
     one = brute_frame(gl, cloud, default_attribute(info), cam)
-    r = Renderer(gl, info, default_attribute(info), width=W, height=H)
-    for b in cloud[1]:
-        r.add_batch(b)
+    r = brute_renderer(gl, cloud, default_attribute(info))
     r.render(cam, W, H, r.style(), Effects(point_size=size))
     vis = r.vis.read()
     dilated = r.shading.shown.read()
@@ -215,9 +210,7 @@ def test_eye_dome_lighting_matches_numpy(gl, cloud, edl):
     info, _ = cloud
     cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
     plain = brute_frame(gl, cloud, default_attribute(info), cam)
-    r = Renderer(gl, info, default_attribute(info), width=W, height=H)
-    for b in cloud[1]:
-        r.add_batch(b)
+    r = brute_renderer(gl, cloud, default_attribute(info))
     lit = r.render(cam, W, H, r.style(), Effects(eye_dome=edl))
     expected = eye_dome_reference(r.vis.read(), plain.image, edl)
     assert np.abs(lit.image.astype(np.float64) - expected).max() <= 1.0   # unorm8 rounding
@@ -254,9 +247,7 @@ def test_hidden_classes_are_left_out_and_show_what_is_behind(gl, cloud):
     classes = np.concatenate([b.attributes["classification"] for b in batches])
     cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
     attr = info.attribute("classification")
-    r = Renderer(gl, info, attr, width=W, height=H, keep_batches=True)
-    for b in batches:
-        r.add_batch(b)
+    r = brute_renderer(gl, cloud, attr, keep_batches=True)
     assert r.scene.categories() == sorted(set(classes.tolist()))
     common = int(np.bincount(classes).argmax())
     shown = r.render(cam, W, H, r.style())

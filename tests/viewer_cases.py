@@ -266,3 +266,32 @@ def test_first_image_arrives_before_loading_finishes(display, tmp_path):
         assert time.perf_counter() - t0 < 60
     v.close()
     assert seen
+
+
+def test_viewer_objects_stay_flat_over_many_steps(viewer):
+    """Attribute cycling, effects and class toggles in the window: GPU objects bounded."""
+    import gc
+
+    import moderngl
+
+    def objects():
+        gc.collect()
+        return sum(isinstance(o, (moderngl.Buffer, moderngl.ComputeShader, moderngl.Program, moderngl.VertexArray))
+                   for o in gc.get_objects())
+
+    def cycle(steps):
+        for k in range(steps):
+            if k % 10 == 0:
+                viewer.act(Action.NEXT_ATTRIBUTE)
+            if k % 7 == 0:
+                viewer.act(Action.EYE_DOME)
+            viewer.act(Action.POINT_BIGGER if k % 4 < 2 else Action.POINT_SMALLER)
+            viewer.orbit = viewer.navigator.orbit(viewer.orbit, 3, 0)
+            viewer.step()
+
+    cycle(60)
+    before = objects()
+    cycle(150)
+    assert objects() <= before + 2
+    assert viewer.settings.target_fps > 0
+    no_gl_error(viewer)

@@ -56,6 +56,13 @@ class ViewerOptions:
     screenshot_dir: Path = Path(".")
 
 
+def display_refresh_hz(default: float = 60.0) -> float:
+    """The primary monitor's refresh rate: the adaptive budget's frame target."""
+    monitor = glfw.get_primary_monitor()
+    mode = glfw.get_video_mode(monitor) if monitor else None
+    return float(mode.refresh_rate) if mode and mode.refresh_rate > 0 else default
+
+
 class DragKind(enum.Enum):
     ORBIT = "orbit"
     PAN = "pan"
@@ -77,7 +84,7 @@ class Viewer:
         self.window = self.glc.window
         glfw.swap_interval(1)
         self.present = PresentPass(self.glc)
-        self.settings = ViewSettings()
+        self.settings = ViewSettings(target_fps=display_refresh_hz())
         self.session: Session | None = None
         self.paths: list[str] = []
         self.navigator: Navigator | None = None
