@@ -3,7 +3,9 @@
 from progressive.budget import BudgetParams
 from progressive.camera import Camera
 from progressive.colors import Colormap
+from progressive.effects import Effects, EyeDome
 from progressive.renderer import Raster
 from progressive.session import Method, Session, SessionOptions, open
 
-__all__ = ["BudgetParams", "Camera", "Colormap", "Method", "Raster", "Session", "SessionOptions", "open"]
+__all__ = ["BudgetParams", "Camera", "Colormap", "Effects", "EyeDome", "Method", "Raster", "Session", "SessionOptions",
+           "open"]

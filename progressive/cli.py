@@ -66,6 +66,37 @@ def rgb_arg(text: str) -> tuple[int, int, int]:
     return values
 
 
+def classes_arg(text: str) -> frozenset[int]:
+    try:
+        codes = frozenset(int(c) for c in text.split(",") if c.strip())
+    except ValueError:
+        codes = frozenset({-1})
+    if not codes or not all(0 <= c <= 255 for c in codes):
+        raise argparse.ArgumentTypeError(f"'{text}' is not a comma-separated list of class codes 0..255")
+    return codes
+
+
+def effects_from(args):
+    """The screen-space effects asked for on the command line."""
+    from progressive.effects import Effects, EyeDome
+
+    try:
+        edl = EyeDome(args.eye_dome_strength, args.eye_dome_radius) if args.eye_dome else None
+        return Effects(args.point_size, edl)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+
+
+def add_look_args(parser) -> None:
+    """Options shared by render and view: effects and hidden classes."""
+    parser.add_argument("--point-size", type=int, default=1, help="pixels across a point (a screen-space pass)")
+    parser.add_argument("--eye-dome", action="store_true", help="eye-dome lighting")
+    parser.add_argument("--eye-dome-strength", type=float, default=1.0)
+    parser.add_argument("--eye-dome-radius", type=float, default=1.4, help="pixels")
+    parser.add_argument("--hide-classes", type=classes_arg, default=frozenset(),
+                        help="classification codes left out, e.g. 7,18 (when colouring by classification)")
+
+
 def input_paths(files: list[str]) -> list[str]:
     return files or [str(sample_path())]
 
@@ -205,14 +236,15 @@ def cmd_render(args) -> int:
 
 def _run_frames(session, cameras, args) -> tuple[int | None, int]:
     """Frames as asked: a fixed count, the camera path, or until equal to brute force."""
+    effects, hidden = effects_from(args), args.hide_classes
     if not session.progressive:
-        session.frame(cameras[0])
+        session.frame(cameras[0], None, effects, hidden)
         return None, 1
     limit = args.frames or (args.max_frames if args.converge else len(cameras))
     limit = max(limit, len(cameras)) if not args.frames else limit
     converged_at = None
     for k in range(limit):
-        session.frame(cameras[min(k, len(cameras) - 1)])
+        session.frame(cameras[min(k, len(cameras) - 1)], None, effects, hidden)
         if args.converge and k + 1 >= len(cameras):
             converged_at = _first_equal(session.renderer.history, len(cameras) - 1)
             if converged_at is not None:
@@ -272,9 +304,10 @@ def cmd_view(args) -> int:
         from progressive.viewer.app import Viewer, ViewerOptions
 
         try:
+            effects = effects_from(args)
             viewer = Viewer(paths, ViewerOptions(width=args.width, height=args.height, color_by=args.color_by,
                                                  partial=args.partial, gpu_memory_limit=args.gpu_memory_limit,
-                                                 ui=not args.no_ui))
+                                                 ui=not args.no_ui, effects=effects, hidden_classes=args.hide_classes))
         except GLCapabilityError as exc:
             print(f"progressive: cannot open a window ({exc}); rendering headless instead", file=sys.stderr)
         else:
@@ -291,13 +324,14 @@ def _view_headless(paths: list[str], args) -> int:
     from progressive.session import Session, SessionOptions
 
     check_writable(args.out)
+    effects = effects_from(args)
     options = SessionOptions(width=args.width, height=args.height, color_by=args.color_by, partial=args.partial,
                              gpu_memory_limit=args.gpu_memory_limit)
     with Session(paths, options) as session:
         camera = session.auto_camera()
         frames = 0
         while not session.converged and frames < MAX_HEADLESS_FRAMES:
-            session.frame(camera)
+            session.frame(camera, None, effects, args.hide_classes)
             session.stats()
             frames += 1
         for w in session.warnings:
@@ -349,6 +383,7 @@ def build_parser() -> Parser:
     render.add_argument("--background", type=rgb_arg, default=(0, 0, 0), help="R,G,B")
     render.add_argument("--raster", type=enum_arg(Raster), default=Raster.COMPUTE,
                         help="compute (64-bit atomics where available), compute32, or points (GL_POINTS baseline)")
+    add_look_args(render)
     render.add_argument("--ids", help="write the (H, W) uint32 file-order index of each pixel (.npy)")
     render.add_argument("--stats", help="write timings and counts (.json)")
     render.add_argument("--partial", action="store_true", help="render what a truncated file holds, with a warning")
@@ -373,6 +408,7 @@ def build_parser() -> Parser:
     view.add_argument("--partial", action="store_true", help="show what a truncated file holds, with a warning")
     view.add_argument("--gpu-memory-limit", type=bytes_arg, help="GPU memory to use, e.g. 4G")
     view.add_argument("--no-ui", action="store_true", help="no panel (keys still work)")
+    add_look_args(view)
     view.add_argument("--out", default="progressive-view.png", help="PNG written when there is no display")
     view.set_defaults(func=cmd_view)
 

@@ -144,6 +144,12 @@ def test_partial_renders_truncated_with_warning(tmp_path, capsys):
     ["--width", "100000"],
     ["--raster", "bogus"],
     ["--colormap", "nope"],
+    ["--point-size", "0"],
+    ["--point-size", "99"],
+    ["--eye-dome", "--eye-dome-radius", "0"],
+    ["--eye-dome", "--eye-dome-strength", "nan"],
+    ["--hide-classes", "300"],
+    ["--hide-classes", "ground"],
 ])
 def test_bad_options_one_line_error(tmp_path, capsys, argv):
     out = tmp_path / "x.png"
@@ -251,3 +257,21 @@ def test_all_zero_default_colour_falls_back_and_says_so(tmp_path, capsys, name, 
     assert code == 0, err
     assert json.loads(stats.read_text())["attribute"] == fallback
     assert "all zero" in err and f"colouring by {fallback}" in err and err.startswith("progressive: warning:")
+
+
+def test_render_effects_and_hidden_classes(tmp_path, capsys):
+    """Effects change only the pixels, hidden classes the ids: what the viewer shows."""
+    import laspy
+    from PIL import Image
+
+    classes = np.asarray(laspy.read(SAMPLE).classification)
+    plain, big = tmp_path / "plain.png", tmp_path / "big.png"
+    ids_plain, ids_big, ids_hidden = tmp_path / "a.npy", tmp_path / "b.npy", tmp_path / "c.npy"
+    assert main(["render", *SMALL, "--out", str(plain), "--ids", str(ids_plain)]) == 0
+    assert main(["render", *SMALL, "--out", str(big), "--ids", str(ids_big), "--point-size", "3", "--eye-dome"]) == 0
+    np.testing.assert_array_equal(np.load(ids_plain), np.load(ids_big))
+    covered = (np.asarray(Image.open(plain))[:, :, :3] > 0).any(axis=2).sum()
+    assert (np.asarray(Image.open(big))[:, :, :3] > 0).any(axis=2).sum() > covered
+    assert main(["render", *SMALL, "--color-by", "classification", "--hide-classes", "2", "--ids", str(ids_hidden)]) == 0
+    ids = np.load(ids_hidden)
+    assert ids[ids != 0xFFFFFFFF].size and not np.any(classes[ids[ids != 0xFFFFFFFF]] == 2)

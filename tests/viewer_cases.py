@@ -295,3 +295,26 @@ def test_viewer_objects_stay_flat_over_many_steps(viewer):
     assert objects() <= before + 2
     assert viewer.settings.target_fps > 0
     no_gl_error(viewer)
+
+
+def test_class_toggles_in_the_window(viewer):
+    """Colour by classification, hide the commonest class from the legend: none of its
+    points stays visible, and the image changes."""
+    viewer.act(Action.PANEL)
+    viewer.switch_attribute("classification")
+    settle(viewer)
+    codes = viewer.categories()
+    las = laspy.read(SAMPLE)
+    classes = np.asarray(las.classification)
+    assert codes == sorted(set(classes.tolist()))
+    common = int(np.bincount(classes).argmax())
+    before = viewer.session.image()
+    viewer.toggle_class(common)
+    settle(viewer)
+    ids = viewer.session.ids()
+    assert not np.any(classes[ids[ids != EMPTY]] == common)
+    assert not np.array_equal(before, viewer.session.image())
+    viewer.toggle_class(common)
+    settle(viewer)
+    np.testing.assert_array_equal(viewer.session.image(), before)
+    no_gl_error(viewer)

@@ -15,6 +15,7 @@ import numpy as np
 from progressive.budget import BudgetParams
 from progressive.camera import Camera, CameraError
 from progressive.context import Backend, GLContext, create_context
+from progressive.effects import Effects, EyeDome
 from progressive.errors import ProgressiveError
 from progressive.loaders.lookup import read_point
 from progressive.output import write_png
@@ -51,6 +52,8 @@ class ViewerOptions:
     color_by: str | None = None
     partial: bool = False
     gpu_memory_limit: int | None = None
+    effects: Effects = Effects()        # the first point size and eye-dome lighting
+    hidden_classes: frozenset[int] = frozenset()
     ui: bool = True                    # the Dear ImGui panel
     visible: bool = True               # tests run hidden windows too
     screenshot_dir: Path = Path(".")
@@ -84,7 +87,9 @@ class Viewer:
         self.window = self.glc.window
         glfw.swap_interval(1)
         self.present = PresentPass(self.glc)
-        self.settings = ViewSettings(target_fps=display_refresh_hz())
+        edl = options.effects.eye_dome
+        self.settings = ViewSettings(target_fps=display_refresh_hz(), point_size=options.effects.point_size,
+                                     eye_dome=edl is not None, eye_dome_params=edl or EyeDome())
         self.session: Session | None = None
         self.paths: list[str] = []
         self.navigator: Navigator | None = None
@@ -130,7 +135,7 @@ class Viewer:
         self.navigator = Navigator.for_bounds(session.info.bounds_min, session.info.bounds_max, width / height)
         self.orbit, self.pasted = self.navigator.home, None
         self.settings = replace(self.settings, attribute=session.attribute.name, value_range=None,
-                                hidden_classes=frozenset())
+                                hidden_classes=self.options.hidden_classes if not add else frozenset())
         self.messages = [*session.warnings]
         self._categories = None
         return True

@@ -180,6 +180,8 @@ class Panel:
         if measured is not None:
             imgui.text("GPU ms: " + "  ".join(f"{k} {measured.gpu_ms[k]:.2f}" for k in PASSES))
             imgui.text(f"budget {measured.budget:,} points; {measured.covered_pixels:,} pixels covered")
+            kept = 1.0 - measured.gathered / measured.covered_pixels if measured.covered_pixels else 0.0
+            imgui.text(f"{kept:.1%} of pixels kept their point from the frame before")
             share = min(1.0, measured.filled_since_change / max(1, s.renderer.store.capacity))
             label = "exact (every point filled since the last change)" if s.converged else "points filled since the last change"
             imgui.progress_bar(share, imgui.ImVec2(-1, 0), label)
