@@ -676,3 +676,45 @@ def test_convert_bad_file(folders, capsys, fast_sample, case):
     code, out, err = cli(capsys, "convert", path, outputs / "x.prgs")
     assert_one_error_line(code, err, outputs)
     assert out == ""
+
+
+def test_switching_to_and_from_a_nonfinite_attribute(gl, nan_extra_bytes):
+    """Points hidden by NaN in the shown attribute come back when another attribute is
+    shown, and go again when it is shown back: the switch rewrites whole records for
+    those batches and the progressive image converges to brute force each time."""
+    from progressive.budget import BudgetParams
+    from progressive.camera import auto_camera
+    from progressive.frame_loop import ProgressiveOptions, ProgressiveRenderer
+    from progressive.renderer import Renderer
+
+    path, las = nan_extra_bytes
+    with CloudLoader([path], batch_points=3_000) as loader:
+        info = loader.info
+        loader.start()
+        batches = sorted(loader, key=lambda b: b.start)
+    w, h = 120, 90
+    cam = auto_camera(info.bounds_min, info.bounds_max, w / h)
+    pr = ProgressiveRenderer(gl, info, info.attribute("f32"),
+                             ProgressiveOptions(w, h, budget=BudgetParams(fixed=50_000), batches_per_frame=100,
+                                                keep_batches=True))
+    for b in batches:
+        pr.add_batch(b)
+    for name in ("f32", "intensity", "f32"):
+        if name != pr.scene.attribute.name:
+            pr.switch_attribute(info.attribute(name))
+        for _ in range(30):
+            pr.frame(cam, pr.scene.style())
+            pr.flush()
+            if pr.converged and not pr.switching:
+                break
+        pr.frame(cam, pr.scene.style())
+        brute = Renderer(gl, info, info.attribute(name), width=w, height=h)
+        for b in batches:
+            brute.add_batch(b)
+        expected = brute.render(cam, w, h, brute.style())
+        np.testing.assert_array_equal(pr.read_ids(), expected.ids)
+        assert pr.scene.skipped == brute.scene.skipped
+        assert (pr.scene.skipped > 0) == (name == "f32")
+        brute.release()
+    assert pr.scene.positions_changed
+    pr.release()
