@@ -19,7 +19,6 @@ from progressive.effects import Effects, EyeDome
 from progressive.frame_loop import ProgressiveOptions, ProgressiveRenderer
 from progressive.passes.budget import Stamp
 
-
 EFFECTS = {"point size 3": Effects(point_size=3), "point size 7": Effects(point_size=7),
            "eye-dome lighting": Effects(eye_dome=EyeDome()),
            "point size 3 + eye-dome lighting": Effects(point_size=3, eye_dome=EyeDome())}
