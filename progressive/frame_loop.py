@@ -153,11 +153,11 @@ class ProgressiveRenderer:
             self.vis.clear()
             passes += self.shading.run(style, effects, self.prepare.pixel_words)
         elif self.converged and not passes:
-            if self._regather:
+            regather, self._regather = self._regather, False
+            if regather:
                 self.prepare.run(regather=True)
-                self._regather = False
                 passes.append("prepare")
-            if restyled or "prepare" in passes:
+            if restyled or regather:
                 passes += self.shading.run(style, effects, self.prepare.pixel_words)
         else:
             return self._render(camera, hidden, style, effects, passes, reset=bool(passes) or moved)

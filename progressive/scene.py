@@ -154,8 +154,10 @@ class Scene:
             return (0.0, 1.0)
         return robust_range(np.concatenate(self._samples))
 
-    def style(self, colormap: Colormap = Colormap.VIRIDIS, background=(0, 0, 0)) -> ColorStyle:
-        return ColorStyle.for_attribute(self.attribute, self.value_range(), colormap, background)
+    def style(self, colormap: Colormap = Colormap.VIRIDIS, background=(0, 0, 0),
+              value_range: tuple[float, float] | None = None) -> ColorStyle:
+        """`value_range`: scalar values at the colormap's ends (default: the robust range)."""
+        return ColorStyle.for_attribute(self.attribute, value_range or self.value_range(), colormap, background)
 
     def release(self) -> None:
         self.distribute.release()

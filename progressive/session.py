@@ -133,9 +133,8 @@ class Session:
     def style(self, colormap: Colormap | None = None, value_range: tuple[float, float] | None = None,
               background: tuple[int, int, int] | None = None) -> ColorStyle:
         """The options' colouring, or the one given (a viewer's controls)."""
-        scene = self.renderer.scene
-        return ColorStyle.for_attribute(scene.attribute, value_range or scene.value_range(),
-                                        colormap or self.options.colormap, background or self.options.background)
+        return self.renderer.scene.style(colormap or self.options.colormap, background or self.options.background,
+                                         value_range)
 
     def switch_attribute(self, name: str) -> AttributeSwitch:
         """Colour by another attribute (needs SessionOptions.switchable). Progressive

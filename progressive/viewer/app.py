@@ -21,7 +21,7 @@ from progressive.loaders.lookup import read_point
 from progressive.output import write_png
 from progressive.passes.present import PresentPass
 from progressive.passes.visibility import EMPTY
-from progressive.permutation import Permutation
+from progressive.renderer import ids_for
 from progressive.session import Session, SessionOptions
 from progressive.viewer.controls import Action, BudgetMode, ViewSettings, cycle
 from progressive.viewer.navigation import Navigator, Orbit
@@ -326,16 +326,18 @@ class Viewer:
         y0, y1 = max(0, py - CURSOR_SEARCH), min(h, py + CURSOR_SEARCH + 1)
         if x0 >= x1 or y0 >= y1:
             return None
-        rows = [np.frombuffer(vis.buffer.read(size=(x1 - x0) * 8, offset=(yy * w + x0) * 8), dtype=np.uint32)
-                for yy in range(y0, y1)]
-        block = np.stack(rows).reshape(y1 - y0, x1 - x0, 2)
+        # One read (one wait for the GPU) of the rows' span, then the window cut from it.
+        first, last = y0 * w + x0, (y1 - 1) * w + x1
+        span = np.frombuffer(vis.buffer.read(size=(last - first) * 8, offset=first * 8), dtype=np.uint32)
+        span = np.concatenate([span, np.zeros(2 * (w - x1 + x0), dtype=np.uint32)])
+        block = span.reshape(y1 - y0, w, 2)[:, : x1 - x0]
         ys, xs = np.nonzero(block[:, :, 0] != EMPTY)
         if ys.size == 0:
             return None
         k = int(np.argmin((ys + y0 - py) ** 2 + (xs + x0 - px) ** 2))
         slot, depth = block[ys[k], xs[k]]
-        perm: Permutation = self.session.renderer.store.permutation
-        return int(perm.inverse(np.array([slot], dtype=np.uint64))[0]), float(np.array(depth, np.uint32).view(np.float32))
+        index = ids_for(self.session.renderer.store, np.array([slot], dtype=np.uint32))[0]
+        return int(index), float(np.array(depth, np.uint32).view(np.float32))
 
     def point_at(self, x: float, y: float) -> np.ndarray | None:
         """Exact float64 file coordinates of the point under the cursor (read from its file)."""
@@ -436,7 +438,7 @@ class Viewer:
     def on_key(self, window, key: int, scancode: int, action: int, mods: int) -> None:
         if self.panel is not None:
             self.panel.renderer.keyboard_callback(window, key, scancode, action, mods)
-            if self.settings.panel and self.panel.wants_keyboard():
+            if self._ui_keyboard():
                 return
         if action != glfw.PRESS:
             return
