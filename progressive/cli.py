@@ -87,6 +87,17 @@ def effects_from(args):
         raise UsageError(str(exc)) from None
 
 
+def add_cloud_args(parser) -> None:
+    """Options shared by render and view: the files, the frame size, loading, colouring."""
+    parser.add_argument("files", nargs="*", help="LAS/LAZ/fast-format files, one cloud (default: the bundled sample)")
+    parser.add_argument("--width", type=size_arg, default=1280)
+    parser.add_argument("--height", type=size_arg, default=720)
+    parser.add_argument("--color-by", help="attribute to colour by (default: rgb, else intensity, else elevation)")
+    parser.add_argument("--partial", action="store_true", help="show what a truncated file holds, with a warning")
+    parser.add_argument("--gpu-memory-limit", type=bytes_arg, help="GPU memory to use, e.g. 4G; a larger cloud shows "
+                        "a uniform random subset (the free memory the driver reports also counts)")
+
+
 def add_look_args(parser) -> None:
     """Options shared by render and view: effects and hidden classes."""
     parser.add_argument("--point-size", type=int, default=1, help="pixels across a point (a screen-space pass)")
@@ -300,11 +311,11 @@ def cmd_view(args) -> int:
     from progressive.context import GLCapabilityError
 
     paths = input_paths(args.files)
+    effects = effects_from(args)
     if has_display():
         from progressive.viewer.app import Viewer, ViewerOptions
 
         try:
-            effects = effects_from(args)
             viewer = Viewer(paths, ViewerOptions(width=args.width, height=args.height, color_by=args.color_by,
                                                  partial=args.partial, gpu_memory_limit=args.gpu_memory_limit,
                                                  ui=not args.no_ui, effects=effects, hidden_classes=args.hide_classes))
@@ -316,15 +327,14 @@ def cmd_view(args) -> int:
     else:
         print(f"progressive: no display (DISPLAY and WAYLAND_DISPLAY are unset); rendering headless to {args.out}",
               file=sys.stderr)
-    return _view_headless(paths, args)
+    return _view_headless(paths, effects, args)
 
 
-def _view_headless(paths: list[str], args) -> int:
+def _view_headless(paths: list[str], effects, args) -> int:
     from progressive.output import check_writable, write_png
     from progressive.session import Session, SessionOptions
 
     check_writable(args.out)
-    effects = effects_from(args)
     options = SessionOptions(width=args.width, height=args.height, color_by=args.color_by, partial=args.partial,
                              gpu_memory_limit=args.gpu_memory_limit)
     with Session(paths, options) as session:
@@ -337,7 +347,7 @@ def _view_headless(paths: list[str], args) -> int:
         for w in session.warnings:
             print(f"progressive: warning: {w}", file=sys.stderr)
         write_png(args.out, session.image())
-        state = "exact" if session.converged else f"not converged after {frames} frames"
+        state = "exact" if session.converged else "not converged"
         print(f"wrote {Path(args.out).resolve()} ({session.info.points:,} points, {state} after {frames} frames, "
               f"first image {session.first_image_seconds:.2f} s after opening)")
     return 0
@@ -372,13 +382,10 @@ def build_parser() -> Parser:
     info.set_defaults(func=cmd_info)
 
     render = sub.add_parser("render", help="render a cloud headless to PNG")
-    render.add_argument("files", nargs="*", help="LAS/LAZ/fast-format files, one cloud (default: the bundled sample)")
+    add_cloud_args(render)
     render.add_argument("--out", help="PNG to write")
-    render.add_argument("--width", type=size_arg, default=1280)
-    render.add_argument("--height", type=size_arg, default=720)
     render.add_argument("--camera", default="auto", help="auto, a camera JSON file, or JSON text")
     render.add_argument("--save-camera", help="write the camera used as JSON")
-    render.add_argument("--color-by", help="attribute to colour by (default: rgb, else intensity, else elevation)")
     render.add_argument("--colormap", type=enum_arg(Colormap), default=Colormap.VIRIDIS)
     render.add_argument("--background", type=rgb_arg, default=(0, 0, 0), help="R,G,B")
     render.add_argument("--raster", type=enum_arg(Raster), default=Raster.COMPUTE,
@@ -386,7 +393,6 @@ def build_parser() -> Parser:
     add_look_args(render)
     render.add_argument("--ids", help="write the (H, W) uint32 file-order index of each pixel (.npy)")
     render.add_argument("--stats", help="write timings and counts (.json)")
-    render.add_argument("--partial", action="store_true", help="render what a truncated file holds, with a warning")
     render.add_argument("--method", type=enum_arg(Method), default=Method.BRUTE,
                         help="brute (every point in one frame) or progressive (reproject + budgeted fill)")
     render.add_argument("--budget", type=budget_arg, default=None, help="points filled per frame, or auto (default)")
@@ -396,17 +402,10 @@ def build_parser() -> Parser:
     render.add_argument("--max-frames", type=size_arg, default=1000, help="limit for --converge")
     render.add_argument("--camera-path", help="JSON list of cameras, one per frame")
     render.add_argument("--reference", action="store_true", help="report per frame the share of pixels equal to brute force")
-    render.add_argument("--gpu-memory-limit", type=bytes_arg, help="GPU memory to use, e.g. 4G; a larger cloud shows "
-                        "a uniform random subset (the free memory the driver reports also counts)")
     render.set_defaults(func=cmd_render)
 
     view = sub.add_parser("view", help="open a window on the cloud (without a display: render it to a PNG)")
-    view.add_argument("files", nargs="*", help="LAS/LAZ/fast-format files, one cloud (default: the bundled sample)")
-    view.add_argument("--width", type=size_arg, default=1280)
-    view.add_argument("--height", type=size_arg, default=720)
-    view.add_argument("--color-by", help="attribute to colour by first ([ and ] switch in the window)")
-    view.add_argument("--partial", action="store_true", help="show what a truncated file holds, with a warning")
-    view.add_argument("--gpu-memory-limit", type=bytes_arg, help="GPU memory to use, e.g. 4G")
+    add_cloud_args(view)
     view.add_argument("--no-ui", action="store_true", help="no panel (keys still work)")
     add_look_args(view)
     view.add_argument("--out", default="progressive-view.png", help="PNG written when there is no display")
