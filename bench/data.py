@@ -14,10 +14,10 @@ from pathlib import Path
 import laspy
 import numpy as np
 
+from bench.synthetic import SAMPLE
 from progressive import cli
 
 CACHE = Path(__file__).resolve().parent / ".cache"
-SAMPLE = Path(__file__).resolve().parents[1] / "progressive" / "data" / "autzen_trim.las"
 WRITE_POINTS = 2_000_000
 """Points per write: large writes let lazrs compress chunks in parallel."""
 SHARED = Path(os.environ.get("PROGRESSIVE_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
