@@ -7,6 +7,9 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import re
+import stat
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -16,6 +19,20 @@ from progressive.errors import ProgressiveError
 Vec3 = tuple[float, float, float]
 AUTO_AZIMUTH_OFFSET_DEG = 25.0
 AUTO_ELEVATION_DEG = 35.0
+MAX_COORDINATE = 1e15
+"""Largest |x|, |y|, |z| of a camera position, target or up: differences and squares stay
+exact enough in float64, and camera-relative values fit float32."""
+MIN_EXTENT = 1e-30
+"""Smallest near plane, |target - position| and |up|: normal in float32, squares normal in float64."""
+MAX_DEPTH = 1e30
+"""Largest far plane: representable in float32, its square in float64."""
+MIN_FOV_DEG = 1e-6
+"""Smallest vertical field of view: the focal length stays far inside float32."""
+MAX_JSON_BYTES = 16 * 2**20
+"""A camera or camera path (16,384 frames of a few hundred bytes fit easily)."""
+MAX_JSON_DEPTH = 8
+MAX_NUMBER_CHARS = 64
+"""Digits (and sign, point, exponent) of one JSON number: 1e15 to full float64 precision fits."""
 
 
 class CameraError(ProgressiveError):
@@ -32,25 +49,35 @@ class Camera:
     far: float = 10_000.0
 
     def __post_init__(self) -> None:
-        values = (*self.position, *self.target, *self.up, self.fov_y_deg, self.near, self.far)
-        if not all(math.isfinite(v) for v in values):
-            raise CameraError("camera values must be finite numbers")
-        if not 0.0 < self.fov_y_deg < 180.0:
-            raise CameraError(f"camera fov_y_deg must be in (0, 180), got {self.fov_y_deg}")
-        if not 0.0 < self.near < self.far:
-            raise CameraError(f"camera needs 0 < near < far, got near={self.near} far={self.far}")
+        """Every bound the float64 maths and the float32 GPU values need, one message each."""
+        for key in ("position", "target", "up"):
+            vec = getattr(self, key)
+            if len(vec) != 3 or not all(_finite(v) for v in vec):
+                raise CameraError(f"camera {key} must be 3 finite numbers")
+            if max(abs(v) for v in vec) > MAX_COORDINATE:
+                raise CameraError(f"camera {key} {_show(vec)} is beyond +-{MAX_COORDINATE:g}")
+        for key in ("fov_y_deg", "near", "far"):
+            if not _finite(getattr(self, key)):
+                raise CameraError(f"camera {key} must be a finite number")
+        if not MIN_FOV_DEG <= self.fov_y_deg < 180.0:
+            raise CameraError(f"camera fov_y_deg must be in [{MIN_FOV_DEG:g}, 180), got {self.fov_y_deg:g}")
+        if not MIN_EXTENT <= self.near < self.far <= MAX_DEPTH:
+            raise CameraError(f"camera needs {MIN_EXTENT:g} <= near < far <= {MAX_DEPTH:g}, "
+                              f"got near={self.near:g} far={self.far:g}")
         forward = np.subtract(self.target, self.position, dtype=np.float64)
-        if not np.linalg.norm(forward) > 0.0:
+        if np.max(np.abs(forward)) < MIN_EXTENT:
             raise CameraError("camera position and target coincide")
-        if not np.linalg.norm(np.cross(forward, self.up)) > 1e-12 * np.linalg.norm(forward) * np.linalg.norm(self.up):
-            raise CameraError("camera up is parallel to the viewing direction (or zero)")
+        up = np.asarray(self.up, dtype=np.float64)
+        if np.max(np.abs(up)) < MIN_EXTENT:
+            raise CameraError("camera up is zero")
+        f, u = _unit(forward), _unit(up)
+        if not np.linalg.norm(np.cross(f, u)) > 1e-9:
+            raise CameraError("camera up is parallel to the viewing direction")
 
     def rotation(self) -> np.ndarray:
         """Rows: right, up, backward (float64), so view = R @ (x - position)."""
-        forward = np.subtract(self.target, self.position, dtype=np.float64)
-        forward /= np.linalg.norm(forward)
-        right = np.cross(forward, np.asarray(self.up, dtype=np.float64))
-        right /= np.linalg.norm(right)
+        forward = _unit(np.subtract(self.target, self.position, dtype=np.float64))
+        right = _unit(np.cross(forward, _unit(np.asarray(self.up, dtype=np.float64))))
         true_up = np.cross(right, forward)
         return np.stack([right, true_up, -forward])
 
@@ -78,24 +105,115 @@ class Camera:
             if key in ("position", "target", "up"):
                 if not (isinstance(value, list) and len(value) == 3 and all(_is_number(v) for v in value)):
                     raise CameraError(f"camera {key} must be a list of 3 numbers")
-                kwargs[key] = tuple(float(v) for v in value)
+                kwargs[key] = tuple(_float(key, v) for v in value)
             else:
                 if not _is_number(value):
                     raise CameraError(f"camera {key} must be a number")
-                kwargs[key] = float(value)
+                kwargs[key] = _float(key, value)
         return cls(**kwargs)
 
     @classmethod
     def from_json(cls, text: str) -> Camera:
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise CameraError(f"camera is not valid JSON ({exc.msg} at line {exc.lineno})") from None
-        return cls.from_dict(data)
+        return cls.from_dict(parse_json(text, "camera"))
 
 
 def _is_number(v: object) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _float(key: str, v: int | float) -> float:
+    try:
+        return float(v)
+    except OverflowError:
+        raise CameraError(f"camera {key} is beyond float64") from None
+
+
+def _finite(v: object) -> bool:
+    try:
+        return math.isfinite(v)
+    except (TypeError, OverflowError):
+        return False
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    """v / |v| without overflow or underflow: scaled by its largest component first."""
+    v = v / np.max(np.abs(v))
+    return v / np.linalg.norm(v)
+
+
+def _show(vec) -> str:
+    return "[" + ", ".join(f"{v:g}" for v in vec) + "]"
+
+
+def _number(text: str) -> float:
+    """JSON numbers as float, refused when too long to be a camera value (Python's int
+    and float would take thousands of digits, slowly or not at all) or not finite."""
+    if len(text) > MAX_NUMBER_CHARS:
+        raise CameraError(f"a number of {len(text)} characters (at most {MAX_NUMBER_CHARS})")
+    value = float(text)
+    if not math.isfinite(value):
+        raise CameraError(f"number {text[:24]} is beyond float64")
+    return value
+
+
+def _constant(name: str):
+    raise CameraError(f"{name} is not a number JSON allows")
+
+
+def json_depth(text: str) -> int:
+    """Deepest nesting of [ and { outside strings, found without recursion (json.loads
+    would raise RecursionError, or exhaust the stack)."""
+    code = np.frombuffer(_JSON_STRING.sub("", text).encode("utf-8", "replace"), dtype=np.uint8)
+    steps = np.isin(code, _OPEN).astype(np.int64) - np.isin(code, _CLOSE)
+    return int(np.cumsum(steps).max(initial=0))
+
+
+_JSON_STRING = re.compile(r'"(?:[^"\\]|\\.)*"', re.DOTALL)
+_OPEN, _CLOSE = np.frombuffer(b"[{", np.uint8), np.frombuffer(b"]}", np.uint8)
+
+
+def parse_json(text: str, what: str) -> object:
+    """JSON of bounded size, nesting and number length; every number a finite float."""
+    if len(text) > MAX_JSON_BYTES:
+        raise CameraError(f"{what} is {len(text):,} characters (at most {MAX_JSON_BYTES:,})")
+    if json_depth(text) > MAX_JSON_DEPTH:
+        raise CameraError(f"{what} JSON is nested more than {MAX_JSON_DEPTH} deep")
+    try:
+        return json.loads(text, parse_int=_number, parse_float=_number, parse_constant=_constant)
+    except json.JSONDecodeError as exc:
+        raise CameraError(f"{what} is not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    except CameraError as exc:
+        raise CameraError(f"{what} JSON: {exc}") from None
+    except RecursionError:
+        raise CameraError(f"{what} JSON is nested too deep") from None
+
+
+def read_json_file(path: str | os.PathLike, what: str) -> object:
+    """A JSON file that must be a regular file (a FIFO or device would block or never
+    end), read whole up to MAX_JSON_BYTES, UTF-8."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    except FileNotFoundError:
+        raise CameraError(f"{what} {path} not found") from None
+    except OSError as exc:
+        raise CameraError(f"cannot read {what} {path}: {exc.strerror}") from None
+    with os.fdopen(fd, "rb") as fh:
+        st = os.fstat(fd)
+        if stat.S_ISDIR(st.st_mode):
+            raise CameraError(f"{what} {path} is a directory")
+        if not stat.S_ISREG(st.st_mode):
+            raise CameraError(f"{what} {path} is not a regular file")
+        if st.st_size > MAX_JSON_BYTES:
+            raise CameraError(f"{what} {path} is {st.st_size:,} bytes (at most {MAX_JSON_BYTES:,})")
+        try:
+            data = fh.read(MAX_JSON_BYTES + 1)
+        except OSError as exc:
+            raise CameraError(f"cannot read {what} {path}: {exc.strerror}") from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise CameraError(f"{what} {path} is not UTF-8 text") from None
+    return parse_json(text, f"{what} {path}")
 
 
 @dataclass(frozen=True)
@@ -134,6 +252,8 @@ def auto_camera(bounds_min: np.ndarray, bounds_max: np.ndarray, aspect: float, f
     (so strips fill the width): the nearest distance at which all 8 corners fit."""
     lo = np.asarray(bounds_min, dtype=np.float64)
     hi = np.asarray(bounds_max, dtype=np.float64)
+    if not (np.isfinite(lo).all() and np.isfinite(hi).all() and max(np.abs(lo).max(), np.abs(hi).max()) <= MAX_COORDINATE):
+        raise CameraError(f"the cloud's bounds {_show(lo)} to {_show(hi)} are beyond the cameras' +-{MAX_COORDINATE:g}")
     centre = (lo + hi) / 2.0
     half = np.maximum((hi - lo) / 2.0, 1e-3)
     side = -90.0 if half[0] >= half[1] else 180.0

@@ -4,9 +4,12 @@ line `progressive: error: ...` on stderr with exit status 2."""
 from __future__ import annotations
 
 import argparse
+import contextlib
 import enum
 import os
+import signal
 import sys
+import threading
 from importlib import resources
 from pathlib import Path
 
@@ -76,6 +79,18 @@ def classes_arg(text: str) -> frozenset[int]:
     return codes
 
 
+def range_arg(text: str) -> tuple[float, float]:
+    """LO,HI in the attribute's own units: finite, LO < HI."""
+    parts = text.split(",")
+    try:
+        lo, hi = (float(p) for p in parts)
+    except ValueError:
+        lo = hi = float("nan")
+    if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
+        raise argparse.ArgumentTypeError(f"'{text}' is not LO,HI with finite LO < HI")
+    return lo, hi
+
+
 def effects_from(args):
     """The screen-space effects asked for on the command line."""
     from progressive.effects import Effects, EyeDome
@@ -93,6 +108,8 @@ def add_cloud_args(parser) -> None:
     parser.add_argument("--width", type=size_arg, default=1280)
     parser.add_argument("--height", type=size_arg, default=720)
     parser.add_argument("--color-by", help="attribute to colour by (default: rgb, else intensity, else elevation)")
+    parser.add_argument("--range", type=range_arg, dest="value_range", metavar="LO,HI",
+                        help="scalar values at the colormap's ends (default: the 1st-99th percentile of the loaded points)")
     parser.add_argument("--partial", action="store_true", help="show what a truncated file holds, with a warning")
     parser.add_argument("--gpu-memory-limit", type=bytes_arg, help="GPU memory to use, e.g. 4G; a larger cloud shows "
                         "a uniform random subset (the free memory the driver reports also counts)")
@@ -108,22 +125,29 @@ def add_look_args(parser) -> None:
                         help="classification codes left out, e.g. 7,18 (when colouring by classification)")
 
 
+def one_line(text: str) -> str:
+    """text with every control or other unprintable character escaped, so a message
+    naming a file called "a\\nb" is still one line."""
+    return "".join(c if c.isprintable() else c.encode("unicode_escape", "backslashreplace").decode("ascii")
+                   for c in str(text))
+
+
+def warn(text: str) -> None:
+    print(f"progressive: warning: {one_line(text)}", file=sys.stderr)
+
+
 def input_paths(files: list[str]) -> list[str]:
     return files or [str(sample_path())]
 
 
 def load_camera(text: str):
-    from progressive.camera import Camera, CameraError
+    from progressive.camera import Camera, CameraError, read_json_file
 
     if text.lstrip().startswith("{"):
         return Camera.from_json(text)
-    path = Path(text)
-    if not path.is_file():
+    if not os.path.lexists(text):
         raise CameraError(f"camera file {text} not found (give 'auto', a JSON file or JSON text)")
-    try:
-        return Camera.from_json(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError) as exc:
-        raise CameraError(f"cannot read camera file {text}: {exc}") from None
+    return Camera.from_dict(read_json_file(text, "camera file"))
 
 
 def cmd_info(args) -> int:
@@ -175,18 +199,9 @@ def positive_float(text: str) -> float:
 
 def load_camera_path(path: str):
     """A JSON list of cameras (or {"cameras": [...]}), one per frame."""
-    import json
+    from progressive.camera import Camera, CameraError, read_json_file
 
-    from progressive.camera import Camera, CameraError
-
-    try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise CameraError(f"camera path {path} not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise CameraError(f"cannot read camera path {path}: {exc}") from None
-    except json.JSONDecodeError as exc:
-        raise CameraError(f"camera path {path} is not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    data = read_json_file(path, "camera path")
     if isinstance(data, dict):
         data = data.get("cameras")
     if not isinstance(data, list) or not data:
@@ -208,39 +223,42 @@ def session_options(args):
     return SessionOptions(width=args.width, height=args.height, method=args.method, raster=args.raster,
                           budget=budget, reference=args.reference or args.converge, color_by=args.color_by,
                           colormap=args.colormap, background=args.background, partial=args.partial,
-                          gpu_memory_limit=args.gpu_memory_limit)
+                          gpu_memory_limit=args.gpu_memory_limit, value_range=args.value_range)
 
 
 def cmd_render(args) -> int:
-    from progressive.output import check_writable, write_json, write_npy, write_png
+    from progressive.output import Outputs, check_outputs, json_writer, npy_writer, png_writer
     from progressive.session import Method, Session
 
-    for p in (args.out, args.ids, args.stats, args.save_camera):
-        if p:
-            check_writable(p)
+    paths = input_paths(args.files)
+    camera_file = None if args.camera == "auto" or args.camera.lstrip().startswith("{") else args.camera
+    check_outputs((args.out, args.ids, args.stats, args.save_camera),
+                  [*paths, *(p for p in (camera_file, args.camera_path) if p)])
     cameras = load_camera_path(args.camera_path) if args.camera_path else None
     camera = None if args.camera == "auto" or cameras else load_camera(args.camera)
     if args.method is Method.BRUTE and (args.converge or args.reference or cameras):
         raise UsageError("--converge, --reference and --camera-path need --method progressive")
-    with Session(input_paths(args.files), session_options(args)) as session:
+    effects_from(args)
+    with Session(paths, session_options(args)) as session, Outputs() as outputs:
         if cameras is None:
             cameras = [camera or session.auto_camera()]
         converged_at, frames = _run_frames(session, cameras, args)
         for w in session.warnings:
-            print(f"progressive: warning: {w}", file=sys.stderr)
+            warn(w)
         stats = _stats(session, cameras[-1], frames, converged_at)
         image, ids = session.image(), session.ids()
         if args.out:
-            write_png(args.out, image)
+            outputs.write(args.out, png_writer(image))
         if args.ids:
-            write_npy(args.ids, ids)
+            outputs.write(args.ids, npy_writer(ids))
         if args.save_camera:
-            write_json(args.save_camera, cameras[-1].to_dict())
+            outputs.write(args.save_camera, json_writer(cameras[-1].to_dict()))
         if args.stats:
             stats["covered_pixels"] = int((ids != 0xFFFFFFFF).sum())
-            write_json(args.stats, stats)
+            outputs.write(args.stats, json_writer(stats))
+        outputs.commit()
     if args.converge and converged_at is None:
-        print(f"progressive: warning: did not converge within {frames} frames", file=sys.stderr)
+        warn(f"did not converge within {frames} frames")
         return 1
     return 0
 
@@ -270,6 +288,8 @@ def _first_equal(history, after: int) -> int | None:
 
 
 def _stats(session, camera, frames: int, converged_at: int | None) -> dict:
+    from progressive import memory
+
     renderer = session.renderer
     out = {
         "device": session.glc.caps.description,
@@ -285,6 +305,8 @@ def _stats(session, camera, frames: int, converged_at: int | None) -> dict:
         "width": session.options.width,
         "height": session.options.height,
         "attribute": session.attribute.name,
+        "color_range": session.color_range(),
+        "peak_rss_bytes": memory.peak_rss_bytes(),
         "camera": camera.to_dict(),
         "frames_rendered": frames,
     }
@@ -309,6 +331,7 @@ def cmd_view(args) -> int:
     """A window where there is a display; elsewhere the same cloud rendered headless
     to a PNG, so the README's first command works on any machine."""
     from progressive.context import GLCapabilityError
+    from progressive.output import check_outputs
 
     paths = input_paths(args.files)
     effects = effects_from(args)
@@ -325,19 +348,20 @@ def cmd_view(args) -> int:
             viewer.run()
             return 0
     else:
+        check_outputs([args.out], paths)
         print(f"progressive: no display (DISPLAY and WAYLAND_DISPLAY are unset); rendering headless to {args.out}",
               file=sys.stderr)
     return _view_headless(paths, effects, args)
 
 
 def _view_headless(paths: list[str], effects, args) -> int:
-    from progressive.output import check_writable, write_png
+    from progressive.output import Outputs, check_outputs, png_writer
     from progressive.session import Session, SessionOptions
 
-    check_writable(args.out)
+    check_outputs([args.out], paths)
     options = SessionOptions(width=args.width, height=args.height, color_by=args.color_by, partial=args.partial,
-                             gpu_memory_limit=args.gpu_memory_limit)
-    with Session(paths, options) as session:
+                             gpu_memory_limit=args.gpu_memory_limit, value_range=args.value_range)
+    with Session(paths, options) as session, Outputs() as outputs:
         camera = session.auto_camera()
         frames = 0
         while not session.converged and frames < MAX_HEADLESS_FRAMES:
@@ -345,26 +369,36 @@ def _view_headless(paths: list[str], effects, args) -> int:
             session.stats()
             frames += 1
         for w in session.warnings:
-            print(f"progressive: warning: {w}", file=sys.stderr)
-        write_png(args.out, session.image())
+            warn(w)
+        outputs.write(args.out, png_writer(session.image()))
         state = "exact" if session.converged else "not converged"
-        print(f"wrote {Path(args.out).resolve()} ({session.info.points:,} points, {state} after {frames} frames, "
-              f"first image {session.first_image_seconds:.2f} s after opening)")
+        commit_saying(outputs, f"wrote {Path(args.out).resolve()} ({session.info.points:,} points, {state} after "
+                               f"{frames} frames, first image {session.first_image_seconds:.2f} s after opening)")
     return 0
+
+
+def commit_saying(outputs, message: str) -> None:
+    """Print the final message, then commit: a message that cannot be written (stdout
+    on a full disk, a closed pipe) fails the run, and the outputs are removed."""
+    try:
+        print(message, flush=True)
+    except OSError as exc:
+        raise UsageError(f"cannot write to standard output: {exc.strerror or exc}") from None
+    outputs.commit()
 
 
 def cmd_convert(args) -> int:
     from progressive.attributes import default_attribute, find_attribute
     from progressive.loaders import CloudLoader, write_fast
-    from progressive.output import check_writable
+    from progressive.output import Outputs, check_outputs
 
-    check_writable(args.output)
-    with CloudLoader(args.inputs, partial=args.partial) as loader:
+    check_outputs([args.output], args.inputs)
+    with CloudLoader(args.inputs, partial=args.partial) as loader, Outputs() as outputs:
         info = loader.info
         attr = find_attribute(info, args.attribute) if args.attribute else default_attribute(info)
         loader.start()
-        write_fast(args.output, loader, info, attr)
-    print(f"wrote {info.points:,} points ({attr.name}) to {args.output}")
+        write_fast(outputs.reserve(args.output), loader, info, attr)
+        commit_saying(outputs, f"wrote {info.points:,} points ({attr.name}) to {args.output}")
     return 0
 
 
@@ -420,24 +454,66 @@ def build_parser() -> Parser:
     return parser
 
 
+class Interrupted(BaseException):
+    """A signal that ends the run, raised in the main thread so that every `finally`
+    and cleanup (temporary outputs, loader threads, the GL context) runs."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+EXIT_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
+@contextlib.contextmanager
+def signals_raise():
+    """For one run: SIGINT, SIGTERM and SIGHUP raise Interrupted (once; later ones are
+    ignored so that the cleanup is not cut short). Signals the caller ignores (nohup)
+    stay ignored; the previous handlers come back after."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handle(signum, frame):
+        for s in previous:
+            signal.signal(s, signal.SIG_IGN)
+        raise Interrupted(signum)
+
+    previous = {s: signal.getsignal(s) for s in EXIT_SIGNALS if signal.getsignal(s) is not signal.SIG_IGN}
+    try:
+        for s in previous:
+            signal.signal(s, handle)
+        yield
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
+
+
 def main(argv: list[str] | None = None) -> int:
     try:
-        if argv is None:
-            argv = sys.argv[1:]
+        with signals_raise():
+            return _main(sys.argv[1:] if argv is None else argv)
+    except Interrupted as exc:
+        return 128 + exc.signum
+    except KeyboardInterrupt:
+        return 128 + signal.SIGINT
+
+
+def _main(argv: list[str]) -> int:
+    try:
         if len(argv) == 2 and argv[0] == "convert":
             raise UsageError("convert needs at least one input and one output")
         args = build_parser().parse_args(argv)
         if args.command == "render" and not (args.out or args.ids or args.stats or args.save_camera):
             raise UsageError("render needs --out (or --ids/--stats/--save-camera)")
         return args.func(args)
-    except ProgressiveError as exc:
-        print(f"progressive: error: {exc}", file=sys.stderr)
-        return 2
-    except (OSError, MemoryError) as exc:
-        print(f"progressive: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        return 130
+    except (ProgressiveError, OSError) as exc:
+        error = exc
+    except MemoryError:
+        error = "out of memory"
+    print(f"progressive: error: {one_line(error)}", file=sys.stderr)
+    return 2
 
 
 if __name__ == "__main__":
