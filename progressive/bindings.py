@@ -35,6 +35,7 @@ class Binding(enum.IntEnum):
     PIXEL_WORDS = 24        # per pixel: attribute word of the visible point
     DILATED = 25            # point-size pass output, laid out as VISIBILITY
     DILATED_WORDS = 26      # point-size pass output, laid out as PIXEL_WORDS
+    HISTOGRAM = 27          # percentile select counts (passes/percentile.py)
 
     @classmethod
     def points(cls, chunk: int) -> Binding:

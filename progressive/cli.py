@@ -340,6 +340,7 @@ def cmd_view(args) -> int:
 
         try:
             viewer = Viewer(paths, ViewerOptions(width=args.width, height=args.height, color_by=args.color_by,
+                                                 value_range=args.value_range,
                                                  partial=args.partial, gpu_memory_limit=args.gpu_memory_limit,
                                                  ui=not args.no_ui, effects=effects, hidden_classes=args.hide_classes))
         except GLCapabilityError as exc:

@@ -82,27 +82,23 @@ def classification_lut() -> np.ndarray:
     return rgba8(colours)
 
 
+NO_RANGE = (0.0, 1.0)
+"""The range of a style with nothing to range over (no scalar, or no finite value)."""
+
+
 @dataclass(frozen=True)
 class ColorStyle:
     mode: ColorMode
     palette: tuple[int, ...]          # 256 RGBA8 words
     value_range: tuple[float, float]  # scalar values (value - attribute offset) at the palette ends
     background: int                   # RGBA8
+    automatic: bool = False           # value_range is the cloud's percentile range, kept current by the renderer
 
     @classmethod
-    def for_attribute(cls, attr: AttributeInfo, value_range: tuple[float, float] = (0.0, 1.0),
-                      colormap: Colormap = Colormap.VIRIDIS, background: tuple[int, int, int] = (0, 0, 0)) -> ColorStyle:
+    def for_attribute(cls, attr: AttributeInfo, value_range: tuple[float, float] = NO_RANGE,
+                      colormap: Colormap = Colormap.VIRIDIS, background: tuple[int, int, int] = (0, 0, 0),
+                      automatic: bool = False) -> ColorStyle:
         mode = ColorMode.for_kind(attr.kind)
         lut = classification_lut() if mode is ColorMode.CATEGORY else colormap_lut(colormap)
         bg = int(rgba8(np.array([background]))[0])
-        return cls(mode, tuple(int(v) for v in lut), (float(value_range[0]), float(value_range[1])), bg)
-
-
-def robust_range(values: np.ndarray, low_pct: float = 1.0, high_pct: float = 99.0) -> tuple[float, float]:
-    """Percentile range of the finite values; (0, 1) when there are none."""
-    v = np.asarray(values, dtype=np.float64)
-    v = v[np.isfinite(v)]
-    if v.size == 0:
-        return (0.0, 1.0)
-    lo, hi = np.percentile(v, [low_pct, high_pct])
-    return (float(lo), float(hi))
+        return cls(mode, tuple(int(v) for v in lut), (float(value_range[0]), float(value_range[1])), bg, automatic)

@@ -143,6 +143,7 @@ class ProgressiveRenderer:
         for _ in range(min(self.options.batches_per_frame, len(self.pending))):
             self.scene.add_batch(self.pending.popleft())
             passes.append("distribute")
+        style = self.scene.resolved(style)
         hidden = self.scene.drawable(hidden)
         moved = (camera, hidden) != self._camera
         if passes or moved:

@@ -44,3 +44,10 @@ def plan(points: int, caps: Capabilities, pixels: int, limit_bytes: int | None =
     overhead = pixels * PIXEL_BYTES + BATCH_POINTS * RECORD_BYTES
     capacity = max(0, min(points, (available - overhead) // RECORD_BYTES))
     return MemoryPlan(points, capacity, available, source)
+
+
+def peak_rss_bytes() -> int:
+    """The process's peak resident memory so far (Linux reports KiB)."""
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024

@@ -82,6 +82,7 @@ class Renderer:
     def render(self, camera: Camera, width: int, height: int, style: ColorStyle,
                effects: Effects = Effects(), hidden: frozenset[int] = frozenset()) -> Frame:
         self.vis.resize(width, height)
+        style = self.scene.resolved(style)
         view = view_uniforms(camera, self.info.origin, width, height, self.scene.drawable(hidden))
         t = self.timestamps
         t.reset()

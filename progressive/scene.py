@@ -1,25 +1,28 @@
 """A cloud on the GPU: the shuffled store, the distribute pass that fills it, and the
-attribute shown (with the samples its colour range comes from). With `keep_batches`
+attribute shown (with the exact percentile range it is coloured over). With `keep_batches`
 the loaded struct-of-arrays stays in host memory, so the shown attribute can be
 switched by streaming one word a point (paper 3.5) instead of reloading the file."""
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from progressive.colors import Colormap, ColorStyle, robust_range
+from progressive.colors import NO_RANGE, Colormap, ColorMode, ColorStyle
 from progressive.context import GLContext
 from progressive.errors import ProgressiveError
 from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, CloudInfo, nonfinite_records
 from progressive.packing import attribute_word, pack_records
 from progressive.passes.distribute import DistributePass
+from progressive.passes.percentile import PercentilePass
 from progressive.permutation import FillOrder
 from progressive.pointstore import PointStore
 
-RANGE_SAMPLE_PER_BATCH = 20_000
+RANGE_GROWTH = 2
+"""While loading, the colour range is taken anew each time the loaded points have
+grown this many times over (and once loading is complete): O(log n) selects."""
 
 
 @dataclass
@@ -62,7 +65,9 @@ class Scene:
         self.keep_batches = keep_batches
         self.batches: list[Batch] = []
         self.switch: AttributeSwitch | None = None
-        self._samples: list[np.ndarray] = []
+        self._percentile: PercentilePass | None = None
+        self._range: tuple[float, float] | None = None
+        self._range_loaded = 0      # points loaded when the range was taken (0: not taken for this attribute)
 
     @property
     def complete(self) -> bool:
@@ -73,16 +78,10 @@ class Scene:
         records = pack_records(batch, self.attribute, float(self.info.origin[2]))
         self.skipped += nonfinite_records(records)[0]     # what shaders/common.glsl finite_position skips
         self.distribute.upload(records, batch.start)
-        self._sample(records[:, 3])
         if self.keep_batches:
             self.batches.append(batch)
         self.loaded += batch.count
         self.upload_seconds += time.perf_counter() - t0
-
-    def _sample(self, words: np.ndarray) -> None:
-        if self.attribute.kind is AttributeKind.SCALAR:
-            step = max(1, words.shape[0] // RANGE_SAMPLE_PER_BATCH)
-            self._samples.append(words[::step].view(np.float32))
 
     def begin_switch(self, attribute: AttributeInfo) -> AttributeSwitch:
         """Show `attribute` from now on: batches loaded later are packed with it, and
@@ -97,7 +96,7 @@ class Scene:
         previous = (*old.previous, old.attribute) if old and not old.done else (self.attribute,)
         self.switch = AttributeSwitch(attribute, previous, len(self.batches), sum(b.count for b in self.batches))
         self.attribute = attribute
-        self._samples = []
+        self._range, self._range_loaded = None, 0
         self.skipped = 0
         return self.switch
 
@@ -122,7 +121,6 @@ class Scene:
                 words = attribute_word(batch, sw.attribute, origin_z)
                 self.distribute.upload_words(words, batch.start)
                 self.skipped += batch.nonfinite_positions
-            self._sample(words)
             sw.next_batch += 1
             sw.streamed += batch.count
         sw.seconds += time.perf_counter() - t0
@@ -148,18 +146,39 @@ class Scene:
         """The switch in progress rewrote whole records: which points are drawn changed."""
         return self.switch is not None and self.switch.records > 0
 
-    def value_range(self) -> tuple[float, float]:
-        """Robust (1-99 %) range of the packed scalar values seen so far."""
-        if not self._samples:
-            return (0.0, 1.0)
-        return robust_range(np.concatenate(self._samples))
+    def value_range(self) -> tuple[float, float] | None:
+        """The colour contract's range of a scalar: the 1st and 99th percentiles (numpy's
+        linear method) of the stored values of every drawn point, exact. Taken after the
+        first batch, whenever the loaded points have grown RANGE_GROWTH times since, and
+        when loading completes; during an attribute switch the last one stays until the
+        words are all rewritten. None for other kinds, or with no finite value loaded."""
+        if self.attribute.kind is not AttributeKind.SCALAR:
+            return None
+        switching = self.switch is not None and not self.switch.done
+        grown = self.loaded >= RANGE_GROWTH * self._range_loaded or self.complete
+        if not switching and self.loaded > self._range_loaded and grown:
+            self._percentile = self._percentile or PercentilePass(self.glc, self.store)
+            self._range, self._range_loaded = self._percentile.run(), self.loaded
+        return self._range
 
     def style(self, colormap: Colormap = Colormap.VIRIDIS, background=(0, 0, 0),
               value_range: tuple[float, float] | None = None) -> ColorStyle:
-        """`value_range`: scalar values at the colormap's ends (default: the robust range)."""
-        return ColorStyle.for_attribute(self.attribute, value_range or self.value_range(), colormap, background)
+        """`value_range`: scalar values (less the attribute's offset) at the colormap's
+        ends; None: the contract's range, which `resolved` keeps current."""
+        automatic = value_range is None
+        taken = self.value_range() if automatic else value_range
+        return ColorStyle.for_attribute(self.attribute, taken or NO_RANGE, colormap, background, automatic=automatic)
+
+    def resolved(self, style: ColorStyle) -> ColorStyle:
+        """`style` with its automatic range as it stands now (renderers call this after
+        distributing, so an image shows the range of the points it was drawn from)."""
+        if not style.automatic or style.mode is not ColorMode.SCALAR:
+            return style
+        return replace(style, value_range=self.value_range() or NO_RANGE)
 
     def release(self) -> None:
+        if self._percentile is not None:
+            self._percentile.release()
         self.distribute.release()
         self.store.release()
         self.batches.clear()

@@ -26,6 +26,7 @@ from progressive.context import GLContext, create_context
 from progressive.effects import Effects
 from progressive.frame_loop import FrameStats, ProgressiveOptions, ProgressiveRenderer
 from progressive.loaders import CloudLoader
+from progressive.loaders.types import AttributeKind
 from progressive.pointstore import GPUMemoryError
 from progressive.renderer import Frame, Raster, Renderer
 from progressive.scene import AttributeSwitch
@@ -52,6 +53,7 @@ class SessionOptions:
     chunk_points: int | None = None
     gpu_memory_limit: int | None = None     # bytes; the free memory the driver reports also counts
     switchable: bool = False                # keep every attribute in host memory to switch without reloading
+    value_range: tuple[float, float] | None = None   # the first attribute's values at the colormap's ends; None: percentiles
 
 
 class Session:
@@ -59,6 +61,7 @@ class Session:
         self.options = options
         self.opened = time.perf_counter()
         self.loader = CloudLoader(paths, partial=options.partial)
+        self._given_range = options.value_range
         self._early: list = []
         self._notes: list[str] = []
         try:
@@ -132,9 +135,23 @@ class Session:
 
     def style(self, colormap: Colormap | None = None, value_range: tuple[float, float] | None = None,
               background: tuple[int, int, int] | None = None) -> ColorStyle:
-        """The options' colouring, or the one given (a viewer's controls)."""
+        """The options' colouring, or the one given (a viewer's controls). `value_range`:
+        values at the colormap's ends in the attribute's units; None: the given range
+        of the options, else the colour contract's percentiles."""
+        chosen = value_range or self._given_range
+        offset_range = None if chosen is None else (chosen[0] - self.attribute.offset, chosen[1] - self.attribute.offset)
         return self.renderer.scene.style(colormap or self.options.colormap, background or self.options.background,
-                                         value_range)
+                                         offset_range)
+
+    def color_range(self, value_range: tuple[float, float] | None = None) -> tuple[float, float] | None:
+        """The scalar values at the colormap's ends, in the attribute's units, for the
+        range given (as to `style`); None when the attribute is not a scalar or no
+        finite value has loaded."""
+        chosen = value_range or self._given_range
+        if chosen is not None or self.attribute.kind is not AttributeKind.SCALAR:
+            return chosen if self.attribute.kind is AttributeKind.SCALAR else None
+        taken = self.renderer.scene.value_range()
+        return None if taken is None else (taken[0] + self.attribute.offset, taken[1] + self.attribute.offset)
 
     def switch_attribute(self, name: str) -> AttributeSwitch:
         """Colour by another attribute (needs SessionOptions.switchable). Progressive
@@ -142,6 +159,7 @@ class Session:
         attribute = find_attribute(self.info, name)
         self.renderer.switch_attribute(attribute)
         self.attribute = attribute
+        self._given_range = None
         return self.renderer.scene.switch
 
     def set_budget(self, params: BudgetParams) -> None:

@@ -50,6 +50,7 @@ class ViewerOptions:
     width: int = 1280
     height: int = 720
     color_by: str | None = None
+    value_range: tuple[float, float] | None = None   # the first attribute's values at the colormap's ends
     partial: bool = False
     gpu_memory_limit: int | None = None
     effects: Effects = Effects()        # the first point size and eye-dome lighting
@@ -124,7 +125,8 @@ class Viewer:
         try:
             session = Session(paths, SessionOptions(
                 width=width, height=height, budget=self._budget(), color_by=self.options.color_by,
-                partial=self.options.partial, gpu_memory_limit=self.options.gpu_memory_limit, switchable=True),
+                partial=self.options.partial, gpu_memory_limit=self.options.gpu_memory_limit, switchable=True,
+                value_range=self.options.value_range),
                 glc=self.glc)
         except (ProgressiveError, OSError) as exc:
             self.fail(str(exc))

@@ -49,7 +49,7 @@ class BudgetMode(enum.Enum):
 class ViewSettings:
     attribute: str = ""
     colormap: Colormap = Colormap.VIRIDIS
-    value_range: tuple[float, float] | None = None     # None: robust 1-99 % of the data
+    value_range: tuple[float, float] | None = None     # in the attribute's units; None: the 1st-99th percentiles
     hidden_classes: frozenset[int] = frozenset()
     point_size: int = 1
     eye_dome: bool = False

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 from imgui_bundle import imgui
 
-from progressive.colors import ASPRS_CLASSES, UNKNOWN_CLASS, Colormap, ColorMode
+from progressive.colors import ASPRS_CLASSES, NO_RANGE, UNKNOWN_CLASS, Colormap, ColorMode
 from progressive.effects import MAX_POINT_SIZE, EyeDome
 from progressive.loaders.types import AttributeKind
 from progressive.viewer.controls import KEYS, MOUSE_HELP, BudgetMode
@@ -108,11 +108,11 @@ class Panel:
                                          [c.name.lower() for c in COLORMAPS])
             if changed:
                 v.settings = replace(v.settings, colormap=COLORMAPS[index])
-            lo, hi = v.settings.value_range or s.renderer.scene.value_range()
+            lo, hi = s.color_range(v.settings.value_range) or NO_RANGE
             speed = max(abs(hi - lo), 1e-6) / 200.0
-            changed, values = imgui.drag_float2("range", [lo + attribute.offset, hi + attribute.offset], speed)
+            changed, values = imgui.drag_float2("range", [lo, hi], speed)
             if changed:
-                v.settings = replace(v.settings, value_range=(values[0] - attribute.offset, values[1] - attribute.offset))
+                v.settings = replace(v.settings, value_range=(values[0], values[1]))
             imgui.same_line()
             if imgui.small_button("auto"):
                 v.settings = replace(v.settings, value_range=None)

@@ -1,0 +1,214 @@
+"""The colour contract, held against an independent reference: the rendered PNG's
+pixels against laspy's values of the points the ids name, numpy's percentiles of
+every point and matplotlib's colormaps, for every rasterizer, both methods, every
+attribute kind and several files at once."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import laspy
+import matplotlib
+import numpy as np
+import pytest
+from PIL import Image
+
+from conftest import SAMPLE, shared_file
+from progressive.cli import main
+from progressive.colors import ASPRS_CLASSES, UNKNOWN_CLASS
+from progressive.loaders.types import BATCH_POINTS
+
+W, H = 200, 150
+EMPTY = 0xFFFFFFFF
+PERCENTILES = (1.0, 99.0)
+
+
+def render(tmp_path: Path, files: list[Path], *args: str) -> tuple[np.ndarray, np.ndarray, dict]:
+    out, ids, stats = tmp_path / "out.png", tmp_path / "ids.npy", tmp_path / "stats.json"
+    code = main(["render", *map(str, files), "--width", str(W), "--height", str(H), "--out", str(out),
+                 "--ids", str(ids), "--stats", str(stats), *args])
+    assert code == 0
+    image = np.asarray(Image.open(out).convert("RGB")).astype(np.int32)
+    return image, np.load(ids), json.loads(stats.read_text())
+
+
+def las_values(las: laspy.LasData, name: str) -> np.ndarray:
+    """What a user means by the attribute, straight from laspy, in float64."""
+    if name == "elevation":
+        return np.asarray(las.z, dtype=np.float64)
+    element = re.fullmatch(r"(.+)\[(\d+)\]", name)
+    if element:
+        return np.asarray(las[element.group(1)], dtype=np.float64)[:, int(element.group(2))]
+    return np.asarray(las[name], dtype=np.float64)
+
+
+def las_rgb(las: laspy.LasData) -> np.ndarray:
+    """8 bits decided per file: 16-bit (shifted right by 8) iff a channel among the
+    file's first BATCH_POINTS points exceeds 255, else 8-bit, clipped."""
+    rgb = np.stack([np.asarray(las[c], dtype=np.int64) for c in ("red", "green", "blue")], axis=1)
+    return np.minimum(rgb >> 8 if rgb[:BATCH_POINTS].max() > 255 else rgb, 255)
+
+
+def shown(image: np.ndarray, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    covered = ids != EMPTY
+    assert np.count_nonzero(covered) >= 500, "the view shows too few points to test colours"
+    return image[covered], ids[covered].astype(np.int64)
+
+
+def palette(colormap: str) -> np.ndarray:
+    """matplotlib's 256 entries of the colormap, as 0-255 integers."""
+    return np.round(matplotlib.colormaps[colormap](np.arange(256))[:, :3] * 255).astype(np.int32)
+
+
+def assert_scalar_colours(image, ids, values: np.ndarray, value_range, colormap="viridis") -> None:
+    """Each covered pixel is the colormap at its point's value over the range: the
+    palette index may differ by one where GPU float rounding meets an index boundary,
+    a channel by one where two libraries round the same colormap."""
+    pixels, which = shown(image, ids)
+    lo, hi = value_range
+    t = np.clip((values[which] - lo) / (hi - lo), 0.0, 1.0) if hi > lo else np.full(which.size, 0.5)
+    index = np.floor(t * 255.0 + 0.5).astype(np.int64)
+    lut = palette(colormap)
+    error = np.min([np.abs(pixels - lut[np.clip(index + k, 0, 255)]).max(axis=1) for k in (-1, 0, 1)], axis=0)
+    exact = np.abs(pixels - lut[index]).max(axis=1) <= 1
+    assert error.max() <= 1, f"{np.count_nonzero(error > 1)} of {which.size} pixels have another colour"
+    assert exact.mean() > 0.99
+
+
+def reference_range(values: np.ndarray) -> tuple[float, float]:
+    finite = values[np.isfinite(values)]
+    lo, hi = np.percentile(finite, PERCENTILES)
+    return float(lo), float(hi)
+
+
+def assert_range(stats: dict, expected: tuple[float, float]) -> None:
+    """The range in --stats is numpy's percentile of every point (to float32 rounding of
+    the stored values)."""
+    got = stats["color_range"]
+    span = max(expected[1] - expected[0], abs(expected[1]), 1.0)
+    assert got == pytest.approx(expected, abs=1e-6 * span)
+
+
+def cloud(files: list[Path]) -> list[laspy.LasData]:
+    return [laspy.read(f) for f in files]
+
+
+def concat(parts: list[np.ndarray]) -> np.ndarray:
+    return np.concatenate(parts, axis=0)
+
+
+RASTER_METHODS = [(r, m) for r in ("compute", "compute32", "points") for m in ("brute", "progressive")]
+
+
+def method_args(method: str) -> list[str]:
+    return ["--method", method, "--converge"] if method == "progressive" else ["--method", method]
+
+
+@pytest.mark.parametrize("raster, method", RASTER_METHODS)
+def test_elevation_every_rasterizer_and_method(tmp_path, raster, method):
+    las = laspy.read(SAMPLE)
+    image, ids, stats = render(tmp_path, [SAMPLE], "--color-by", "elevation", "--raster", raster, *method_args(method))
+    values = las_values(las, "elevation")
+    expected = reference_range(values)
+    assert_range(stats, expected)
+    assert_scalar_colours(image, ids, values, expected)
+
+
+@pytest.mark.parametrize("name", ["intensity", "gps_time", "return_number", "point_source_id"])
+def test_scalar_attributes(tmp_path, name):
+    las = laspy.read(SAMPLE)
+    image, ids, stats = render(tmp_path, [SAMPLE], "--color-by", name)
+    values = las_values(las, name)
+    expected = reference_range(values)
+    assert_range(stats, expected)
+    assert_scalar_colours(image, ids, values, expected)
+
+
+@pytest.mark.parametrize("colormap", ["inferno", "plasma", "turbo", "gray"])
+def test_colormaps(tmp_path, colormap):
+    las = laspy.read(SAMPLE)
+    flag = "grayscale" if colormap == "gray" else colormap
+    image, ids, stats = render(tmp_path, [SAMPLE], "--color-by", "intensity", "--colormap", flag)
+    values = las_values(las, "intensity")
+    assert_scalar_colours(image, ids, values, reference_range(values), colormap)
+
+
+@pytest.mark.parametrize("raster, method", [("compute", "brute"), ("points", "progressive")])
+def test_rgb_and_classification(tmp_path, raster, method):
+    las = laspy.read(SAMPLE)
+    image, ids, stats = render(tmp_path, [SAMPLE], "--raster", raster, *method_args(method))
+    assert stats["attribute"] == "rgb" and stats["color_range"] is None
+    pixels, which = shown(image, ids)
+    assert np.array_equal(pixels, las_rgb(las)[which])
+
+    image, ids, stats = render(tmp_path, [SAMPLE], "--color-by", "classification", "--raster", raster,
+                               *method_args(method))
+    table = np.array([ASPRS_CLASSES.get(c, (None, UNKNOWN_CLASS))[1] for c in range(256)])
+    pixels, which = shown(image, ids)
+    assert np.array_equal(pixels, table[np.asarray(las.classification, dtype=np.int64)[which]])
+
+
+def test_given_range(tmp_path):
+    las = laspy.read(SAMPLE)
+    image, ids, stats = render(tmp_path, [SAMPLE], "--color-by", "elevation", "--range", "420,460")
+    assert stats["color_range"] == [420.0, 460.0]
+    assert_scalar_colours(image, ids, las_values(las, "elevation"), (420.0, 460.0))
+
+
+def test_fast_format_colours_its_stored_attribute(tmp_path, fast_sample):
+    las = laspy.read(SAMPLE)
+    image, ids, stats = render(tmp_path, [fast_sample])
+    assert stats["attribute"] == "intensity"
+    values = las_values(las, "intensity")
+    assert_range(stats, reference_range(values))
+    assert_scalar_colours(image, ids, values, reference_range(values))
+
+
+def test_several_files_are_one_range_and_one_rgb_rule_each(tmp_path):
+    """Two files: the percentiles are over both, RGB depth is each file's own."""
+    files = [SAMPLE, shared_file("extrabytes.las")]
+    parts = cloud(files)
+    for method in ("brute", "progressive"):
+        image, ids, stats = render(tmp_path, files, "--color-by", "elevation", *method_args(method))
+        values = concat([las_values(p, "elevation") for p in parts])
+        expected = reference_range(values)
+        assert_range(stats, expected)
+        assert_scalar_colours(image, ids, values, expected)
+    image, ids, stats = render(tmp_path, files)
+    pixels, which = shown(image, ids)
+    assert np.array_equal(pixels, concat([las_rgb(p) for p in parts])[which])
+
+
+def test_sixteen_bit_rgb_file(tmp_path):
+    path = shared_file("lion_takanawa.copc.laz")
+    las = laspy.read(path)
+    image, ids, _ = render(tmp_path, [path])
+    pixels, which = shown(image, ids)
+    assert np.array_equal(pixels, las_rgb(las)[which])
+
+
+@pytest.mark.parametrize("name, attribute", [("las_with_several_extra_byte_bloc.laz", "Deviation"),
+                                             ("extrabytes.las", "Colors[1]"),
+                                             ("wires.laz", "elevation")])
+def test_real_files(tmp_path, name, attribute):
+    path = shared_file(name)
+    las = laspy.read(path)
+    image, ids, stats = render(tmp_path, [path], "--color-by", attribute)
+    values = las_values(las, attribute)
+    expected = reference_range(values)
+    assert_range(stats, expected)
+    assert_scalar_colours(image, ids, values, expected)
+
+
+def test_default_without_rgb_is_coloured_over_every_point(tmp_path):
+    """pine_plot has no RGB and all-zero intensity: the default moves on to elevation,
+    coloured over the whole cloud's percentiles, not the first batch's."""
+    path = shared_file("pine_plot.laz")
+    las = laspy.read(path)
+    image, ids, stats = render(tmp_path, [path])
+    assert stats["attribute"] == "elevation"
+    values = las_values(las, "elevation")
+    assert_range(stats, reference_range(values))
+    assert_scalar_colours(image, ids, values, reference_range(values))
