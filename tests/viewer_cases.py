@@ -11,6 +11,7 @@ import shutil
 import subprocess
 import sys
 import time
+from dataclasses import replace
 
 import glfw
 import laspy
@@ -18,6 +19,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from colour_reference import assert_scalar_colours, las_values, reference_range
 from conftest import SAMPLE
 from progressive.camera import Camera
 from progressive.reference import EMPTY
@@ -126,6 +128,25 @@ def test_switching_attribute_changes_the_image_and_streams_the_words(viewer):
                                for b in sorted(s.renderer.scene.batches, key=lambda b: b.start)])
     slots = s.renderer.store.permutation.forward(np.arange(s.info.points))
     np.testing.assert_array_equal(words[slots], expected)
+    no_gl_error(viewer)
+
+
+def test_colours_follow_the_contract_after_a_switch(viewer):
+    """The window's image, switched to elevation, coloured over the whole cloud's
+    percentiles (laspy, numpy, matplotlib); a range set in the panel is used as given."""
+    settle(viewer)
+    viewer.switch_attribute("elevation")
+    settle(viewer)
+    las = laspy.read(SAMPLE)
+    values = las_values(las, "elevation")
+    expected = reference_range(values)
+    assert viewer.session.color_range() == pytest.approx(expected, abs=1e-4)
+    image, ids = viewer.session.image()[:, :, :3].astype(np.int32), viewer.session.ids()
+    assert_scalar_colours(image, ids, values, expected)
+    viewer.settings = replace(viewer.settings, value_range=(420.0, 460.0))
+    viewer.step()
+    image = viewer.session.image()[:, :, :3].astype(np.int32)
+    assert_scalar_colours(image, ids, values, (420.0, 460.0))
     no_gl_error(viewer)
 
 
