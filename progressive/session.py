@@ -181,8 +181,7 @@ class Session:
     def _pump(self, block: bool) -> None:
         if not self.loading:
             return
-        batches = list(self.loader) if block else self.loader.poll()
-        for b in batches:
+        for b in self.loader if block else self.loader.poll():      # one batch at a time: host memory stays bounded
             self.renderer.add_batch(b)
         if self.load_seconds is None and self.loader.done:
             self.load_seconds = time.perf_counter() - self.opened

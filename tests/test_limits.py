@@ -188,3 +188,40 @@ def test_tiny_clouds_render_and_converge(tmp_path, capsys):
         assert code == 0, capsys.readouterr().err
         assert np.array_equal(np.load(brute), np.load(prog))
         assert 0 < (np.load(brute) != EMPTY).sum() <= n
+
+
+def tiled(path, copies: int) -> None:
+    """The bundled sample side by side `copies` times (the points of a larger survey)."""
+    las = laspy.read(SAMPLE)
+    header = laspy.LasHeader(point_format=las.header.point_format, version=las.header.version)
+    header.scales, header.offsets = las.header.scales, las.header.offsets
+    with laspy.open(path, mode="w", header=header) as w:
+        for k in range(copies):
+            p = las.points.copy()
+            p.X = p.X + (k % 8) * 60_000
+            p.Y = p.Y + (k // 8) * 60_000
+            w.write_points(p)
+
+
+def peak_rss(path, tmp_path, *args) -> int:
+    """--stats' peak resident memory of a render in a process of its own."""
+    import subprocess
+    import sys
+
+    stats = tmp_path / f"{path.stem}.json"
+    subprocess.run([sys.executable, "-m", "progressive", "render", str(path), "--color-by", "elevation", *SMALL,
+                    "--stats", str(stats), *args], check=True, capture_output=True, timeout=300)
+    return json.loads(stats.read_text())["peak_rss_bytes"]
+
+
+def test_host_memory_does_not_grow_with_the_cloud(tmp_path):
+    """With the GPU limited to a small subset, rendering twice the points takes about
+    the same host memory: the pipeline holds a bounded number of batches (about nine
+    of them at 4.4 M points; a brute-force render used to hold every batch at once)."""
+    small, large = tmp_path / "small.las", tmp_path / "large.las"
+    tiled(small, 40)
+    tiled(large, 80)
+    limit = ["--gpu-memory-limit", "16M"]
+    growth = peak_rss(large, tmp_path, *limit) - peak_rss(small, tmp_path, *limit)
+    one_batch = memory.BATCH_POINTS * 90        # raw records, positions and attributes of one batch, roughly
+    assert growth < one_batch, f"peak RSS grew by {growth / 2**20:.0f} MiB for 4.4 M more points"
