@@ -115,6 +115,13 @@ class ProgressiveRenderer:
         """Queue a loaded batch; frames distribute a bounded number each."""
         self.pending.append(batch)
 
+    @property
+    def wanted_batches(self) -> int:
+        """Batches the next frame will distribute beyond those queued: taking no more
+        leaves the rest in the loader's bounded queues, so host memory stays bounded
+        when loading outruns the frames."""
+        return max(0, self.options.batches_per_frame - len(self.pending))
+
     def resize(self, width: int, height: int) -> None:
         if (width, height) != (self.vis.width, self.vis.height):
             self.vis.resize(width, height)

@@ -181,7 +181,8 @@ class Session:
     def _pump(self, block: bool) -> None:
         if not self.loading:
             return
-        for b in self.loader if block else self.loader.poll():      # one batch at a time: host memory stays bounded
+        batches = self.loader if block else self.loader.poll(self.renderer.wanted_batches)
+        for b in batches:       # one at a time, as many as frames take: host memory stays bounded
             self.renderer.add_batch(b)
         if self.load_seconds is None and self.loader.done:
             self.load_seconds = time.perf_counter() - self.opened
