@@ -18,7 +18,10 @@ import numpy as np
 from progressive.errors import ProgressiveError
 
 MAX_SIZE = 16384
+MAX_FRAMES = 16384
+"""Frames of --frames, --max-frames and cameras of --camera-path."""
 MAX_HEADLESS_FRAMES = 1000
+SHOWN_CHARS = 40
 
 
 class UsageError(ProgressiveError):
@@ -37,25 +40,50 @@ def sample_path() -> Path:
     return Path(str(resources.files("progressive.data").joinpath("autzen_trim.las")))
 
 
+def shown(text: str) -> str:
+    """A value as a message quotes it: cut short (5,000 digits would fill the screen),
+    control characters escaped."""
+    return repr(text if len(text) <= SHOWN_CHARS else text[:SHOWN_CHARS] + "...")
+
+
 def enum_arg(cls: type[enum.Enum]):
     def parse(text: str):
         try:
             return cls[text.upper().replace("-", "_")]
         except KeyError:
             choices = ", ".join(m.name.lower() for m in cls)
-            raise argparse.ArgumentTypeError(f"'{text}' is not one of: {choices}") from None
+            raise argparse.ArgumentTypeError(f"{shown(text)} is not one of: {choices}") from None
     parse.__name__ = cls.__name__.lower()
     return parse
 
 
-def size_arg(text: str) -> int:
+def int_arg(text: str) -> int:
     try:
-        value = int(text)
+        return int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"'{text}' is not an integer") from None
-    if not 1 <= value <= MAX_SIZE:
-        raise argparse.ArgumentTypeError(f"{value} is outside 1..{MAX_SIZE}")
-    return value
+        raise argparse.ArgumentTypeError(f"{shown(text)} is not an integer") from None
+
+
+def float_arg(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{shown(text)} is not a number") from None
+
+
+def bounded_int(limit: int):
+    """An integer in 1..limit."""
+    def parse(text: str) -> int:
+        value = int_arg(text)
+        if not 1 <= value <= limit:
+            raise argparse.ArgumentTypeError(f"{shown(text)} is outside 1..{limit}")
+        return value
+    parse.__name__ = "integer"
+    return parse
+
+
+size_arg = bounded_int(MAX_SIZE)
+frames_arg = bounded_int(MAX_FRAMES)
 
 
 def rgb_arg(text: str) -> tuple[int, int, int]:
@@ -65,7 +93,7 @@ def rgb_arg(text: str) -> tuple[int, int, int]:
     except ValueError:
         values = ()
     if len(values) != 3 or not all(0 <= v <= 255 for v in values):
-        raise argparse.ArgumentTypeError(f"'{text}' is not R,G,B with values 0..255")
+        raise argparse.ArgumentTypeError(f"{shown(text)} is not R,G,B with values 0..255")
     return values
 
 
@@ -75,7 +103,7 @@ def classes_arg(text: str) -> frozenset[int]:
     except ValueError:
         codes = frozenset({-1})
     if not codes or not all(0 <= c <= 255 for c in codes):
-        raise argparse.ArgumentTypeError(f"'{text}' is not a comma-separated list of class codes 0..255")
+        raise argparse.ArgumentTypeError(f"{shown(text)} is not a comma-separated list of class codes 0..255")
     return codes
 
 
@@ -117,10 +145,10 @@ def add_cloud_args(parser) -> None:
 
 def add_look_args(parser) -> None:
     """Options shared by render and view: effects and hidden classes."""
-    parser.add_argument("--point-size", type=int, default=1, help="pixels across a point (a screen-space pass)")
+    parser.add_argument("--point-size", type=int_arg, default=1, help="pixels across a point (a screen-space pass)")
     parser.add_argument("--eye-dome", action="store_true", help="eye-dome lighting")
-    parser.add_argument("--eye-dome-strength", type=float, default=1.0)
-    parser.add_argument("--eye-dome-radius", type=float, default=1.4, help="pixels")
+    parser.add_argument("--eye-dome-strength", type=float_arg, default=1.0)
+    parser.add_argument("--eye-dome-radius", type=float_arg, default=1.4, help="pixels")
     parser.add_argument("--hide-classes", type=classes_arg, default=frozenset(),
                         help="classification codes left out, e.g. 7,18 (when colouring by classification)")
 
@@ -167,9 +195,9 @@ def budget_arg(text: str) -> int | None:
     try:
         value = int(text.replace("_", ""))
     except ValueError:
-        raise argparse.ArgumentTypeError(f"'{text}' is not a number of points or 'auto'") from None
+        raise argparse.ArgumentTypeError(f"{shown(text)} is not a number of points or 'auto'") from None
     if not 1 <= value < 2**32:
-        raise argparse.ArgumentTypeError(f"budget {value} is outside 1..2^32-1")
+        raise argparse.ArgumentTypeError(f"budget {shown(text)} is outside 1..2^32-1")
     return value
 
 
@@ -181,19 +209,16 @@ def bytes_arg(text: str) -> int:
     try:
         value = float(t[: len(t) - len(unit)]) * units[unit]
     except ValueError:
-        raise argparse.ArgumentTypeError(f"'{text}' is not a size like 512M or 2G") from None
-    if not 0 < value < 2**50:
-        raise argparse.ArgumentTypeError(f"size {text} is out of range")
+        raise argparse.ArgumentTypeError(f"{shown(text)} is not a size like 512M or 2G") from None
+    if not 1 <= value < 2**50:
+        raise argparse.ArgumentTypeError(f"size {shown(text)} is outside 1 byte..1P")
     return int(value)
 
 
 def positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
+    value = float_arg(text)
     if not 0.0 < value < 10_000.0:
-        raise argparse.ArgumentTypeError(f"{value} is outside (0, 10000)")
+        raise argparse.ArgumentTypeError(f"{shown(text)} is outside (0, 10000)")
     return value
 
 
@@ -206,6 +231,8 @@ def load_camera_path(path: str):
         data = data.get("cameras")
     if not isinstance(data, list) or not data:
         raise CameraError(f"camera path {path} must be a non-empty list of cameras")
+    if len(data) > MAX_FRAMES:
+        raise CameraError(f"camera path {path} has {len(data):,} cameras (at most {MAX_FRAMES:,} frames)")
     cameras = []
     for i, item in enumerate(data):
         try:
@@ -432,9 +459,9 @@ def build_parser() -> Parser:
                         help="brute (every point in one frame) or progressive (reproject + budgeted fill)")
     render.add_argument("--budget", type=budget_arg, default=None, help="points filled per frame, or auto (default)")
     render.add_argument("--target-ms", type=positive_float, default=1000.0 / 60.0, help="frame time target (auto budget)")
-    render.add_argument("--frames", type=size_arg, help="progressive frames to render")
+    render.add_argument("--frames", type=frames_arg, help="progressive frames to render")
     render.add_argument("--converge", action="store_true", help="render until the ids equal the brute-force ids")
-    render.add_argument("--max-frames", type=size_arg, default=1000, help="limit for --converge")
+    render.add_argument("--max-frames", type=frames_arg, default=1000, help="limit for --converge")
     render.add_argument("--camera-path", help="JSON list of cameras, one per frame")
     render.add_argument("--reference", action="store_true", help="report per frame the share of pixels equal to brute force")
     render.set_defaults(func=cmd_render)

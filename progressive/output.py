@@ -107,7 +107,7 @@ class Outputs:
     """
 
     def __init__(self) -> None:
-        self._pending: list[tuple[Path, Path, int]] = []      # (temporary, final, mode)
+        self._pending: list[list] = []      # [temporary, final, mode]
 
     def reserve(self, path: str | os.PathLike) -> Path:
         """A new empty temporary for path, to be filled by the caller (by any means
@@ -115,16 +115,18 @@ class Outputs:
         final = Path(path)
         while True:
             tmp = temp_name(final)
+            entry = [tmp, final, 0o666]
+            self._pending.append(entry)        # first, so a signal right after the open still removes it
             try:
                 fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o666)
             except FileExistsError:
+                self._pending.remove(entry)
                 continue
             break
         try:
-            mode = stat.S_IMODE(os.fstat(fd).st_mode)
+            entry[2] = stat.S_IMODE(os.fstat(fd).st_mode)
         finally:
             os.close(fd)
-        self._pending.append((tmp, final, mode))
         return tmp
 
     def write(self, path: str | os.PathLike, write: Callable[[IO[bytes]], None]) -> None:
