@@ -197,6 +197,8 @@ def read_json_file(path: str | os.PathLike, what: str) -> object:
         raise CameraError(f"{what} {path} not found") from None
     except OSError as exc:
         raise CameraError(f"cannot read {what} {path}: {exc.strerror}") from None
+    except ValueError as exc:                # a NUL byte in the name
+        raise CameraError(f"cannot read {what} {path!r}: {exc}") from None
     with os.fdopen(fd, "rb") as fh:
         st = os.fstat(fd)
         if stat.S_ISDIR(st.st_mode):

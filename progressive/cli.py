@@ -57,6 +57,13 @@ def enum_arg(cls: type[enum.Enum]):
     return parse
 
 
+def path_arg(text: str) -> str:
+    """A file name: no NUL byte (the system cannot take one)."""
+    if "\0" in text:
+        raise argparse.ArgumentTypeError(f"{shown(text)} is not a file name (it holds a NUL byte)")
+    return text
+
+
 def int_arg(text: str) -> int:
     try:
         return int(text)
@@ -132,7 +139,7 @@ def effects_from(args):
 
 def add_cloud_args(parser) -> None:
     """Options shared by render and view: the files, the frame size, loading, colouring."""
-    parser.add_argument("files", nargs="*", help="LAS/LAZ/fast-format files, one cloud (default: the bundled sample)")
+    parser.add_argument("files", nargs="*", type=path_arg, help="LAS/LAZ/fast-format files, one cloud (default: the bundled sample)")
     parser.add_argument("--width", type=size_arg, default=1280)
     parser.add_argument("--height", type=size_arg, default=720)
     parser.add_argument("--color-by", help="attribute to colour by (default: rgb, else intensity, else elevation)")
@@ -439,22 +446,22 @@ def build_parser() -> Parser:
     sub = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
 
     info = sub.add_parser("info", help="describe LAS/LAZ files (header, bounds, attributes)")
-    info.add_argument("files", nargs="*", help="LAS/LAZ files (default: the bundled sample)")
+    info.add_argument("files", nargs="*", type=path_arg, help="LAS/LAZ files (default: the bundled sample)")
     info.add_argument("--json", action="store_true", help="machine-readable output")
     info.set_defaults(func=cmd_info)
 
     render = sub.add_parser("render", help="render a cloud headless to PNG")
     add_cloud_args(render)
-    render.add_argument("--out", help="PNG to write")
+    render.add_argument("--out", type=path_arg, help="PNG to write")
     render.add_argument("--camera", default="auto", help="auto, a camera JSON file, or JSON text")
-    render.add_argument("--save-camera", help="write the camera used as JSON")
+    render.add_argument("--save-camera", type=path_arg, help="write the camera used as JSON")
     render.add_argument("--colormap", type=enum_arg(Colormap), default=Colormap.VIRIDIS)
     render.add_argument("--background", type=rgb_arg, default=(0, 0, 0), help="R,G,B")
     render.add_argument("--raster", type=enum_arg(Raster), default=Raster.COMPUTE,
                         help="compute (64-bit atomics where available), compute32, or points (GL_POINTS baseline)")
     add_look_args(render)
-    render.add_argument("--ids", help="write the (H, W) uint32 file-order index of each pixel (.npy)")
-    render.add_argument("--stats", help="write timings and counts (.json)")
+    render.add_argument("--ids", type=path_arg, help="write the (H, W) uint32 file-order index of each pixel (.npy)")
+    render.add_argument("--stats", type=path_arg, help="write timings and counts (.json)")
     render.add_argument("--method", type=enum_arg(Method), default=Method.BRUTE,
                         help="brute (every point in one frame) or progressive (reproject + budgeted fill)")
     render.add_argument("--budget", type=budget_arg, default=None, help="points filled per frame, or auto (default)")
@@ -462,7 +469,7 @@ def build_parser() -> Parser:
     render.add_argument("--frames", type=frames_arg, help="progressive frames to render")
     render.add_argument("--converge", action="store_true", help="render until the ids equal the brute-force ids")
     render.add_argument("--max-frames", type=frames_arg, default=1000, help="limit for --converge")
-    render.add_argument("--camera-path", help="JSON list of cameras, one per frame")
+    render.add_argument("--camera-path", type=path_arg, help="JSON list of cameras, one per frame")
     render.add_argument("--reference", action="store_true", help="report per frame the share of pixels equal to brute force")
     render.set_defaults(func=cmd_render)
 
@@ -470,12 +477,12 @@ def build_parser() -> Parser:
     add_cloud_args(view)
     view.add_argument("--no-ui", action="store_true", help="no panel (keys still work)")
     add_look_args(view)
-    view.add_argument("--out", default="progressive-view.png", help="PNG written when there is no display")
+    view.add_argument("--out", type=path_arg, default="progressive-view.png", help="PNG written when there is no display")
     view.set_defaults(func=cmd_view)
 
     convert = sub.add_parser("convert", help="write the fast GPU-layout format")
-    convert.add_argument("inputs", nargs="+", metavar="IN")
-    convert.add_argument("output", metavar="OUT")
+    convert.add_argument("inputs", nargs="+", type=path_arg, metavar="IN")
+    convert.add_argument("output", type=path_arg, metavar="OUT")
     convert.add_argument("--attribute", help="attribute stored in the 4-byte word (default as render)")
     convert.add_argument("--partial", action="store_true")
     convert.set_defaults(func=cmd_convert)

@@ -30,14 +30,16 @@ def _stat(path: Path) -> os.stat_result | None:
         return None
     except OSError as exc:
         raise ProgressiveError(f"output {path}: {exc.strerror}") from None
+    except ValueError as exc:                # a NUL byte in the name
+        raise ProgressiveError(f"output {os.fspath(path)!r}: {exc}") from None
 
 
 def check_writable(path: str | os.PathLike, inputs: Iterable[str | os.PathLike] = ()) -> Path:
     """Fail before any work when an output cannot be created or would replace what it
     must not: a directory, a device or other non-regular file, or one of the inputs."""
     p = Path(path)
-    if not p.name or p.name in (".", ".."):
-        raise ProgressiveError(f"output {p} is not a file name")
+    if not p.name or p.name in (".", "..") or os.fspath(path).endswith(os.sep):
+        raise ProgressiveError(f"output {os.fspath(path)} is not a file name")
     st = _stat(p)
     if st is not None and stat.S_ISDIR(st.st_mode):
         raise ProgressiveError(f"output {p} is a directory")

@@ -165,6 +165,30 @@ def test_outputs_naming_each_other(capsys, out_dir, second):
     assert [p.name for p in out_dir.iterdir()] == ["sub"]
 
 
+@pytest.mark.parametrize("argv", [
+    ["render", *TINY, "--out", "a\0b.png"], ["render", *TINY, "a\0b.las", "--out", "x.png"],
+    ["render", *TINY, "--camera", "a\0b.json", "--out", "x.png"],
+    ["render", *TINY, "--method", "progressive", "--camera-path", "a\0b.json", "--out", "x.png"],
+    ["convert", "a\0b.las", "x.prgs"], ["convert", SAMPLE, "x\0.prgs"], ["info", "a\0b.las"],
+    ["render", *TINY, "--out", "folder/"], ["render", *TINY, "--out", ""], ["render", *TINY, "--stats", "."],
+])
+def test_impossible_file_names(capsys, tmp_path, monkeypatch, argv):
+    monkeypatch.chdir(tmp_path)
+    code, _, err = cli(capsys, *argv)
+    assert_one_error_line(code, err, tmp_path)
+
+
+@pytest.mark.parametrize("out", ["device", "input"])
+def test_view_without_display_checks_its_output_first(capsys, tmp_path, monkeypatch, out):
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    source = tmp_path / "in.las"
+    source.write_bytes(SAMPLE.read_bytes())
+    code, _, err = cli(capsys, "view", *TINY, source, "--out", os.devnull if out == "device" else source)
+    assert code == 2 and err.startswith("progressive: error: ") and err.count("\n") == 1, err
+    assert source.read_bytes() == SAMPLE.read_bytes() and stat.S_ISCHR(os.stat(os.devnull).st_mode)
+
+
 # --- outputs written whole, with the usual permissions --------------------------------------
 
 def test_output_names_of_255_bytes(capsys, out_dir, small_cloud):
@@ -383,6 +407,13 @@ def test_large_far_and_position_in_range_render(capsys, tmp_path, out_dir, small
     for cam in (far, away):
         code, _, err = cli(capsys, "render", *TINY, small_cloud, "--camera", json.dumps(cam), "--out", out_dir / "x.png")
         assert code == 0 and err == "", err
+
+
+def test_extreme_valid_camera_prints_nothing(tmp_path, small_cloud):
+    """In its own process, so any warning from any thread would show on stderr."""
+    cam = dict(CAMERA, fov_y_deg=1e-6, near=1e-30, far=1e30)
+    proc = progressive("render", *TINY, small_cloud, "--camera", json.dumps(cam), "--out", tmp_path / "x.png")
+    assert proc.returncode == 0 and proc.stderr == "", proc.stderr
 
 
 def render_camera(capsys, tmp_path: Path, out_dir: Path, text: str, how: str, cloud: Path = SAMPLE):
