@@ -142,8 +142,15 @@ class Outputs:
         for tmp, _, mode in self._pending:
             if stat.S_IMODE(os.stat(tmp).st_mode) != mode:
                 os.chmod(tmp, mode)
-        for tmp, final, _ in self._pending:
-            os.replace(tmp, final)
+        try:
+            for tmp, final, _ in self._pending:
+                os.replace(tmp, final)
+        except BaseException as exc:
+            if not isinstance(exc, Exception):      # a signal mid-way: finish, so the outputs stay one set
+                for tmp, final, _ in self._pending:
+                    if os.path.lexists(tmp):
+                        os.replace(tmp, final)
+            raise
         self._pending.clear()
 
     def abort(self) -> None:

@@ -486,3 +486,67 @@ def test_fuzzed_camera_json_renders_or_one_line(capsys, tmp_path, small_cloud, t
     else:
         assert_one_error_line(code, err, out_dir)
         assert "Traceback" not in err and len(err) < 400, err
+
+
+def magnitudes(low: float, high: float) -> st.SearchStrategy:
+    """Floats whose magnitude is spread evenly in log scale over [low, high], either sign."""
+    return st.tuples(st.floats(math.log10(low), math.log10(high)), st.booleans()).map(
+        lambda t: (-1 if t[1] else 1) * 10.0 ** t[0])
+
+
+@st.composite
+def edge_cameras(draw) -> dict:
+    """Cameras at the edges of what the contract accepts (and a little beyond)."""
+    centre = [636900.0, 848700.0, 500.0]
+    position = [c + draw(magnitudes(1e-32, 2e15)) for c in centre]
+    target = [c + draw(magnitudes(1e-32, 1e3)) for c in centre]
+    up = [draw(magnitudes(1e-32, 2e15)) for _ in range(3)]
+    near = abs(draw(magnitudes(1e-32, 1e31)))
+    return {"position": position, "target": target, "up": up, "fov_y_deg": draw(st.floats(1e-7, 180.0)),
+            "near": near, "far": near * abs(draw(magnitudes(1.0, 1e62)))}
+
+
+@FUZZ
+@given(camera=edge_cameras())
+def test_every_accepted_camera_renders(capsys, tmp_path, small_cloud, camera):
+    """Brute and progressive (reprojection included): a camera from_dict accepts renders
+    with nothing on stderr; one it refuses is one line."""
+    from progressive.camera import Camera, CameraError
+
+    try:
+        Camera.from_dict(camera)
+        accepted = True
+    except CameraError:
+        accepted = False
+    out = tmp_path / "x.png"
+    for method in (["--method", "brute"], ["--method", "progressive", "--frames", "3", "--budget", "700"]):
+        code, _, err = cli(capsys, "render", *TINY, small_cloud, *method, "--camera", json.dumps(camera),
+                           "--out", out)
+        if accepted:
+            assert code == 0 and err == "", err
+        else:
+            assert code == 2 and err.startswith("progressive: error: camera") and err.count("\n") == 1, err
+
+
+@pytest.mark.parametrize("at", [0, 1, 2])
+def test_signal_during_commit_still_commits_every_output(tmp_path, monkeypatch, at):
+    """The renames are the last step: once begun, an interrupt lets them finish."""
+    from progressive import output
+
+    replace, calls = os.replace, []
+
+    def interrupted_replace(src, dst):
+        replace(src, dst)
+        calls.append(dst)
+        if len(calls) == at + 1:
+            raise KeyboardInterrupt
+
+    finals = [tmp_path / f"{k}.json" for k in range(3)]
+    with pytest.raises(KeyboardInterrupt), output.Outputs() as outputs:
+        for k, path in enumerate(finals):
+            outputs.write(path, output.json_writer(k))
+        monkeypatch.setattr(output.os, "replace", interrupted_replace)
+        outputs.commit()
+    monkeypatch.undo()
+    assert sorted(p.name for p in tmp_path.iterdir()) == [p.name for p in finals]
+    assert [json.loads(p.read_text()) for p in finals] == [0, 1, 2]
