@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from progressive.errors import InputError
-from progressive.loaders.las import fail, open_binary
 from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, CloudInfo, FileInfo, nonfinite_records, quiet_nans
+from progressive.loaders.validate import fail, open_binary
 from progressive.packing import ELEVATION, RECORD_BYTES, pack_records
 
 MAGIC = b"PRGSPC\x00\x01"
@@ -37,11 +37,12 @@ MAGIC_STEM = MAGIC[:6]
 
 
 def is_fast(path: str | os.PathLike) -> bool:
-    """Decided by magic, not extension; unreadable paths are left to the LAS checks."""
+    """Decided by magic, not extension; unreadable paths (and what is not a regular file)
+    are left to the LAS checks."""
     try:
-        with open(path, "rb") as stream:
+        with open_binary(path) as stream:
             return stream.read(len(MAGIC_STEM)) == MAGIC_STEM
-    except OSError:
+    except (InputError, OSError):
         return False
 
 

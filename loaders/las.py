@@ -8,8 +8,6 @@ way to read what is left of a damaged LAZ when the caller asks for partial input
 from __future__ import annotations
 
 import dataclasses
-import io
-import math
 import os
 import re
 import struct
@@ -21,6 +19,7 @@ import lazrs
 import numpy as np
 
 from progressive.errors import InputError
+from progressive.loaders.laz import LazLayout, Patch, laz_layout, open_patched
 from progressive.loaders.types import (
     BATCH_POINTS,
     AttributeInfo,
@@ -31,10 +30,9 @@ from progressive.loaders.types import (
     nonfinite_rows,
     quiet_nans,
 )
+from progressive.loaders.validate import fail, one_line, open_binary
 
 SIGNATURE = b"LASF"
-Patch = tuple[int, bytes]
-"""Bytes read in place of the file's own at an offset."""
 MAX_POINT_FORMAT = 10
 MAX_MINOR_VERSION = 4
 HEADER_PREFIX = 375                     # the LAS 1.4 header; older ones are shorter
@@ -46,9 +44,6 @@ EXTRA_BYTES_TEXT = ((4, 32), (160, 32))  # name, description
 SCAN_ANGLE_STEP = 0.006                 # degrees per unit of the PF 6-10 scan_angle
 PROBE_PIECE = 65_536                    # points per read while looking for 16-bit colour
 SALVAGE_PIECE = 1_000                   # points per read while salvaging a damaged LAZ
-LAZ_POINTWISE = 1                       # LASzip compressor without chunks or chunk table
-MIN_CHUNK_BYTES = 20                    # a LAZ chunk starts with one raw point record
-TAIL_GAP = 1                            # bytes of end of file before a stand-in chunk table
 RECORD_INT = (-2**31, 2**31 - 1)        # the int32 X, Y, Z of a point record
 BOUNDS_SLACK = 1e-9                     # relative rounding allowed to header bounds
 STANDARD = (
@@ -69,15 +64,6 @@ class TruncatedInput(InputError):
         self.read = read
 
 
-def one_line(problem: object) -> str:
-    return " ".join(str(problem).split())
-
-
-def fail(path: str | os.PathLike, problem: object) -> InputError:
-    """One line naming the file, as the CLI prints it."""
-    return InputError(f"{os.fspath(path)}: {one_line(problem)}")
-
-
 def is_decode_error(exc: BaseException) -> bool:
     """Anything laspy/lazrs raise on bad data, including lazrs panics (BaseExceptions)."""
     return isinstance(exc, Exception) or type(exc).__name__ == "PanicException"
@@ -86,15 +72,6 @@ def is_decode_error(exc: BaseException) -> bool:
 def header_error(path: str, exc: Exception) -> InputError:
     """laspy's complaint about a header."""
     return fail(path, f"invalid LAS header: {exc}")
-
-
-def open_binary(path: str | os.PathLike):
-    if os.path.isdir(path):
-        raise fail(path, "is a directory, not a point-cloud file")
-    try:
-        return open(path, "rb")
-    except OSError as exc:
-        raise fail(path, f"cannot open: {exc.strerror or exc}") from exc
 
 
 @dataclass(frozen=True)
@@ -155,106 +132,6 @@ class RawHeader:
         if self.internal_waveform and self.waveform_start:
             ends.append(self.waveform_start)
         return min(ends)
-
-
-@dataclass(frozen=True)
-class LazLayout:
-    """How to decode a LAZ: the backend, and what salvaging a damaged file needs."""
-
-    backend: laspy.LazBackend
-    vlr_data: bytes
-    point_data: int
-    points: int
-    chunk_size: int | None      # fixed-size chunks; None: pointwise or variable-size
-    table_ok: bool
-    stand_in: bool = False
-    """The chunk table is missing or declares more chunks than the file has room for.
-    lazrs must not see it: it allocates for every chunk declared (and aborts the process
-    when it cannot), and without a table it may take garbage for a chunk header and
-    allocate gigabytes."""
-    patches: tuple[Patch, ...] = ()
-    """The file's text patches (text_patches), applied wherever laspy reads the header."""
-
-    def open(self, path: str):
-        """The file as lazrs may see it."""
-        return self._stand_in(path) if self.stand_in else open_patched(path, self.patches)
-
-    def salvage_stream(self, path: str):
-        """A stream the sequential decoder can start on, or None when nothing can be read.
-        A truncated chunked LAZ has lost its chunk table (stored last); with fixed-size
-        chunks a stand-in table of full chunks lets decoding start again."""
-        pointwise = struct.unpack_from("<H", self.vlr_data, 0)[0] == LAZ_POINTWISE
-        if pointwise or self.table_ok:
-            return open_patched(path, self.patches)
-        return None if self.chunk_size is None else self._stand_in(path)
-
-    def _stand_in(self, path: str):
-        """The file with a table of full fixed-size chunks (as many as it has room for) in
-        place of its own; with variable-size chunks, with none, which fails cleanly."""
-        table, size = io.BytesIO(), os.path.getsize(path)
-        if self.chunk_size is not None:
-            entries = [(self.chunk_size, 1)] * min(math.ceil(self.points / self.chunk_size),
-                                                   size // MIN_CHUNK_BYTES + 1)
-            lazrs.write_chunk_table(table, entries, lazrs.LazVlr(self.vlr_data))
-        return open_patched(path, (*self.patches, (self.point_data, struct.pack("<q", size + TAIL_GAP))),
-                            table.getvalue())
-
-
-def open_patched(path: str, patches: tuple[Patch, ...] = (), tail: bytes = b""):
-    """The file, or a read-only view of it with patches applied and `tail` after its end."""
-    if not patches and not tail:
-        return open_binary(path)
-    return io.BufferedReader(PatchedFile(open_binary(path), patches, tail), 1 << 20)
-
-
-class PatchedFile(io.RawIOBase):
-    """A file as stored but for the bytes of `patches`, with `tail` stored TAIL_GAP bytes
-    past its end: laspy and lazrs read it without anything being written. A read at the
-    end sees the end of the file, so that a decoder running off truncated point data
-    fails there rather than decoding the tail."""
-
-    def __init__(self, stream, patches: tuple[Patch, ...], tail: bytes):
-        super().__init__()
-        self._stream = stream
-        self._size = os.fstat(stream.fileno()).st_size
-        self._patches = patches
-        self._tail = tail
-        self._tail_at = self._size + TAIL_GAP if tail else self._size
-        self._pos = 0
-
-    def readable(self) -> bool:
-        return True
-
-    def seekable(self) -> bool:
-        return True
-
-    def tell(self) -> int:
-        return self._pos
-
-    def seek(self, pos: int, whence: int = io.SEEK_SET) -> int:
-        base = {io.SEEK_SET: 0, io.SEEK_CUR: self._pos, io.SEEK_END: self._tail_at + len(self._tail)}[whence]
-        self._pos = base + pos
-        return self._pos
-
-    def readinto(self, buffer) -> int:
-        """At most up to the end of the file, of the gap or of the tail: a short read."""
-        if self._pos >= self._size:
-            skip = self._pos - self._tail_at
-            data = self._tail[skip:skip + len(buffer)] if skip >= 0 else b""
-        else:
-            self._stream.seek(self._pos)
-            data = bytearray(self._stream.read(min(len(buffer), self._size - self._pos)))
-            for at, patch in self._patches:
-                lo, hi = max(at, self._pos), min(at + len(patch), self._pos + len(data))
-                if lo < hi:
-                    data[lo - self._pos:hi - self._pos] = patch[lo - at:hi - at]
-        buffer[:len(data)] = data
-        self._pos += len(data)
-        return len(data)
-
-    def close(self) -> None:
-        self._stream.close()
-        super().close()
 
 
 @dataclass(frozen=True)
@@ -450,10 +327,8 @@ def open_las(path: str | os.PathLike, *, partial: bool = False) -> LasSource:
         _check_numbers(path, header)
         count, laz = raw.count, None
         if raw.compressed:
-            laz = _laz_layout(path, stream, header, count, size, patches)
-            if laz.stand_in and not partial:
-                raise fail(path, "point data is truncated or corrupt (its LAZ chunk table is missing or "
-                                 "corrupt; a partial load reads what decodes)")
+            laz = laz_layout(path, stream, header, raw.record_length, count, size, patches, partial, warnings)
+            count = laz.points
         else:
             count = _checked_count(path, raw, size, partial, warnings)
     pf = header.point_format
@@ -606,60 +481,6 @@ def _checked_count(path: str, raw: RawHeader, size: int, partial: bool, warnings
             warnings.append(f"{path}: {problem}; read the first {raw.count} points")
             return raw.count
     raise fail(path, problem)
-
-
-def _declared_chunks(stream, point_data: int, size: int) -> int | None:
-    """How many chunks the LAZ chunk table says it holds, found as lazrs finds it (the
-    offset at the start of the point data, else in the file's last 8 bytes); None where
-    there is none to find."""
-    def offset_at(position: int) -> int:
-        stream.seek(position)
-        raw = stream.read(8)
-        return struct.unpack("<q", raw)[0] if len(raw) == 8 else -1
-
-    offset = offset_at(point_data)
-    if offset <= point_data:
-        offset = offset_at(max(size - 8, 0))
-    if not point_data < offset <= size - 8:
-        return None
-    stream.seek(offset)
-    return struct.unpack("<II", stream.read(8))[1]
-
-
-def _laz_layout(path: str, stream, header: laspy.LasHeader, count: int, size: int,
-                patches: tuple[Patch, ...]) -> LazLayout:
-    """LazrsParallel where a readable chunk table allows it (and then the count is checked
-    against the table); the sequential decoder otherwise, which fails on a short read."""
-    if not laspy.LazBackend.Lazrs.is_available():
-        raise fail(path, "is LAZ but no LAZ decoder is installed (pip install 'laspy[lazrs]')")
-    try:
-        vlr_data = bytes(header.vlrs.get("LasZipVlr")[0].record_data)
-        vlr = lazrs.LazVlr(vlr_data)
-    except Exception:
-        raise fail(path, "is compressed but has no valid LASzip VLR") from None
-    variable = vlr.uses_variable_size_chunks()
-    chunked = struct.unpack_from("<H", vlr_data, 0)[0] != LAZ_POINTWISE
-    layout = LazLayout(laspy.LazBackend.Lazrs, vlr_data, header.offset_to_point_data, count,
-                       None if variable or not chunked else vlr.chunk_size(), table_ok=False, patches=patches)
-    if not chunked:
-        return layout
-    chunks = _declared_chunks(stream, header.offset_to_point_data, size)
-    if chunks is None or chunks * MIN_CHUNK_BYTES > size:
-        return dataclasses.replace(layout, stand_in=True)
-    try:
-        stream.seek(header.offset_to_point_data)
-        table = lazrs.read_chunk_table(stream, vlr)
-    except Exception:
-        return layout
-    if variable and sum(points for points, _ in table) != count:
-        raise fail(path, f"header says {count} points but the LAZ chunk table holds "
-                         f"{sum(points for points, _ in table)}")
-    if not variable and len(table) != math.ceil(count / vlr.chunk_size()):
-        raise fail(path, f"header says {count} points but the LAZ chunk table has {len(table)} "
-                         f"chunks of {vlr.chunk_size()}")
-    parallel = laspy.LazBackend.LazrsParallel
-    return dataclasses.replace(layout, table_ok=True,
-                               backend=parallel if parallel.is_available() else layout.backend)
 
 
 def _probe(path: str, laz: LazLayout | None, count: int, has_rgb: bool, partial: bool,

@@ -20,8 +20,9 @@ import numpy as np
 
 from progressive.errors import InputError
 from progressive.loaders.fastformat import FastSource, is_fast, open_fast
-from progressive.loaders.las import LasSource, TruncatedInput, fail, open_las
+from progressive.loaders.las import LasSource, TruncatedInput, open_las
 from progressive.loaders.types import BATCH_POINTS, AttributeInfo, Batch, CloudInfo
+from progressive.loaders.validate import fail
 
 Source = LasSource | FastSource
 Task = tuple[str, Callable[[], Batch]]

@@ -1,0 +1,255 @@
+"""Hostile input files (issue 14, loader side): inputs that are not regular files, LASzip
+VLRs and chunk tables that make lazrs panic or abort, fast-format headers with damaged
+fields, header bounds the points contradict, counts a file cannot hold.
+
+Every case runs the command line in-process (or, where a Rust panic or a hang could
+reach past Python, in a child process with a timeout) and ends either in a rendered
+image showing the points or in one line `progressive: error: ...` with exit status 2,
+with nothing written and no traceback or numpy warning. Files are real points (the
+bundled sample, the shared files) rewritten with laspy or patched byte by byte;
+references come from laspy.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import struct
+import subprocess
+import sys
+from pathlib import Path
+
+import laspy
+import numpy as np
+import pytest
+from test_hard_input import TINY, assert_one_error_line, cli
+
+from conftest import REPO, SAMPLE
+
+POINTS = 3_000
+"""Points in the small files: a few batches' worth, cheap to render many times."""
+EMPTY_ID = 0xFFFFFFFF
+CHILD_TIMEOUT_S = 60
+LASZIP_ITEMS = 32                       # offset of the item count in the LASzip VLR data
+LEGACY_COUNT = 107                      # the 32-bit point count in a LAS header
+
+
+def run_child(*argv: str, timeout: float = CHILD_TIMEOUT_S) -> subprocess.CompletedProcess:
+    """`python -m progressive ...` in a child: a Rust panic writes to fd 2 directly, and a
+    regression that hangs must fail the test, not the run."""
+    return subprocess.run([sys.executable, "-m", "progressive", *map(str, argv)], capture_output=True,
+                          text=True, timeout=timeout, cwd=REPO)
+
+
+CHILD_CLI = ("import json, sys\n"
+             "from progressive.cli import main\n"
+             "print(json.dumps([main(argv) for argv in json.loads(sys.argv[1])]))\n")
+
+
+def run_children(runs: list[list]) -> tuple[list[int], list[str]]:
+    """Several command lines in one child process (one start-up): their exit codes and
+    the stderr lines of them all."""
+    child = subprocess.run([sys.executable, "-c", CHILD_CLI, json.dumps([[str(a) for a in r] for r in runs])],
+                           capture_output=True, text=True, timeout=CHILD_TIMEOUT_S, cwd=REPO)
+    assert child.returncode == 0, child.stderr[-3000:]
+    return json.loads(child.stdout.splitlines()[-1]), child.stderr.splitlines()
+
+
+def assert_child_error(child: subprocess.CompletedProcess) -> None:
+    assert child.returncode == 2, child.stderr
+    assert child.stderr.startswith("progressive: error: ") and child.stderr.count("\n") == 1, child.stderr
+    assert "panicked" not in child.stderr and "Traceback" not in child.stderr
+
+
+@pytest.fixture(scope="module")
+def sample() -> laspy.LasData:
+    return laspy.read(SAMPLE)
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory, sample) -> dict[str, Path]:
+    """The sample's first POINTS points as LAS 1.2 (bounds exact), LAZ point format 3
+    (pointwise chunked) and 7 (layered), and the whole sample as LAZ (three chunks)."""
+    folder = tmp_path_factory.mktemp("small")
+    las = laspy.LasData(sample.header)
+    las.points = sample.points[:POINTS]
+    las.update_header()
+    paths = {"las": folder / "small.las", "laz": folder / "small.laz", "laz14": folder / "small14.laz",
+             "chunks3": folder / "chunks3.laz"}
+    las.write(paths["las"])
+    las.write(paths["laz"], laz_backend=laspy.LazBackend.Lazrs)
+    laspy.convert(las, point_format_id=7, file_version="1.4").write(paths["laz14"],
+                                                                    laz_backend=laspy.LazBackend.Lazrs)
+    sample.write(paths["chunks3"], laz_backend=laspy.LazBackend.Lazrs)
+    return paths
+
+
+@pytest.fixture
+def folders(tmp_path) -> tuple[Path, Path]:
+    (tmp_path / "in").mkdir()
+    (tmp_path / "out").mkdir()
+    return tmp_path / "in", tmp_path / "out"
+
+
+def laszip_vlr_at(data: bytes) -> int:
+    """Offset of the LASzip VLR's data in a LAZ file."""
+    header = laspy.LasHeader.read_from(io.BytesIO(data))
+    return data.index(bytes(header.vlrs.get("LasZipVlr")[0].record_data))
+
+
+def chunk_table_at(data: bytes) -> tuple[int, int]:
+    """(offset of the point data, offset of the chunk table) of a chunked LAZ."""
+    (point_data,) = struct.unpack_from("<I", data, 96)
+    return point_data, struct.unpack_from("<q", data, point_data)[0]
+
+
+def xyz(las: laspy.LasData) -> np.ndarray:
+    return np.stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)], axis=1)
+
+
+def render(capsys, path: Path, out: Path, *extra) -> tuple[int, str, np.ndarray | None]:
+    """Render `path` with ids; (exit code, stderr, ids or None)."""
+    code, _, err = cli(capsys, "render", *TINY, path, "--out", out / "x.png", "--ids", out / "x.npy", *extra)
+    return code, err, np.load(out / "x.npy") if code == 0 else None
+
+
+# --- inputs that are not regular files --------------------------------------------------------
+
+@pytest.mark.parametrize("command", ["render", "info", "convert"])
+def test_fifo_without_writer_is_refused_at_once(folders, command):
+    """Opening a FIFO for reading blocks until a writer comes: the render, info and convert
+    of one hung for ever. Now it is refused in one line."""
+    inputs, outputs = folders
+    fifo = inputs / "cloud.las"
+    os.mkfifo(fifo)
+    argv = {"render": ["render", *TINY, fifo, "--out", outputs / "x.png"], "info": ["info", fifo],
+            "convert": ["convert", fifo, outputs / "x.prgs"]}[command]
+    child = run_child(*argv, timeout=30)
+    assert_child_error(child)
+    assert "FIFO" in child.stderr and not any(outputs.iterdir())
+
+
+@pytest.mark.parametrize("device", ["/dev/null", "/dev/zero"])
+def test_device_is_refused(folders, capsys, device):
+    if not os.path.exists(device):
+        pytest.skip(f"no {device}")
+    code, _, err = cli(capsys, "render", *TINY, device, "--out", folders[1] / "x.png")
+    assert_one_error_line(code, err, folders[1])
+    assert "character device" in err
+
+
+def test_directory_is_refused(folders, capsys):
+    code, _, err = cli(capsys, "info", folders[0])
+    assert_one_error_line(code, err, folders[1])
+    assert "is a directory" in err
+
+
+# --- LASzip VLRs lazrs panics on --------------------------------------------------------------
+
+LASZIP_DAMAGE = {
+    "item count 0": lambda d, at: struct.pack_into("<H", d, at + LASZIP_ITEMS, 0),
+    "first item size 7": lambda d, at: struct.pack_into("<H", d, at + 36, 7),
+    "second item a Point10": lambda d, at: struct.pack_into("<H", d, at + 40, 6),
+    "last item size 0": lambda d, at: struct.pack_into("<H", d, at + 34 + 6 * (struct.unpack_from(
+        "<H", d, at + LASZIP_ITEMS)[0] - 1) + 2, 0),
+    "compressor 9": lambda d, at: struct.pack_into("<H", d, at, 9),
+    "chunk size 0": lambda d, at: struct.pack_into("<I", d, at + 12, 0),
+}
+
+
+def test_laszip_vlr_damage_is_one_line_and_no_panic(folders, small):
+    """lazrs divides by the item count (0: a panic), slices records by the item sizes (a
+    panic where they do not make up the record) and prints the panic on stderr before
+    Python sees it: such VLRs are refused before lazrs sees them, with or without
+    --partial, for both the pointwise (format 3) and layered (format 7) items."""
+    inputs, outputs = folders
+    runs = []
+    for case, damage in LASZIP_DAMAGE.items():
+        for name in ("laz", "laz14"):
+            data = bytearray(small[name].read_bytes())
+            damage(data, laszip_vlr_at(data))
+            path = inputs / f"{case.replace(' ', '_')}_{name}.laz"
+            path.write_bytes(data)
+            runs += [["render", *TINY, path, "--out", outputs / "x.png", *partial] for partial in ([], ["--partial"])]
+    codes, lines = run_children(runs)
+    assert codes == [2] * len(runs)
+    assert len(lines) == len(runs), "\n".join(lines)
+    assert all(line.startswith("progressive: error: ") and "LASzip" in line for line in lines), "\n".join(lines)
+    assert not any(outputs.iterdir())
+
+
+def test_absurd_chunk_size_does_not_abort(folders, small, capsys):
+    """lazrs's parallel decoder allocates a whole chunk (chunk size x record length) at
+    once: a chunk size of 4e9 in the VLR aborted the process. Such chunks are decoded in
+    sequence, which reads every point."""
+    inputs, outputs = folders
+    data = bytearray(small["laz14"].read_bytes())
+    struct.pack_into("<I", data, laszip_vlr_at(data) + 12, 0xFF00C350)
+    path = inputs / "big_chunks.laz"
+    path.write_bytes(data)
+    code = ("import sys\nfrom progressive.loaders import CloudLoader\n"
+            "with CloudLoader([sys.argv[1]]) as loader:\n    print(sum(b.count for b in loader))\n")
+    child = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True,
+                           timeout=CHILD_TIMEOUT_S)
+    assert child.returncode == 0 and child.stdout.split() == [str(POINTS)], child.stderr[-2000:]
+
+
+def test_chunk_table_byte_counts_that_do_not_add_up(folders, small):
+    """A chunk table entry of absurd bytes made lazrs panic ('capacity overflow'): a table
+    is used only when its byte counts add up to the chunk data."""
+    inputs, outputs = folders
+    data = bytearray(small["chunks3"].read_bytes())
+    _, table = chunk_table_at(data)
+    data[table + 8] ^= 0x02                 # the first entry, arithmetic-coded
+    path = inputs / "table.laz"
+    path.write_bytes(data)
+    assert_child_error(run_child("render", *TINY, path, "--out", outputs / "x.png"))
+    child = run_child("render", *TINY, path, "--partial", "--out", outputs / "x.png")
+    assert child.returncode == 0 and "panicked" not in child.stderr, child.stderr
+    assert all(line.startswith("progressive: warning: ") for line in child.stderr.splitlines())
+
+
+# --- chunk tables that disagree with the header, read with --partial --------------------------
+
+def chunk_count(data: bytearray, chunks: int) -> None:
+    _, table = chunk_table_at(data)
+    struct.pack_into("<I", data, table + 4, chunks)
+
+
+CHUNK_TABLE = {
+    "table says 0 chunks": lambda d: chunk_count(d, 0),
+    "table says 1 chunk": lambda d: chunk_count(d, 1),
+    "header count beyond the table": lambda d: struct.pack_into("<I", d, LEGACY_COUNT, 110_000 + 60_000),
+    "header count a little more": lambda d: struct.pack_into("<I", d, LEGACY_COUNT, 110_000 + 5),
+}
+
+
+@pytest.mark.filterwarnings("error")
+@pytest.mark.parametrize("case", list(CHUNK_TABLE))
+def test_partial_reads_laz_whose_chunk_table_disagrees(folders, capsys, small, sample, case):
+    """laspy's sequential reader decodes these files' points; a plain load refuses them in
+    one line, and --partial renders every point of the file's chunks (the same points as
+    laspy's, in file order) with warnings. Where the header promises more, the decoder
+    may take a few bytes of the chunk table for points before it fails, as laspy's does
+    (tests/test_hard_input.py holds that equality)."""
+    inputs, outputs = folders
+    data = bytearray(small["chunks3"].read_bytes())
+    CHUNK_TABLE[case](data)
+    path = inputs / "table.laz"
+    path.write_bytes(data)
+    code, _, err = cli(capsys, "render", *TINY, path, "--out", outputs / "x.png")
+    assert_one_error_line(code, err, outputs)
+    code, err, ids = render(capsys, path, outputs, "--partial")
+    assert code == 0, err
+    lines = err.splitlines()
+    assert lines and all(line.startswith("progressive: warning: ") for line in lines), err
+    shown = ids[ids != EMPTY_ID]
+    assert shown.size > 300
+    from progressive.loaders import CloudLoader
+    with CloudLoader([path], partial=True) as loader:
+        batches = sorted(loader, key=lambda b: b.start)
+    positions = np.concatenate([b.positions for b in batches])
+    expected = xyz(sample)
+    assert len(expected) <= len(positions) < len(expected) + 10 and shown.max() < len(positions)
+    np.testing.assert_array_equal(positions[:len(expected)], np.float32(expected - loader.info.origin))
