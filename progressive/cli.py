@@ -191,7 +191,7 @@ def cmd_info(args) -> int:
     from progressive.loaders import describe, format_text
 
     desc = describe(input_paths(args.files))
-    print(json.dumps(desc, indent=2) if args.json else format_text(desc))
+    say(json.dumps(desc, indent=2) if args.json else format_text(desc))
     return 0
 
 
@@ -331,7 +331,7 @@ def _stats(session, camera, frames: int, converged_at: int | None) -> dict:
         "raster": renderer.raster_path,
         "points": session.info.points,
         "points_loaded": renderer.scene.loaded,
-        "points_on_gpu": renderer.scene.store.capacity,
+        "points_on_gpu": renderer.scene.store.kept,
         "points_not_drawn": renderer.scene.skipped,
         "load_seconds": session.load_seconds,
         "load_points_per_second": renderer.scene.loaded / session.load_seconds if session.load_seconds else None,
@@ -412,13 +412,19 @@ def _view_headless(paths: list[str], effects, args) -> int:
     return 0
 
 
-def commit_saying(outputs, message: str) -> None:
-    """Print the final message, then commit: a message that cannot be written (stdout
-    on a full disk, a closed pipe) fails the run, and the outputs are removed."""
+def say(message: str) -> None:
+    """Print to stdout and flush: stdout that cannot take it (a full disk, a closed
+    pipe) is an error, not a traceback or a message lost at exit."""
     try:
         print(message, flush=True)
     except OSError as exc:
         raise UsageError(f"cannot write to standard output: {exc.strerror or exc}") from None
+
+
+def commit_saying(outputs, message: str) -> None:
+    """Print the final message, then commit: when it cannot be written the run fails
+    and the outputs are removed."""
+    say(message)
     outputs.commit()
 
 

@@ -252,11 +252,14 @@ def test_full_disk_while_converting(capsys, small_disk):
     assert_one_error_line(code, err, small_disk)
 
 
-def test_convert_with_stdout_full_removes_the_output(tmp_path, small_cloud):
+@pytest.mark.parametrize("command", ["convert", "info"])
+def test_stdout_full_is_one_line_and_removes_the_output(tmp_path, small_cloud, command):
+    argv = ["convert", small_cloud, tmp_path / "x.prgs"] if command == "convert" else ["info", small_cloud]
     with open("/dev/full", "w") as full:
-        proc = subprocess.run([sys.executable, "-m", "progressive", "convert", small_cloud, tmp_path / "x.prgs"],
+        proc = subprocess.run([sys.executable, "-m", "progressive", *map(str, argv)],
                               stdout=full, stderr=subprocess.PIPE, text=True, timeout=TIMEOUT_S, cwd=REPO)
     assert_one_line(proc)
+    assert "standard output" in proc.stderr
     assert not any(tmp_path.iterdir())
 
 
