@@ -378,14 +378,14 @@ def cmd_view(args) -> int:
                                                  partial=args.partial, gpu_memory_limit=args.gpu_memory_limit,
                                                  ui=not args.no_ui, effects=effects, hidden_classes=args.hide_classes))
         except GLCapabilityError as exc:
-            print(f"progressive: cannot open a window ({exc}); rendering headless instead", file=sys.stderr)
+            print(f"progressive: cannot open a window ({one_line(exc)}); rendering headless instead", file=sys.stderr)
         else:
             viewer.run()
             return 0
     else:
         check_outputs([args.out], paths)
-        print(f"progressive: no display (DISPLAY and WAYLAND_DISPLAY are unset); rendering headless to {args.out}",
-              file=sys.stderr)
+        print(f"progressive: no display (DISPLAY and WAYLAND_DISPLAY are unset); rendering headless to "
+              f"{one_line(args.out)}", file=sys.stderr)
     return _view_headless(paths, effects, args)
 
 

@@ -333,6 +333,14 @@ def test_control_characters_in_names_are_escaped(capsys, out_dir, name):
     assert "\r" not in err and "\x1b" not in err and "\t" not in err and "\u2028" not in err
 
 
+def test_view_notice_names_its_output_on_one_line(capsys, out_dir, monkeypatch, small_cloud):
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    code, _, err = cli(capsys, "view", *TINY, small_cloud, "--out", out_dir / "a\nb.png")
+    assert code == 0 and err.count("\n") == 1 and "a\\nb.png" in err, err
+    assert [p.name for p in out_dir.iterdir()] == ["a\nb.png"]
+
+
 def test_control_characters_in_option_values_are_escaped(capsys, out_dir):
     code, _, err = cli(capsys, "render", *TINY, "--color-by", "x\ny", "--out", out_dir / "x.png")
     assert_one_error_line(code, err, out_dir)
