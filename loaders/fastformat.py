@@ -19,8 +19,18 @@ from pathlib import Path
 import numpy as np
 
 from progressive.errors import InputError
-from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, CloudInfo, FileInfo, nonfinite_records, quiet_nans
-from progressive.loaders.validate import fail, open_binary
+from progressive.loaders.las import BOUNDS_SAMPLE, attribute_kind
+from progressive.loaders.types import (
+    BATCH_POINTS,
+    AttributeInfo,
+    AttributeKind,
+    Batch,
+    CloudInfo,
+    FileInfo,
+    nonfinite_records,
+    quiet_nans,
+)
+from progressive.loaders.validate import BOUNDS_SLACK, contradicted_bounds, fail, open_binary, shown
 from progressive.packing import ELEVATION, RECORD_BYTES, pack_records
 
 MAGIC = b"PRGSPC\x00\x01"
@@ -29,6 +39,11 @@ HEADER_BYTES = 256
 NAME_BYTES = 64
 HEADER = struct.Struct("<8sIIQ3d3d3dIId64s")
 KIND_CODES = {AttributeKind.RGB: 0, AttributeKind.SCALAR: 1, AttributeKind.CATEGORY: 2}
+MAX_COORDINATE = 1e12
+"""Largest origin (or attribute offset) a fast-format file may hold: float64 keeps a
+tenth of a millimetre there, and beyond it float32 positions relative to it are lost."""
+FLOAT32_STEP = 2.0 ** -22
+"""Rounding of a float32 position relative to its magnitude, doubled."""
 KIND_DTYPES = {AttributeKind.RGB: np.uint8, AttributeKind.SCALAR: np.float64, AttributeKind.CATEGORY: np.uint32}
 
 
@@ -65,6 +80,24 @@ class FastSource:
                 _read_exactly(self.info.path, stream, memoryview(records).cast("B"))
                 yield Batch(start=start + first, positions=records[:, :3].view(np.float32), records=records)
 
+    def record_bounds(self, limit: int | None = None) -> np.ndarray | None:
+        """(2, 3) float64 min and max of origin + position over the first `limit` records
+        (all of them: one pass over the file) with finite coordinates; None if there are
+        none."""
+        lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+        total = self.info.points if limit is None else min(limit, self.info.points)
+        with np.errstate(invalid="ignore"):
+            for batch in self.batches(min(total, BATCH_POINTS), 0):
+                if batch.start >= total:
+                    break
+                positions = batch.positions[:total - batch.start]
+                finite = positions[np.isfinite(positions).all(axis=1)]
+                if len(finite):
+                    lo, hi = np.minimum(lo, finite.min(axis=0)), np.maximum(hi, finite.max(axis=0))
+        if not np.isfinite(lo).all():
+            return None
+        return self.origin + np.stack([lo, hi]).astype(np.float64)
+
     def parse(self, batch: Batch) -> Batch:
         """The batch with its NaN/Inf coordinates and scalar values counted (elevation only
         as positions) and their NaNs made quiet: any bit pattern can be in a file."""
@@ -90,7 +123,8 @@ def _read_exactly(path: str, stream, buffer: memoryview) -> None:
 
 
 def open_fast(path: str | os.PathLike, *, partial: bool = False) -> FastSource:
-    """Validate the header and the file length against the count."""
+    """Validate every header field and the file length against the count; header bounds
+    that the first records contradict are replaced by the records' own (one extra read)."""
     path = os.fspath(path)
     with open_binary(path) as stream:
         size = os.fstat(stream.fileno()).st_size
@@ -112,6 +146,11 @@ def open_fast(path: str | os.PathLike, *, partial: bool = False) -> FastSource:
         raise fail(path, "has no points")
     if not all(math.isfinite(v) for v in (*floats, attr_offset)):
         raise fail(path, "has a non-finite origin, bounds or attribute offset in its header")
+    if max(abs(v) for v in (*floats[:3], attr_offset)) > MAX_COORDINATE:
+        raise fail(path, f"has an origin or attribute offset beyond {MAX_COORDINATE:g} in its header "
+                         f"({', '.join(f'{v:g}' for v in (*floats[:3], attr_offset))})")
+    kind = kinds[kind_code]
+    name = _attribute_name(path, raw_name, kind)
     warnings = []
     expected = HEADER_BYTES + RECORD_BYTES * count
     if size != expected:
@@ -119,22 +158,55 @@ def open_fast(path: str | os.PathLike, *, partial: bool = False) -> FastSource:
         complete = (size - HEADER_BYTES) // RECORD_BYTES
         if not (partial and 0 < complete < count):
             raise fail(path, problem)
-        warnings.append(f"{path}: {problem}; read the first {complete} points")
+        warnings.append(f"{shown(path)}: {problem}; read the first {complete} points")
         count = complete
     origin, lo, hi = (tuple(floats[i:i + 3]) for i in (0, 3, 6))
-    kind = kinds[kind_code]
-    name = raw_name.rstrip(b"\x00").decode("utf-8", errors="replace")
     info = FileInfo(path=path, format="PRGS", version=str(version), point_format=-1, points=count,
                     scale=(1.0, 1.0, 1.0), offset=(0.0, 0.0, 0.0), bounds_min=lo, bounds_max=hi,
                     rgb_16bit=None)
     attribute = AttributeInfo(name, kind, np.dtype(KIND_DTYPES[kind]), attr_offset)
-    return FastSource(info, attribute, np.array(origin, dtype=np.float64), tuple(warnings))
+    source = FastSource(info, attribute, np.array(origin, dtype=np.float64))
+    seen = source.record_bounds(BOUNDS_SAMPLE)
+    step = None if seen is None else np.abs(seen - source.origin).max(axis=0) * FLOAT32_STEP
+    if wrong := _off_centre(origin, lo, hi) or contradicted_bounds(lo, hi, seen, step):
+        lo, hi = source.record_bounds()
+        warnings.append(f"{shown(path)}: header bounds {wrong}; ignored them and used the bounds of the points")
+        info = dataclasses.replace(info, bounds_min=tuple(map(float, lo)), bounds_max=tuple(map(float, hi)))
+    return dataclasses.replace(source, info=info, warnings=tuple(warnings))
+
+
+def _off_centre(origin, lo, hi) -> str | None:
+    """Bounds not centred on the origin, described: the writer puts the origin at their
+    centre, and the records are relative to it, so such bounds are the damaged field."""
+    centre = np.asarray(lo) / 2 + np.asarray(hi) / 2
+    if np.allclose(centre, origin, rtol=BOUNDS_SLACK, atol=BOUNDS_SLACK):
+        return None
+    return (f"are not centred on its origin ({', '.join(f'{v:g}' for v in origin)}; their centre is "
+            f"{', '.join(f'{v:g}' for v in centre)})")
+
+
+def _attribute_name(path: str, raw: bytes, kind: AttributeKind) -> str:
+    """The attribute name: UTF-8, printable, NUL-terminated and NUL-padded, and of the kind
+    stored (a damaged 'rgb' must not pass for a scalar, nor the reverse)."""
+    text, nul, padding = raw.partition(b"\x00")
+    if not nul or padding.strip(b"\x00"):
+        raise fail(path, f"has an attribute name field that is not NUL-terminated and NUL-padded ({raw!r})")
+    try:
+        name = text.decode("utf-8")
+    except UnicodeDecodeError:
+        raise fail(path, f"has an attribute name that is not UTF-8 ({text!r})") from None
+    if not name or not name.isprintable():
+        raise fail(path, f"has an empty or unprintable attribute name ({text!r})")
+    if attribute_kind(name) is not kind:
+        raise fail(path, f"stores attribute {name!r} as {kind.value}, but {name!r} is "
+                         f"{attribute_kind(name).value}")
+    return name
 
 
 def fast_header(count: int, info: CloudInfo, attr: AttributeInfo) -> bytes:
     name = attr.name.encode("utf-8")
-    if len(name) > NAME_BYTES:
-        raise InputError(f"attribute name {attr.name!r} is longer than {NAME_BYTES} bytes")
+    if len(name) >= NAME_BYTES:
+        raise InputError(f"attribute name {attr.name!r} is longer than {NAME_BYTES - 1} bytes")
     head = HEADER.pack(MAGIC, VERSION, HEADER_BYTES, count, *info.origin, *info.bounds_min,
                        *info.bounds_max, KIND_CODES[attr.kind], 0, attr.offset, name)
     return head.ljust(HEADER_BYTES, b"\x00")

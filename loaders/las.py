@@ -30,7 +30,7 @@ from progressive.loaders.types import (
     nonfinite_rows,
     quiet_nans,
 )
-from progressive.loaders.validate import fail, one_line, open_binary
+from progressive.loaders.validate import BOUNDS_SLACK, contradicted_bounds, fail, one_line, open_binary, shown
 
 SIGNATURE = b"LASF"
 MAX_POINT_FORMAT = 10
@@ -43,9 +43,9 @@ EXTRA_BYTES_STRUCT = 192                # one extra-bytes dimension in the LASF_
 EXTRA_BYTES_TEXT = ((4, 32), (160, 32))  # name, description
 SCAN_ANGLE_STEP = 0.006                 # degrees per unit of the PF 6-10 scan_angle
 PROBE_PIECE = 65_536                    # points per read while looking for 16-bit colour
+BOUNDS_SAMPLE = 4_096                   # first points checked against the header bounds
 SALVAGE_PIECE = 1_000                   # points per read while salvaging a damaged LAZ
 RECORD_INT = (-2**31, 2**31 - 1)        # the int32 X, Y, Z of a point record
-BOUNDS_SLACK = 1e-9                     # relative rounding allowed to header bounds
 STANDARD = (
     "rgb", "intensity", "classification", "elevation", "return_number",
     "number_of_returns", "gps_time", "point_source_id", "user_data", "scan_angle",
@@ -333,7 +333,7 @@ def open_las(path: str | os.PathLike, *, partial: bool = False) -> LasSource:
             count = _checked_count(path, raw, size, partial, warnings)
     pf = header.point_format
     has_rgb = "red" in pf.dimension_names
-    max_rgb, first = _probe(path, laz, count, has_rgb, partial, patches)
+    max_rgb, first, seen = _probe(path, laz, count, has_rgb, partial, patches)
     columns = _columns(pf)
     info = FileInfo(
         path=path,
@@ -351,15 +351,15 @@ def open_las(path: str | os.PathLike, *, partial: bool = False) -> LasSource:
     names = tuple(n for n in STANDARD if n in columns or n in ("scan_angle", "elevation")
                   or (n == "rgb" and has_rgb)) + tuple(n for n in columns if n not in STANDARD)
     first_gps = float(first["gps_time"][0]) if "gps_time" in columns else None
-    if unreachable := _unreachable_bounds(header):
+    if wrong := _unreachable_bounds(header) or contradicted_bounds(header.mins, header.maxs, seen,
+                                                                  np.abs(header.scales)):
         lo, hi = _data_bounds(path, laz, count, partial, patches)
         info = dataclasses.replace(info, bounds_min=lo, bounds_max=hi)
-        warnings.append(f"{path}: header bounds cannot be reached with its scale and offset ({unreachable}); "
-                        f"ignored them and used the bounds of the points")
+        warnings.append(f"{shown(path)}: header bounds {wrong}; ignored them and used the bounds of the points")
     source = LasSource(info, (), columns, first_gps, laz, tuple(warnings), patches)
     sample = source.parse(first, 0, np.zeros(3), names).attributes
     attributes = tuple(
-        AttributeInfo(n, _kind(n), np.dtype(np.float64) if n == "elevation" else sample[n].dtype)
+        AttributeInfo(n, attribute_kind(n), np.dtype(np.float64) if n == "elevation" else sample[n].dtype)
         for n in names
     )
     return dataclasses.replace(source, attributes=attributes)
@@ -422,7 +422,7 @@ def _unreachable_bounds(header: laspy.LasHeader) -> str | None:
         for bound, value in (("min", header.mins[axis]), ("max", header.maxs[axis])):
             if not lo - slack <= value <= hi + slack:
                 bad.append(f"{bound} {name} {float(value):g} is outside [{lo:g}, {hi:g}]")
-    return "; ".join(bad) or None
+    return f"cannot be reached with its scale and offset ({'; '.join(bad)})" if bad else None
 
 
 def _data_bounds(path: str, laz: LazLayout | None, count: int, partial: bool,
@@ -441,7 +441,8 @@ def _data_bounds(path: str, laz: LazLayout | None, count: int, partial: bool,
     return tuple(map(float, lo)), tuple(map(float, hi))
 
 
-def _kind(name: str) -> AttributeKind:
+def attribute_kind(name: str) -> AttributeKind:
+    """How an attribute of this name is shown (the fast format stores it with the name)."""
     return {"rgb": AttributeKind.RGB, "classification": AttributeKind.CATEGORY}.get(name, AttributeKind.SCALAR)
 
 
@@ -484,14 +485,19 @@ def _checked_count(path: str, raw: RawHeader, size: int, partial: bool, warnings
 
 
 def _probe(path: str, laz: LazLayout | None, count: int, has_rgb: bool, partial: bool,
-           patches: tuple[Patch, ...]) -> tuple[int, laspy.ScaleAwarePointRecord]:
+           patches: tuple[Patch, ...]) -> tuple[int, laspy.ScaleAwarePointRecord, np.ndarray]:
     """Max of R, G, B over the first BATCH_POINTS points (the rule of FileInfo.rgb_16bit),
-    read in pieces that stop once it exceeds 255, and the first point."""
-    wanted = min(count, BATCH_POINTS if has_rgb else 1)
-    max_rgb, first = 0, None
+    read in pieces that stop once it exceeds 255; the first point; and the (2, 3) min
+    and max of the first piece's coordinates (at least BOUNDS_SAMPLE points), to check
+    the header bounds against."""
+    wanted = min(count, BATCH_POINTS if has_rgb else BOUNDS_SAMPLE)
+    max_rgb, first, seen = 0, None, None
     try:
         for chunk in decode(path, laz, wanted, min(wanted, PROBE_PIECE), salvage=partial, patches=patches):
-            first = chunk[:1] if first is None else first
+            if first is None:
+                first = chunk[:1]
+                coords = np.stack([np.asarray(getattr(chunk, dim)) for dim in "xyz"], axis=1)
+                seen = np.stack([coords.min(axis=0), coords.max(axis=0)])
             if has_rgb:
                 max_rgb = max(max_rgb, *(int(np.max(chunk[c])) for c in ("red", "green", "blue")))
                 if max_rgb > 255:
@@ -500,7 +506,7 @@ def _probe(path: str, laz: LazLayout | None, count: int, has_rgb: bool, partial:
         if not (partial and first is not None):
             raise fail(path, f"point data is truncated or corrupt "
                              f"({one_line(exc.__cause__ or 'fewer points than the header says')})") from exc
-    return max_rgb, first
+    return max_rgb, first, seen
 
 
 def crs_name(header: laspy.LasHeader) -> str | None:

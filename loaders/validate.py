@@ -13,6 +13,8 @@ import os
 import stat
 import struct
 
+import numpy as np
+
 from progressive.errors import InputError
 
 NOT_REGULAR = {stat.S_IFIFO: "a FIFO", stat.S_IFCHR: "a character device", stat.S_IFBLK: "a block device",
@@ -34,6 +36,7 @@ ITEM_BYTES = {6: 20, 7: 8, 8: 6, 9: 29, 10: 30, 11: 6, 12: 8, 13: 29}
 EXTRA_ITEM = (0, 14)
 """The item of the extra bytes after the standard fields: Byte (formats 0-5), Byte14 (6-10)."""
 LAYERED_FORMATS = 6                     # point formats from 6 on use the layered items
+BOUNDS_SLACK = 1e-9                     # relative rounding allowed to header bounds
 
 
 def shown(path: str | os.PathLike) -> str:
@@ -108,3 +111,22 @@ def check_laszip(path: str, data: bytes, point_format: int, record_length: int) 
     if items != expected:
         raise fail(path, f"has LASzip items (type, size) {items} that do not make up point format "
                          f"{point_format} records of {record_length} bytes ({expected} expected)")
+
+
+def contradicted_bounds(mins, maxs, seen, step) -> str | None:
+    """Why header bounds cannot be the points' own, described, or None: inverted, or not
+    holding the points seen ((2, 3) min and max; None: none seen) within `step` per axis
+    (the scale) and rounding. Bounds wider than the points are kept: checking that
+    would take a pass over the whole file."""
+    mins, maxs = np.asarray(mins, dtype=np.float64), np.asarray(maxs, dtype=np.float64)
+    bad = [f"min {name} {lo:g} > max {name} {hi:g}" for name, lo, hi in zip("xyz", mins, maxs, strict=True)
+           if lo > hi]
+    if bad:
+        return f"are inverted ({'; '.join(bad)})"
+    if seen is None:
+        return None
+    slack = np.asarray(step, dtype=np.float64) + BOUNDS_SLACK * np.maximum(np.abs(mins), np.abs(maxs))
+    for name, lo, hi, low, high, tol in zip("xyz", mins, maxs, seen[0], seen[1], slack, strict=True):
+        if low < lo - tol or high > hi + tol:
+            bad.append(f"{name} of the points is {low:g} to {high:g}, the header says {lo:g} to {hi:g}")
+    return f"do not hold the first points ({'; '.join(bad)})" if bad else None
