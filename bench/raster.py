@@ -1,8 +1,9 @@
 """Brute-force rasterization of every point: compute 64-bit (where the GPU has
 GL_NV_shader_atomic_int64), compute 32-bit two-pass and GL_POINTS, on the same cloud
 and camera, with the store in file order, Morton order, terrestrial scan order
-(FillOrder.FILE, so slots follow that order) and shuffled (the renderer's own
-layout). Bytes read per second are set against a buffer-to-buffer copy measured in
+(FillOrder.FILE, so slots follow that order), shuffled over the whole cloud (the
+paper's layout) and batched (the renderer's own layout: shuffled inside batches of
+consecutive points, of file or scan order). Bytes read per second are set against a buffer-to-buffer copy measured in
 the same run, the GPU's practical ceiling for streaming the store."""
 
 from __future__ import annotations
@@ -35,7 +36,8 @@ class Layout:
 
 
 LAYOUTS = (Layout("file order", Order.FILE, FillOrder.FILE), Layout("Morton order", Order.MORTON, FillOrder.FILE),
-           Layout("scan order", Order.SCAN, FillOrder.FILE), Layout("shuffled", Order.FILE, FillOrder.SHUFFLED))
+           Layout("scan order", Order.SCAN, FillOrder.FILE), Layout("shuffled", Order.FILE, FillOrder.SHUFFLED),
+           Layout("batched", Order.FILE, FillOrder.BATCHED), Layout("batched, scan order", Order.SCAN, FillOrder.BATCHED))
 
 
 def copy_bandwidth(glc: GLContext, nbytes: int, repeats: int) -> dict[str, float]:
@@ -124,7 +126,8 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
         "and written): " + ", ".join(f"{k} {v / 1e9:.1f} GB/s" for k, v in copies.items()) +
         f"; the share is of the faster, {copy / 1e9:.1f} GB/s. × GL_POINTS = GL_POINTS ms / this ms, "
         "same cloud, size and order. Store order: file/Morton/scan = points in the buffer in that file order "
-        "(FillOrder.FILE); shuffled = the renderer's permutation of the file order. Scan order: a scanner station "
+        "(FillOrder.FILE); shuffled = the paper's permutation of the whole file order; batched = the renderer's "
+        "layout (shuffled inside batches of 10,240 consecutive points, slices of 256 interleaved). Scan order: a scanner station "
         "per tile, vertical scan lines by azimuth (bench/synthetic.py).")]
     table.raw = {"copy_bytes": copy_bytes, "copy_bytes_per_s": copy, "copy_methods": copies, "rows": rows}
     return table

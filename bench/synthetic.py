@@ -20,7 +20,7 @@ from progressive.context import GLContext, create_context
 from progressive.loaders import CloudLoader
 from progressive.loaders.types import AttributeInfo, Batch, CloudInfo
 from progressive.packing import pack_records
-from progressive.permutation import FillOrder
+from progressive.permutation import LAYOUT, FillOrder
 from progressive.scene import Scene
 
 SAMPLE = Path(__file__).resolve().parents[1] / "progressive" / "data" / "autzen_trim.las"
@@ -129,7 +129,7 @@ def tiled(path: str, points: int, attribute: str | None = None) -> TiledCloud:
 
 
 def load(glc: GLContext, cloud: TiledCloud, order: Order = Order.FILE,
-         fill: FillOrder = FillOrder.SHUFFLED) -> tuple[Scene, float]:
+         fill: FillOrder = LAYOUT) -> tuple[Scene, float]:
     """The tiled cloud on the GPU once, shared by every run; seconds to upload it."""
     t0 = time.perf_counter()
     scene = Scene(glc, cloud.info, cloud.attribute, order=fill)

@@ -26,11 +26,13 @@ class MemoryPlan:
     def subset(self) -> bool:
         return self.capacity < self.points
 
-    def message(self) -> str:
+    def message(self, shown: int | None = None) -> str:
+        """`shown`: the points the store's slots hold (the layout's padding is no point)."""
         need = self.points * RECORD_BYTES / 2**30
         have = (self.available_bytes or 0) / 2**30
         return (f"the cloud needs {need:.2f} GiB of GPU memory but {have:.2f} GiB is available ({self.source}): "
-                f"showing a uniform random subset of {self.capacity:,} of {self.points:,} points")
+                f"showing a uniform random subset of {shown if shown is not None else self.capacity:,} "
+                f"of {self.points:,} points")
 
 
 def plan(points: int, caps: Capabilities, pixels: int, limit_bytes: int | None = None) -> MemoryPlan:

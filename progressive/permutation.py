@@ -6,6 +6,13 @@ gives a permutation in which any contiguous range of slots is a well-mixed subse
 of the file. The rotation breaks the paper's fixed points at the start of the range
 (0, 1, 16, 81, ... map from file indices 0, 1, 2, 3): with offset 0 this is the
 paper's exact formula. Indices >= P stay where they are.
+
+The batched layout keeps the shuffle local: batch b holds file indices
+[b·BATCH_POINTS, (b+1)·BATCH_POINTS), consecutive and so spatially compact, shuffled
+inside the batch by the same formula (a rotation of its own per batch), and stored
+in slices of SLICE_POINTS: slice k of every batch comes before slice k+1 of any. A
+work group of SLICE_POINTS consecutive slots then sees one compact batch's random
+points, and any prefix of the slots holds the same share of every batch.
 """
 
 from __future__ import annotations
@@ -18,6 +25,11 @@ import numpy as np
 import sympy
 
 GOLDEN = 0.6180339887498949
+BATCH_POINTS = 10_240
+"""Points of a batch in the batched layout (compute_rasterizer's batch size)."""
+SLICE_POINTS = 256
+"""Consecutive slots of one batch: one raster work group (local_size_x)."""
+assert BATCH_POINTS % SLICE_POINTS == 0
 
 
 class FillOrder(enum.Enum):
@@ -26,6 +38,11 @@ class FillOrder(enum.Enum):
 
     SHUFFLED = "shuffled"
     FILE = "file"
+    BATCHED = "batched"
+
+
+LAYOUT = FillOrder.BATCHED
+"""The renderer's layout; the others are baselines for benchmarks and tests."""
 
 
 @lru_cache(maxsize=256)
@@ -48,41 +65,91 @@ class Permutation:
     n: int
     prime: int
     offset: int
+    batches: int = 0        # batched layout: the number of batches; 0: one shuffle over the whole cloud
 
     @classmethod
     def for_count(cls, n: int, *, rotate: bool = True, order: FillOrder = FillOrder.SHUFFLED) -> Permutation:
-        if not 0 <= n < 2**32:
-            raise ValueError(f"point count {n} outside [0, 2^32)")
+        limit = 2**32 - BATCH_POINTS if order is FillOrder.BATCHED else 2**32     # slots are uint32
+        if not 0 <= n < limit:
+            raise ValueError(f"point count {n} outside [0, {limit})")
         if order is FillOrder.FILE:
             return cls(n=n, prime=0, offset=0)
+        if order is FillOrder.BATCHED:
+            p = prime_for(BATCH_POINTS)
+            return cls(n=n, prime=p, offset=int(p * GOLDEN) if rotate else 0, batches=max(1, -(-n // BATCH_POINTS)))
         p = prime_for(n)
         return cls(n=n, prime=p, offset=int(p * GOLDEN) if rotate else 0)
+
+    @property
+    def slots(self) -> int:
+        """Slots of the layout: the batched one pads the last batch (empty slots never draw)."""
+        return self.batches * BATCH_POINTS if self.batches else self.n
+
+    def kept(self, capacity: int) -> int:
+        """File points whose slot is below `capacity` (what a store of that many slots
+        holds): each full batch keeps whole rounds of slices and part of the next, the
+        short last batch is counted."""
+        if not self.batches or capacity >= self.slots:
+            return min(capacity, self.n)
+        rounds, rest = divmod(capacity, self.batches * SLICE_POINTS)
+        slices, part = divmod(rest, SLICE_POINTS)
+        full = self.n // BATCH_POINTS
+        total = full * rounds * SLICE_POINTS + min(slices, full) * SLICE_POINTS + (part if slices < full else 0)
+        last = np.arange(full * BATCH_POINTS, self.n, dtype=np.uint64)
+        return total + int(np.count_nonzero(self.forward(last) < np.uint64(capacity)))
+
+    def batch_offsets(self, batch: np.ndarray) -> np.ndarray:
+        """The rotation of each batch's shuffle: offset·(b+1) mod P, so batches differ."""
+        p = np.uint64(self.prime)
+        return ((np.asarray(batch, dtype=np.uint64) + np.uint64(1)) % p) * np.uint64(self.offset) % p
 
     def forward(self, index: np.ndarray | int) -> np.ndarray:
         """Slot of each file-order index (vectorised, exact)."""
         i = np.asarray(index, dtype=np.uint64)
-        p = np.uint64(self.prime)
         if self.prime == 0:
             return i.copy()
-        inside = i < p
-        x = np.where(inside, i, np.uint64(0))
-        x = _qpr(x, p)
-        x = (x + np.uint64(self.offset)) % p
-        x = _qpr(x, p)
-        return np.where(inside, x, i)
+        if not self.batches:
+            return _shuffle(i, np.uint64(self.prime), np.uint64(self.offset))
+        b, local = np.divmod(i, np.uint64(BATCH_POINTS))
+        shuffled = _shuffle(local, np.uint64(self.prime), self.batch_offsets(b))
+        piece, within = np.divmod(shuffled, np.uint64(SLICE_POINTS))
+        return piece * np.uint64(self.batches * SLICE_POINTS) + b * np.uint64(SLICE_POINTS) + within
 
     def inverse(self, slot: np.ndarray | int) -> np.ndarray:
         """File-order index stored at each slot (vectorised, exact)."""
         s = np.asarray(slot, dtype=np.uint64)
-        p = np.uint64(self.prime)
         if self.prime == 0:
             return s.copy()
-        inside = s < p
-        x = np.where(inside, s, np.uint64(0))
-        x = _qpr_inverse(x, p)
-        x = (x + p - np.uint64(self.offset) % p) % p
-        x = _qpr_inverse(x, p)
-        return np.where(inside, x, s)
+        if not self.batches:
+            return _unshuffle(s, np.uint64(self.prime), np.uint64(self.offset))
+        piece, rest = np.divmod(s, np.uint64(self.batches * SLICE_POINTS))
+        b, within = np.divmod(rest, np.uint64(SLICE_POINTS))
+        local = _unshuffle(piece * np.uint64(SLICE_POINTS) + within, np.uint64(self.prime), self.batch_offsets(b))
+        return b * np.uint64(BATCH_POINTS) + local
+
+
+def glsl_defines() -> str:
+    """The layout's constants for every shader (shaders/common.glsl slot_of)."""
+    return f"#define BATCH_POINTS {BATCH_POINTS}u\n#define SLICE_POINTS {SLICE_POINTS}u\n"
+
+
+def _shuffle(i: np.ndarray, p: np.uint64, offset) -> np.ndarray:
+    """The double quadratic residue with a rotation between; indices >= p stay."""
+    inside = i < p
+    x = np.where(inside, i, np.uint64(0))
+    x = _qpr(x, p)
+    x = (x + offset) % p
+    x = _qpr(x, p)
+    return np.where(inside, x, i)
+
+
+def _unshuffle(s: np.ndarray, p: np.uint64, offset) -> np.ndarray:
+    inside = s < p
+    x = np.where(inside, s, np.uint64(0))
+    x = _qpr_inverse(x, p)
+    x = (x + p - offset % p) % p
+    x = _qpr_inverse(x, p)
+    return np.where(inside, x, s)
 
 
 def _mulmod(a: np.ndarray, b: np.ndarray, p: np.uint64) -> np.ndarray:

@@ -7,7 +7,7 @@ from progressive.bindings import MAX_POINT_CHUNKS, Binding
 from progressive.context import GLContext
 from progressive.errors import ProgressiveError
 from progressive.packing import RECORD_BYTES
-from progressive.permutation import FillOrder, Permutation
+from progressive.permutation import LAYOUT, FillOrder, Permutation
 
 EMPTY_WORD = 0xFFFFFFFF
 """Every slot starts as NaN coordinates, which no pass draws: unloaded slots stay dark."""
@@ -27,17 +27,19 @@ class PointStore:
 
     def __init__(self, glc: GLContext, count: int, *, capacity: int | None = None,
                  chunk_points: int | None = None, rotate: bool = True,
-                 order: FillOrder = FillOrder.SHUFFLED):
+                 order: FillOrder = LAYOUT):
         limit = chunk_capacity(glc.caps.max_ssbo_bytes)
         self.chunk_points = min(chunk_points or limit, limit)
         self.count = count
-        self.capacity = count if capacity is None else max(0, min(capacity, count))
+        self.permutation = Permutation.for_count(count, rotate=rotate, order=order)
+        slots = self.permutation.slots
+        # A capacity that holds the cloud holds the layout's padding too (under one batch).
+        self.capacity = slots if capacity is None or capacity >= count else max(0, capacity)
         chunks = max(1, -(-self.capacity // self.chunk_points))
         if chunks > MAX_POINT_CHUNKS:
             raise ProgressiveError(
                 f"{self.capacity:,} points need {chunks} GPU buffers of {self.chunk_points:,} points; "
                 f"at most {MAX_POINT_CHUNKS} are supported")
-        self.permutation = Permutation.for_count(count, rotate=rotate, order=order)
         self._glc = glc
         self.buffers = []
         for c in range(chunks):
@@ -49,6 +51,11 @@ class PointStore:
             if glc.ctx.error == "GL_OUT_OF_MEMORY":
                 self.release()
                 raise GPUMemoryError(f"the GPU could not allocate {n * RECORD_BYTES / 2**20:.0f} MiB for points")
+
+    @property
+    def kept(self) -> int:
+        """File points the GPU holds."""
+        return self.permutation.kept(self.capacity)
 
     @property
     def defines(self) -> dict[str, int]:

@@ -17,7 +17,7 @@ from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, Cloud
 from progressive.packing import attribute_word, pack_records
 from progressive.passes.distribute import DistributePass
 from progressive.passes.percentile import PercentilePass
-from progressive.permutation import FillOrder
+from progressive.permutation import LAYOUT, FillOrder
 from progressive.pointstore import PointStore
 
 RANGE_GROWTH = 2
@@ -52,7 +52,7 @@ class AttributeSwitch:
 
 class Scene:
     def __init__(self, glc: GLContext, info: CloudInfo, attribute: AttributeInfo, *, chunk_points: int | None = None,
-                 capacity: int | None = None, keep_batches: bool = False, order: FillOrder = FillOrder.SHUFFLED):
+                 capacity: int | None = None, keep_batches: bool = False, order: FillOrder = LAYOUT):
         """capacity: points kept on the GPU (default all; see progressive/memory.py).
         keep_batches: keep the loaded attributes in host memory to switch attributes.
         order: FILE stores points in file order (the unshuffled baseline, for benchmarks)."""

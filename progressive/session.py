@@ -125,7 +125,7 @@ class Session:
 
     @property
     def warnings(self) -> list[str]:
-        subset = [self.memory.message()] if self.memory.subset else []
+        subset = [self.memory.message(self.renderer.store.kept)] if self.memory.subset and self.renderer else []
         skipped = self.renderer.scene.skipped if self.renderer is not None else 0
         nonfinite = [f"{skipped:,} points not drawn: non-finite coordinates or {self.attribute.name} values"] if skipped else []
         return subset + self._notes + nonfinite + list(self.loader.warnings)

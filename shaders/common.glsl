@@ -29,6 +29,7 @@ uint mulmod(uint a, uint b, uint p) {
 // a*b mod p with 32-bit words only: the high word is < p because a, b < p, then the
 // low word is shifted in one bit at a time, subtracting p whenever the value reaches it.
 uint mulmod(uint a, uint b, uint p) {
+    if (p <= 0xFFFFu) return a * b % p;
     uint hi, lo;
     umulExtended(a, b, hi, lo);
     uint r = hi;
@@ -52,4 +53,18 @@ uint permute(uint i, uint prime, uint rotation) {
     uint x = quadratic_residue(i, prime);
     x = x >= prime - rotation ? x - (prime - rotation) : x + rotation;
     return quadratic_residue(x, prime);
+}
+
+// File-order index -> slot of the layout (progressive/permutation.py Permutation):
+// batches == 0: one shuffle of the whole cloud; else batch b = i / BATCH_POINTS is
+// shuffled inside itself (rotation offset·(b+1) mod P) and stored in slices of
+// SLICE_POINTS, slice k of every batch before slice k+1 of any. P < 2^16 there, so
+// its products fit in 32 bits.
+uint slot_of(uint i, uint prime, uint rotation, uint batches) {
+    if (batches == 0u) return permute(i, prime, rotation);
+    uint b = i / BATCH_POINTS;
+    uint local = i - b * BATCH_POINTS;
+    uint shuffled = permute(local, prime, ((b + 1u) % prime) * rotation % prime);
+    uint piece = shuffled / SLICE_POINTS;
+    return piece * (batches * SLICE_POINTS) + b * SLICE_POINTS + (shuffled - piece * SLICE_POINTS);
 }

@@ -14,12 +14,13 @@ uniform uint u_start;       // file-order index of staged[0]
 uniform uint u_count;
 uniform uint u_prime;
 uniform uint u_rotation;
+uniform uint u_batches;    // batched layout (0: one shuffle)
 uniform uint u_capacity;    // slots held on the GPU: the rest of the cloud is left out
 
 void main() {
     uint i;
     if (!range_index(u_count, i)) return;
-    uint slot = permute(u_start + i, u_prime, u_rotation);
+    uint slot = slot_of(u_start + i, u_prime, u_rotation, u_batches);
     if (slot >= u_capacity) return;
 #if ATTRIBUTE_ONLY
     store_point(slot, uvec4(0u, 0u, 0u, staged[i]), 3);

@@ -7,9 +7,10 @@ layout(std430, binding = BINDING_DISTRIBUTE) buffer Indices { uint indices[]; };
 uniform uint u_count;
 uniform uint u_prime;
 uniform uint u_rotation;
+uniform uint u_batches;    // batched layout (0: one shuffle)
 
 void main() {
     uint i;
     if (!range_index(u_count, i)) return;
-    indices[i] = permute(indices[i], u_prime, u_rotation);
+    indices[i] = slot_of(indices[i], u_prime, u_rotation, u_batches);
 }

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import sympy
 
-from progressive.permutation import Permutation, prime_for
+from progressive.permutation import BATCH_POINTS, SLICE_POINTS, FillOrder, Permutation, prime_for
 
 
 def paper_permute(i: int, p: int) -> int:
@@ -94,6 +94,55 @@ def test_gpu_matches_numpy(gl, n, int64):
     rng = np.random.default_rng(3)
     idx = np.concatenate([rng.integers(0, n, 100_000, dtype=np.uint64),
                           np.array([0, 1, perm.prime // 2, perm.prime // 2 + 1, perm.prime - 1, n - 1], dtype=np.uint64)])
+    gpu = gpu_permute(gl, perm, idx, int64=int64)
+    gl.check()
+    assert np.array_equal(gpu.astype(np.uint64), perm.forward(idx))
+
+
+BATCHED_COUNTS = [1, 7, BATCH_POINTS - 1, BATCH_POINTS, BATCH_POINTS + 1, 3 * BATCH_POINTS + 17, 1_000_003]
+
+
+@pytest.mark.parametrize("n", BATCHED_COUNTS)
+def test_batched_layout_is_a_local_bijection(n):
+    """Every batch's points stay in its slices, each slice holds points of one batch,
+    and a prefix of the slots holds the same share of every batch."""
+    perm = Permutation.for_count(n, order=FillOrder.BATCHED)
+    i = np.arange(n, dtype=np.uint64)
+    slots = perm.forward(i)
+    assert slots.max() < perm.slots == perm.batches * BATCH_POINTS and np.unique(slots).size == n
+    assert np.array_equal(perm.inverse(slots), i)
+    batch = i // BATCH_POINTS
+    slot_batch = (slots % (perm.batches * SLICE_POINTS)) // SLICE_POINTS
+    assert np.array_equal(slot_batch, batch)
+    full = n // BATCH_POINTS
+    if full >= 2:
+        prefix = slots < perm.slots // 4
+        shares = np.bincount(batch[prefix].astype(np.int64), minlength=full)[:full]
+        assert shares.min() == shares.max() == BATCH_POINTS // 4
+
+
+def test_batched_shuffle_inside_a_batch_is_the_paper_formula_rotated_per_batch():
+    perm = Permutation.for_count(5 * BATCH_POINTS, order=FillOrder.BATCHED)
+    p = perm.prime
+    for b in range(5):
+        rotation = (b + 1) % p * perm.offset % p
+        local = np.arange(0, p, 97)
+        expect = [paper_permute((paper_permute(int(j), p) + rotation) % p, p) for j in local]
+        got = perm.forward(b * BATCH_POINTS + local)
+        shuffled = (got // (perm.batches * SLICE_POINTS)) * SLICE_POINTS + got % SLICE_POINTS
+        assert shuffled.tolist() == expect
+
+
+@pytest.mark.parametrize("int64", [True, False], ids=["int64", "umulExtended"])
+@pytest.mark.parametrize("n", [*BATCHED_COUNTS, 2**32 - BATCH_POINTS - 1])
+def test_gpu_batched_matches_numpy(gl, n, int64):
+    from progressive.passes.permute import gpu_permute
+
+    if int64 and not gl.caps.shader_int64:
+        pytest.skip("no GL_ARB_gpu_shader_int64")
+    perm = Permutation.for_count(n, order=FillOrder.BATCHED)
+    rng = np.random.default_rng(5)
+    idx = np.concatenate([rng.integers(0, n, 100_000, dtype=np.uint64), np.array([0, n - 1], dtype=np.uint64)])
     gpu = gpu_permute(gl, perm, idx, int64=int64)
     gl.check()
     assert np.array_equal(gpu.astype(np.uint64), perm.forward(idx))

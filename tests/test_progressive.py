@@ -12,6 +12,7 @@ from progressive.attributes import default_attribute
 from progressive.budget import BudgetParams
 from progressive.camera import Camera, auto_camera
 from progressive.frame_loop import ProgressiveOptions, ProgressiveRenderer
+from progressive.permutation import LAYOUT, Permutation
 from progressive.reference import EMPTY
 from progressive.renderer import Renderer
 
@@ -107,7 +108,8 @@ def test_motion_keeps_most_of_the_image_and_converges_again(gl, cloud, brute):
 def test_only_needed_passes_run(gl, cloud):
     info, _ = cloud
     cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
-    pr = make(gl, cloud, budget=BudgetParams(fixed=info.points // 2 + 1), batches_per_frame=100)
+    slots = Permutation.for_count(info.points, order=LAYOUT).slots     # the layout's padding is filled too
+    pr = make(gl, cloud, budget=BudgetParams(fixed=slots // 2 + 1), batches_per_frame=100)
     style = pr.scene.style()
     first = pr.frame(cam, style)
     assert "reproject" not in first and "distribute" in first and "fill" in first
@@ -196,11 +198,11 @@ def test_eight_chunk_store_converges(gl, cloud, brute):
     cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
     pr = ProgressiveRenderer(gl, info, default_attribute(info),
                              ProgressiveOptions(W, H, budget=BudgetParams(fixed=B), batches_per_frame=100,
-                                                chunk_points=-(-info.points // 8)))
+                                                chunk_points=-(-Permutation.for_count(info.points, order=LAYOUT).slots // 8)))
     assert len(pr.store.buffers) == 8
     for b in batches:
         pr.add_batch(b)
-    assert frames_until_equal(gl, pr, cam, pr.scene.style(), brute(cam), math.ceil(info.points / B) + 1)
+    assert frames_until_equal(gl, pr, cam, pr.scene.style(), brute(cam), math.ceil(pr.store.capacity / B) + 1)
     pr.release()
 
 

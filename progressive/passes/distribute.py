@@ -42,6 +42,7 @@ class DistributePass:
         perm = self.store.permutation
         program["u_prime"] = perm.prime
         program["u_rotation"] = perm.offset
+        program["u_batches"] = perm.batches
         program["u_capacity"] = self.store.capacity
         self.store.bind()
         self.stage.bind_to_storage_buffer(Binding.DISTRIBUTE)

@@ -24,6 +24,7 @@ def gpu_permute(glc: GLContext, perm: Permutation, indices: np.ndarray, *, int64
     program["u_count"] = data.size
     program["u_prime"] = perm.prime
     program["u_rotation"] = perm.offset
+    program["u_batches"] = perm.batches
     program.run(*grid(data.size))
     glc.ctx.memory_barrier()
     out = np.frombuffer(buf.read(), dtype=np.uint32).copy()
