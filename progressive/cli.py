@@ -122,7 +122,7 @@ def range_arg(text: str) -> tuple[float, float]:
     except ValueError:
         lo = hi = float("nan")
     if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
-        raise argparse.ArgumentTypeError(f"'{text}' is not LO,HI with finite LO < HI")
+        raise argparse.ArgumentTypeError(f"{shown(text)} is not LO,HI with finite LO < HI")
     return lo, hi
 
 
