@@ -232,7 +232,7 @@ def write_fast(out_path: str | os.PathLike, loader_or_batches: Iterable[Batch], 
                 end = max(end, batch.start + batch.count)
             if written != info.points:
                 if written == 0 or written != end:
-                    raise InputError(f"{out_path}: only {written} of {info.points} points were read, "
+                    raise InputError(f"{shown(out_path)}: only {written} of {info.points} points were read, "
                                      f"not a contiguous run from the first; not written")
                 stream.seek(0)
                 stream.write(fast_header(written, info, attr))

@@ -8,6 +8,7 @@ way to read what is left of a damaged LAZ when the caller asks for partial input
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import re
 import struct
@@ -216,10 +217,10 @@ def decode(path: str, laz: LazLayout | None, count: int, piece: int, *, salvage:
             for chunk in _salvage(path, laz, count, read, piece):
                 read += len(chunk)
                 yield chunk
-        raise TruncatedInput(f"{path}: point data is truncated or corrupt after {read} of "
+        raise TruncatedInput(f"{shown(path)}: point data is truncated or corrupt after {read} of "
                              f"{count} points ({one_line(exc)})", read) from exc
     if read != count:
-        raise TruncatedInput(f"{path}: header says {count} points but only {read} could be read", read)
+        raise TruncatedInput(f"{shown(path)}: header says {count} points but only {read} could be read", read)
 
 
 def _salvage(path: str, laz: LazLayout, count: int, start: int,
@@ -321,7 +322,7 @@ def open_las(path: str | os.PathLike, *, partial: bool = False) -> LasSource:
         except Exception as exc:
             raise header_error(path, exc) from exc
         if bad_text:
-            warnings.append(f"{path}: {len(bad_text)} text field(s) of its VLRs are not UTF-8 "
+            warnings.append(f"{shown(path)}: {len(bad_text)} text field(s) of its VLRs are not UTF-8 "
                             f"({bad_text[0]}{', ...' if len(bad_text) > 1 else ''}); read them with '?' "
                             f"for the bad bytes")
         _check_numbers(path, header)
@@ -408,6 +409,10 @@ def _check_numbers(path: str, header: laspy.LasHeader) -> None:
             raise fail(path, f"invalid LAS header: {name} is not finite ({', '.join(map(str, values))})")
     if np.any(header.scales == 0):
         raise fail(path, f"invalid LAS header: scale is 0 ({', '.join(map(str, header.scales))})")
+    reach = [abs(float(o)) + abs(float(s)) * 2**31 for s, o in zip(header.scales, header.offsets, strict=True)]
+    if not all(map(math.isfinite, reach)):
+        raise fail(path, f"invalid LAS header: scale {', '.join(map(str, header.scales))} and offset "
+                         f"{', '.join(map(str, header.offsets))} make the coordinates overflow")
 
 
 def _unreachable_bounds(header: laspy.LasHeader) -> str | None:
@@ -447,11 +452,13 @@ def attribute_kind(name: str) -> AttributeKind:
 
 
 def _columns(pf: laspy.PointFormat) -> dict[str, Column]:
-    """Plain standard dimensions plus every numeric extra-bytes element."""
+    """Plain standard dimensions plus every numeric extra-bytes element that has a name
+    (laspy cannot index a dimension whose name is empty or only NULs)."""
     standard = set(pf.dimension_names)
     columns = {n: Column(n) for n in PLAIN if n in standard}
+    named = set(pf.dtype().names)
     for dim in pf.extra_dimensions:
-        if not np.issubdtype(dim.dtype.base, np.number):
+        if not np.issubdtype(dim.dtype.base, np.number) or not dim.name or dim.name not in named:
             continue
         if dim.num_elements == 1:
             columns[dim.name] = Column(dim.name)
@@ -473,13 +480,13 @@ def _checked_count(path: str, raw: RawHeader, size: int, partial: bool, warnings
         problem = (f"is truncated: header says {raw.count} points but the file holds "
                    f"{complete} ({available} of {expected} bytes of point data)")
         if partial and complete > 0:
-            warnings.append(f"{path}: {problem}; read the first {complete} points")
+            warnings.append(f"{shown(path)}: {problem}; read the first {complete} points")
             return complete
     else:
         problem = (f"header says {raw.count} points but the file holds more point data "
                    f"({available} bytes, {expected} expected)")
         if partial:
-            warnings.append(f"{path}: {problem}; read the first {raw.count} points")
+            warnings.append(f"{shown(path)}: {problem}; read the first {raw.count} points")
             return raw.count
     raise fail(path, problem)
 
@@ -496,8 +503,9 @@ def _probe(path: str, laz: LazLayout | None, count: int, has_rgb: bool, partial:
         for chunk in decode(path, laz, wanted, min(wanted, PROBE_PIECE), salvage=partial, patches=patches):
             if first is None:
                 first = chunk[:1]
-                coords = np.stack([np.asarray(getattr(chunk, dim)) for dim in "xyz"], axis=1)
-                seen = np.stack([coords.min(axis=0), coords.max(axis=0)])
+                with np.errstate(over="ignore", invalid="ignore"):
+                    coords = np.stack([np.asarray(getattr(chunk, dim)) for dim in "xyz"], axis=1)
+                    seen = np.stack([coords.min(axis=0), coords.max(axis=0)])
             if has_rgb:
                 max_rgb = max(max_rgb, *(int(np.max(chunk[c])) for c in ("red", "green", "blue")))
                 if max_rgb > 255:

@@ -203,6 +203,9 @@ def laz_layout(path: str, stream, header: laspy.LasHeader, record_length: int, c
     table = "not found" if table_at is None else \
         _table_damage(stream, vlr, point_data, table_at, size)
     if isinstance(table, str):
+        if variable:                    # lazrs needs the table's point counts to find the chunks
+            raise fail(path, f"point data cannot be decoded: its LAZ chunk table is missing or corrupt ({table}) "
+                             f"and its chunks are of variable size")
         if not partial:
             raise fail(path, f"point data is truncated or corrupt (its LAZ chunk table is missing or corrupt: "
                              f"{table}; a partial load reads what decodes)")

@@ -22,7 +22,7 @@ from progressive.errors import InputError
 from progressive.loaders.fastformat import FastSource, is_fast, open_fast
 from progressive.loaders.las import LasSource, TruncatedInput, open_las
 from progressive.loaders.types import BATCH_POINTS, AttributeInfo, Batch, CloudInfo
-from progressive.loaders.validate import fail
+from progressive.loaders.validate import fail, shown
 
 Source = LasSource | FastSource
 Task = tuple[str, Callable[[], Batch]]
@@ -65,7 +65,7 @@ def _fast_cloud(sources: tuple[FastSource, ...]) -> tuple[np.ndarray, tuple[Attr
     first = sources[0]
     for s in sources[1:]:
         if not np.array_equal(s.origin, first.origin) or s.attribute != first.attribute:
-            raise fail(s.info.path, f"has a different origin or attribute than {first.info.path}")
+            raise fail(s.info.path, f"has a different origin or attribute than {shown(first.info.path)}")
     return first.origin.copy(), (first.attribute,)
 
 

@@ -26,6 +26,7 @@ EVLR count and offset, item count; the items follow."""
 LASZIP_ITEM = struct.Struct("<HHH")     # type, size, version
 LASZIP_COMPRESSORS = {1: "pointwise", 2: "pointwise chunked", 3: "layered chunked"}
 CHUNKED = (2, 3)
+VARIABLE_CHUNKS = 2**32 - 1             # the chunk size of variable-size chunks (a chunk table of counts)
 POINT_ITEMS = {
     0: (6,), 1: (6, 7), 2: (6, 8), 3: (6, 7, 8), 4: (6, 7, 9), 5: (6, 7, 8, 9),
     6: (10,), 7: (10, 11), 8: (10, 12), 9: (10, 13), 10: (10, 12, 13),
@@ -96,14 +97,17 @@ def laszip_items(point_format: int, record_length: int) -> list[tuple[int, int]]
 def check_laszip(path: str, data: bytes, point_format: int, record_length: int) -> None:
     """Refuse a LASzip VLR that lazrs could panic on: no items (a division by zero in
     lazrs), items whose types or sizes do not make up the header's record (slice bounds
-    in lazrs), an unknown compressor, a chunk size of 0."""
+    in lazrs), an unknown compressor, a chunk size of 0, variable-size chunks without a
+    chunk table (lazrs panics looking for it)."""
     if len(data) < LASZIP_HEAD.size:
         raise fail(path, f"has a LASzip VLR of {len(data)} bytes, too short ({LASZIP_HEAD.size} at least)")
     compressor, _, _, _, _, _, chunk_size, _, _, count = LASZIP_HEAD.unpack_from(data)
     if compressor not in LASZIP_COMPRESSORS:
         raise fail(path, f"has an unknown LASzip compressor {compressor} in its LASzip VLR")
-    if compressor in CHUNKED and chunk_size == 0:
+    if chunk_size == 0:
         raise fail(path, "has a LASzip chunk size of 0 in its LASzip VLR")
+    if compressor not in CHUNKED and chunk_size == VARIABLE_CHUNKS:
+        raise fail(path, "has variable-size chunks in its LASzip VLR but pointwise compression (no chunk table)")
     if count == 0 or len(data) < LASZIP_HEAD.size + count * LASZIP_ITEM.size:
         raise fail(path, f"has a LASzip VLR of {len(data)} bytes declaring {count} items")
     items = [LASZIP_ITEM.unpack_from(data, LASZIP_HEAD.size + i * LASZIP_ITEM.size)[:2] for i in range(count)]

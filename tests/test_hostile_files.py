@@ -18,11 +18,14 @@ import os
 import struct
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import laspy
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from test_hard_input import TINY, assert_one_error_line, cli
 
 from conftest import REPO, SAMPLE
@@ -430,3 +433,236 @@ def test_fast_wrong_bounds_frame_the_points(folders, capsys, fast, case):
     assert good_code == 0 and not good_err, good_err
     assert (good_ids != EMPTY_ID).sum() > 100
     np.testing.assert_array_equal(ids, good_ids)
+
+
+# --- declared counts the file cannot hold, names that are not one line ------------------------
+
+@pytest.mark.parametrize("field, fmt, value", [(LEGACY_COUNT, "<I", 2**32 - 1), (247, "<Q", 2**62)])
+def test_count_beyond_the_file_fails_before_reading(folders, capsys, small, field, fmt, value):
+    """A header promising billions of points the file cannot hold is refused at once (the
+    point data's size against the file's), and --partial reads the points there are."""
+    inputs, outputs = folders
+    source = laspy.read(small["las"])
+    path = inputs / "promise.las"
+    laspy.convert(source, file_version="1.4").write(path) if fmt == "<Q" else source.write(path)
+    data = bytearray(path.read_bytes())
+    struct.pack_into(fmt, data, field, value)
+    path.write_bytes(data)
+    code, _, err = cli(capsys, "render", *TINY, path, "--out", outputs / "x.png")
+    assert_one_error_line(code, err, outputs)
+    assert "truncated" in err
+    code, err, ids = render(capsys, path, outputs, "--partial")
+    assert code == 0 and err.startswith("progressive: warning: ") and err.count("\n") == 1, err
+    assert (ids != EMPTY_ID).sum() > 100 and ids[ids != EMPTY_ID].max() < POINTS
+
+
+def test_file_name_with_a_newline_is_one_error_line(folders, capsys):
+    inputs, outputs = folders
+    path = inputs / "two\nlines.las"
+    path.write_bytes(b"LASF" + bytes(20))
+    code, _, err = cli(capsys, "render", *TINY, path, "--out", outputs / "x.png")
+    assert_one_error_line(code, err, outputs)
+    assert "two\\nlines.las" in err
+
+
+# --- property-based: header fields, VLR layouts, chunk tables, fast-format headers ------------
+#
+# tests/test_fuzz.py writes random bytes and boundary integers at random offsets and checks
+# the loader; these draw values for the named fields the format has (so that most examples
+# reach past the first check) and check the whole command line: exit 0 with the points in
+# view, or exit 2 with one error line, and nothing else on stderr (panics included: capfd
+# sees what Rust writes to fd 2).
+
+FUZZ = settings(max_examples=int(os.environ.get("PROGRESSIVE_FUZZ_EXAMPLES", "12")), deadline=None,
+                derandomize=True, database=None,
+                suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+NAN, INF = float("nan"), float("inf")
+
+
+def field(offset: int, fmt: str, *changes):
+    """A header field and the changes drawn for it: each a value, or a function of the
+    field's value in the real file."""
+    return st.tuples(st.just((offset, fmt)), st.sampled_from(changes))
+
+
+def apply(data: bytearray, edits) -> bytes:
+    for (offset, fmt), change in edits:
+        if offset + struct.calcsize(fmt) > len(data):
+            continue
+        value = change(struct.unpack_from(fmt, data, offset)[0]) if callable(change) else change
+        if fmt[-1] not in "df":
+            value %= 1 << (8 * struct.calcsize(fmt))
+            value -= (1 << (8 * struct.calcsize(fmt))) if fmt[-1] == "q" and value >= 1 << 63 else 0
+        struct.pack_into(fmt, data, offset, value)
+    return bytes(data)
+
+
+def reals(*extra):
+    return (lambda v: -v, lambda v: v * (1 + 1e-12), lambda v: v + 1e6, 0.0, 1e-9, 1e300, -1e300, NAN, INF, *extra)
+
+
+def counts(*extra):
+    return (0, 1, lambda v: v - 1, lambda v: v + 1, lambda v: 2 * v, 2**32 - 1, *extra)
+
+
+LAS_FIELDS = st.one_of(
+    *(field(offset, "<d", *reals(1.0, 1e-3, 1e3)) for offset in (131, 139, 147)),          # scale
+    *(field(offset, "<d", *reals(1e12)) for offset in (155, 163, 171)),                     # offset
+    *(field(offset, "<d", *reals(lambda v: v - 1e6)) for offset in range(179, 227, 8)),     # bounds
+    field(LEGACY_COUNT, "<I", *counts()),
+    field(247, "<Q", *counts(2**62, 2**64 - 1)),                                           # LAS 1.4 count
+    field(96, "<I", *counts(lambda v: v - 54, lambda v: v + 54)),                          # point data offset
+    field(105, "<H", *counts(65535)),                                                      # record length
+    field(100, "<I", *counts()),                                                           # VLR count
+    field(94, "<H", 0, 227, 375, lambda v: v + 1, lambda v: v - 1),                        # header size
+    field(24, "<H", 0x0001, 0x0201, 0x0301, 0x0401, 0x0501, 0x0101),                       # version
+    field(104, "<B", *range(0, 12), *range(0x80, 0x8C), 0x40),                            # point format
+)
+
+
+def check_cli(capfd, path: Path, partial: bool) -> int:
+    """Render `path`: exit 0 with the points in view (unless none is drawable) and only
+    warnings on stderr, or exit 2 with one error line; outputs only on success."""
+    out = Path(tempfile.mkdtemp(dir=path.parent))
+    code, _, err = cli(capfd, "render", *TINY, path, "--out", out / "x.png", "--ids", out / "x.npy",
+                       "--stats", out / "s.json", *(["--partial"] if partial else []))
+    for bad in ("Traceback", "panicked", "RuntimeWarning", "thread '"):
+        assert bad not in err, err
+    if code != 0:
+        assert_one_error_line(code, err, out)
+        return code
+    assert all(line.startswith("progressive: warning: ") for line in err.splitlines()), err
+    assert sorted(p.name for p in out.iterdir()) == ["s.json", "x.npy", "x.png"]
+    stats = json.loads((out / "s.json").read_text())
+    ids = np.load(out / "x.npy")
+    if stats["points_not_drawn"] < stats["points_on_gpu"]:
+        assert (ids != EMPTY_ID).any(), f"{stats['points_on_gpu']} points, none in view: {err}"
+    return code
+
+
+@pytest.mark.filterwarnings("error")
+@pytest.mark.parametrize("name", ["las", "laz", "laz14"])
+@FUZZ
+@given(data=st.data())
+def test_property_las_header_fields(tmp_path, capfd, small, name, data):
+    edits = data.draw(st.lists(LAS_FIELDS, min_size=1, max_size=3), label="edits")
+    path = tmp_path / f"case.{'las' if name == 'las' else 'laz'}"
+    path.write_bytes(apply(bytearray(small[name].read_bytes()), edits))
+    check_cli(capfd, path, data.draw(st.booleans(), label="partial"))
+
+
+def laszip_fields(at: int):
+    """The LASzip VLR's fields, its VLR header's record length, and its items."""
+    item = st.integers(0, 4).flatmap(lambda i: st.one_of(
+        field(at + 34 + 6 * i, "<H", *range(0, 16), 99),                                   # type
+        field(at + 36 + 6 * i, "<H", 0, 1, 6, 7, 8, 20, 29, 30, 65535, lambda v: v + 1),    # size
+        field(at + 38 + 6 * i, "<H", 0, 1, 2, 3, 4, 9)))                                   # version
+    return st.one_of(
+        field(at, "<H", 0, 1, 2, 3, 4, 65535),                                             # compressor
+        field(at + 2, "<H", 0, 1, 2),                                                      # coder
+        field(at + 4, "<B", 0, 1, 2, 3, 9, 255),                                           # version major
+        field(at + 12, "<I", 0, 1, 2, 100, 50_000, 2**31, 2**32 - 2, 2**32 - 1),           # chunk size
+        field(at + 16, "<q", -1, 0, 1, 2**40),                                             # special EVLRs
+        field(at + LASZIP_ITEMS, "<H", 0, 1, 2, 3, 4, 5, 65535),                           # item count
+        field(at - VLR_HEADER + 20, "<H", 0, 33, 34, lambda v: v - 6, lambda v: v + 6, 65535),
+        item,
+    )
+
+
+VLR_HEADER = 54
+
+
+@pytest.mark.filterwarnings("error")
+@pytest.mark.parametrize("name", ["laz", "laz14"])
+@FUZZ
+@given(data=st.data())
+def test_property_laszip_vlr(tmp_path, capfd, small, name, data):
+    base = bytearray(small[name].read_bytes())
+    edits = data.draw(st.lists(laszip_fields(laszip_vlr_at(base)), min_size=1, max_size=3), label="edits")
+    path = tmp_path / "case.laz"
+    path.write_bytes(apply(base, edits))
+    check_cli(capfd, path, data.draw(st.booleans(), label="partial"))
+
+
+def chunk_table_fields(data: bytes):
+    point_data, table = chunk_table_at(data)
+    size = len(data)
+    return st.one_of(
+        field(point_data, "<q", -1, 0, point_data, point_data + 8, size - 8, size, 2**62,
+              lambda v: v - 1, lambda v: v + 1, lambda v: v - 100),                      # table offset
+        field(table, "<I", 0, 1, 2**32 - 1),                                             # table version
+        field(table + 4, "<I", 0, 1, 2, 3, 4, 1000, 2**32 - 1),                          # chunk count
+        st.tuples(st.tuples(st.integers(table + 8, size - 1), st.just("<B")), st.integers(0, 255)),
+    )
+
+
+@pytest.mark.filterwarnings("error")
+@pytest.mark.parametrize("name", ["laz", "laz14"])
+@FUZZ
+@given(data=st.data())
+def test_property_laz_chunk_table(tmp_path, capfd, small, name, data):
+    base = bytearray(small[name].read_bytes())
+    edits = data.draw(st.lists(chunk_table_fields(base), min_size=1, max_size=3), label="edits")
+    path = tmp_path / "case.laz"
+    path.write_bytes(apply(base, edits))
+    check_cli(capfd, path, data.draw(st.booleans(), label="partial"))
+
+
+@pytest.fixture(scope="module")
+def extra_bytes(tmp_path_factory, small) -> Path:
+    """The small LAS with a float32, a uint16[3] and an int8 extra-bytes dimension."""
+    source = laspy.read(small["las"])
+    header = laspy.LasHeader(point_format=3, version="1.4")
+    header.scales, header.offsets = source.header.scales, source.header.offsets
+    header.add_extra_dims([laspy.ExtraBytesParams("f32", "f4"), laspy.ExtraBytesParams("triple", "3u2"),
+                           laspy.ExtraBytesParams("small", "i1")])
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = source.x, source.y, source.z
+    las.red, las.green, las.blue = source.red, source.green, source.blue
+    las.f32 = np.arange(POINTS, dtype=np.float32)
+    path = tmp_path_factory.mktemp("eb") / "eb.las"
+    las.write(path)
+    return path
+
+
+@pytest.mark.filterwarnings("error")
+@FUZZ
+@given(data=st.data())
+def test_property_extra_bytes_vlr(tmp_path, capfd, extra_bytes, data):
+    base = bytearray(extra_bytes.read_bytes())
+    at = base.index(b"LASF_Spec") - 2 + VLR_HEADER            # the extra-bytes VLR's data
+    entry = st.integers(0, 3).flatmap(lambda i: st.one_of(
+        field(at + 192 * i + 2, "<B", *range(0, 32), 255),                               # data type
+        field(at + 192 * i + 3, "<B", 0, 1, 2, 4, 8, 16, 255),                            # options
+        field(at + 192 * i + 4, "<B", 0, 0x80, 0xFF, ord("["), ord("]")),                 # name
+        field(at + 192 * i + 4, "<I", 0, 0xFFFFFFFF, 0x00616161)))
+    length = field(at - VLR_HEADER + 20, "<H", 0, 191, 193, 384, 576, 768, 65535)
+    edits = data.draw(st.lists(entry | length, min_size=1, max_size=3), label="edits")
+    path = tmp_path / "case.las"
+    path.write_bytes(apply(base, edits))
+    check_cli(capfd, path, data.draw(st.booleans(), label="partial"))
+
+
+FAST_FIELDS = st.one_of(
+    field(8, "<I", 0, 2, 2**32 - 1),                                                     # version
+    field(12, "<I", 0, 255, 257),                                                        # header size
+    field(16, "<Q", *counts(2**40)),                                                     # count
+    *(field(offset, "<d", *reals(1e12, 2e12)) for offset in range(FAST_ORIGIN, FAST_ORIGIN + 24, 8)),
+    *(field(offset, "<d", *reals(lambda v: v - 1e6)) for offset in range(FAST_MIN, FAST_MAX + 24, 8)),
+    field(FAST_KIND, "<I", 0, 1, 2, 3, 2**32 - 1),
+    field(100, "<I", 0, 1, 2**32 - 1),                                                   # reserved
+    field(104, "<d", 0.0, 1e9, 1e300, NAN, lambda v: -v),                                 # attribute offset
+    st.tuples(st.tuples(st.integers(FAST_NAME, FAST_NAME + NAME_FIELD - 1), st.just("<B")),
+              st.sampled_from([0, 1, 0x20, 0x41, 0x7F, 0x80, 0xC3, 0xFF])),               # name bytes
+)
+
+
+@pytest.mark.filterwarnings("error")
+@pytest.mark.parametrize("name", ["rgb", "intensity"])
+@FUZZ
+@given(data=st.data())
+def test_property_fast_header(tmp_path, capfd, fast, name, data):
+    edits = data.draw(st.lists(FAST_FIELDS, min_size=1, max_size=3), label="edits")
+    path = tmp_path / "case.prgs"
+    path.write_bytes(apply(bytearray(fast[name].read_bytes()), edits))
+    check_cli(capfd, path, data.draw(st.booleans(), label="partial"))
