@@ -36,6 +36,7 @@ class Binding(enum.IntEnum):
     DILATED = 25            # point-size pass output, laid out as VISIBILITY
     DILATED_WORDS = 26      # point-size pass output, laid out as PIXEL_WORDS
     HISTOGRAM = 27          # percentile select counts (passes/percentile.py)
+    BATCH_BOXES = 28        # batched layout: each batch's box (progressive/batches.py)
 
     @classmethod
     def points(cls, chunk: int) -> Binding:

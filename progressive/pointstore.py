@@ -3,6 +3,7 @@ chunks so no GL buffer exceeds the driver's storage-block limit or 2^31 bytes.""
 
 from __future__ import annotations
 
+from progressive import batches
 from progressive.bindings import MAX_POINT_CHUNKS, Binding
 from progressive.context import GLContext
 from progressive.errors import ProgressiveError
@@ -41,6 +42,9 @@ class PointStore:
                 f"{self.capacity:,} points need {chunks} GPU buffers of {self.chunk_points:,} points; "
                 f"at most {MAX_POINT_CHUNKS} are supported")
         self._glc = glc
+        self.boxes = batches.empty_boxes(max(1, self.permutation.batches))
+        self.box_buffer = glc.ctx.buffer(self.boxes.tobytes())
+        self.box_buffer.label = "batch boxes"
         self.buffers = []
         for c in range(chunks):
             n = max(1, min(self.chunk_points, self.capacity - c * self.chunk_points))
@@ -51,6 +55,23 @@ class PointStore:
             if glc.ctx.error == "GL_OUT_OF_MEMORY":
                 self.release()
                 raise GPUMemoryError(f"the GPU could not allocate {n * RECORD_BYTES / 2**20:.0f} MiB for points")
+
+    @property
+    def batched(self) -> bool:
+        return self.permutation.batches > 0
+
+    def add_boxes(self, positions, start: int) -> None:
+        """Grow the boxes of the batches that file indices [start, start+n) belong to
+        (batched layout; the rasterizer culls batches outside the view with them)."""
+        if not self.batched:
+            return
+        first, new = batches.boxes_of(positions, start)
+        batches.merge(self.boxes, first, new)
+        part = self.boxes[first: first + new.shape[0]]
+        self.box_buffer.write(part.tobytes(), offset=first * part.itemsize * batches.BOX_FLOATS)
+
+    def bind_boxes(self) -> None:
+        self.box_buffer.bind_to_storage_buffer(Binding.BATCH_BOXES)
 
     @property
     def kept(self) -> int:
@@ -86,3 +107,6 @@ class PointStore:
         for buf in self.buffers:
             buf.release()
         self.buffers = []
+        if self.box_buffer is not None:
+            self.box_buffer.release()
+            self.box_buffer = None

@@ -78,6 +78,7 @@ class Scene:
         records = pack_records(batch, self.attribute, float(self.info.origin[2]))
         self.skipped += nonfinite_records(records)[0]     # what shaders/common.glsl finite_position skips
         self.distribute.upload(records, batch.start)
+        self.store.add_boxes(batch.positions, batch.start)
         if self.keep_batches:
             self.batches.append(batch)
         self.loaded += batch.count

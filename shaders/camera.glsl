@@ -30,3 +30,4 @@ bool project(vec3 p, out uint pixel, out float depth) {
     pixel = uint(fy) * u_size.x + uint(fx);
     return true;
 }
+

@@ -29,11 +29,15 @@ class ComputeRaster:
     """`passes` is 1 (64-bit) or 2 (depth, then index): a frame runs pass 0 over all
     its sources before pass 1, so the index pass sees the final depths."""
 
-    def __init__(self, glc: GLContext, store: PointStore, vis: VisibilityBuffer, *, atomic64: bool):
+    def __init__(self, glc: GLContext, store: PointStore, vis: VisibilityBuffer, *, atomic64: bool,
+                 cull: bool = True):
+        """cull: skip batches whose box is outside the view (batched layout; ranges and
+        fill pieces, not the reprojection list, whose points were visible)."""
         if atomic64 and not glc.caps.atomic_int64:
             raise ValueError("64-bit atomics requested but GL_NV_shader_atomic_int64 is missing")
         self.glc, self.store, self.vis = glc, store, vis
         self.atomic64 = atomic64
+        self.cull = cull and store.batched
         self.passes = 1 if atomic64 else 2
         self._programs: dict[tuple[Source, int], object] = {}
         for source in Source:
@@ -44,7 +48,8 @@ class ComputeRaster:
         """Compiled at construction, so no frame pays for a compile."""
         key = (source, pass_index)
         if key not in self._programs:
-            defines = dict(self.store.defines, **Source.defines(source), **layout_defines(), **Meta.defines())
+            defines = dict(self.store.defines, **Source.defines(source), **layout_defines(), **Meta.defines(),
+                           CULL=int(self._culls(source)))
             if self.atomic64:
                 defines["ATOMIC64"] = 1
                 ext = ("GL_ARB_gpu_shader_int64", "GL_NV_shader_atomic_int64")
@@ -62,9 +67,15 @@ class ComputeRaster:
     def end_frame(self, view: ViewUniforms) -> None:
         """Nothing to gather: atomics wrote the visibility buffer directly."""
 
+    def _culls(self, source: Source) -> bool:
+        return self.cull and source is not Source.LIST
+
     def _prepare(self, source: Source, pass_index: int, view: ViewUniforms):
         program = self.program(source, pass_index)
         set_view(program, view)
+        if self._culls(source):
+            program["u_batches"] = self.store.permutation.batches
+            self.store.bind_boxes()
         self.store.bind()
         self.vis.bind()
         return program

@@ -1,0 +1,81 @@
+"""Batch boxes of the batched layout and the frustum test the rasterizer makes with
+them (shaders/camera.glsl box_in_view), GPU-free: a work group whose batch's box is
+outside the view skips its points. The box is of the float32 positions relative to
+the cloud origin, exactly what the GPU projects."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from progressive.camera import ViewUniforms
+from progressive.permutation import BATCH_POINTS
+
+BOX_FLOATS = 8
+"""A box on the GPU: min xyz, a pad, max xyz, a pad (two std430 vec4)."""
+BOX_MARGIN = 1e-5
+"""Relative slack of the test, far above float32 rounding of a corner's projection:
+culling may keep a batch that is just outside, never drop one that is inside."""
+
+
+def glsl_defines() -> str:
+    """The box test's constant for every shader (shaders/batches.glsl)."""
+    return f"#define BOX_MARGIN {BOX_MARGIN!r}\n"
+
+
+def empty_boxes(batches: int) -> np.ndarray:
+    """(batches, BOX_FLOATS) float32 boxes that hold nothing (min +inf, max -inf): culled."""
+    boxes = np.zeros((batches, BOX_FLOATS), dtype=np.float32)
+    boxes[:, 0:3], boxes[:, 4:7] = np.inf, -np.inf
+    return boxes
+
+
+def boxes_of(positions: np.ndarray, start: int) -> tuple[int, np.ndarray]:
+    """The first batch that file indices [start, start+n) touch and the boxes of their
+    points in each batch touched, (k, BOX_FLOATS); NaN coordinates are left out (such
+    points never draw), a batch of only those stays empty."""
+    n = positions.shape[0]
+    first = start // BATCH_POINTS
+    if n == 0:
+        return first, empty_boxes(0)
+    cuts = np.arange((first + 1) * BATCH_POINTS, start + n, BATCH_POINTS) - start
+    edges = np.concatenate([[0], cuts]).astype(np.int64)
+    p = np.asarray(positions, dtype=np.float32)
+    boxes = empty_boxes(edges.size)
+    with np.errstate(invalid="ignore"):
+        boxes[:, 0:3] = np.fmin.reduceat(p, edges, axis=0)
+        boxes[:, 4:7] = np.fmax.reduceat(p, edges, axis=0)
+    nan = np.isnan(boxes[:, 0])
+    boxes[nan] = empty_boxes(int(nan.sum()))
+    return first, boxes
+
+
+def merge(boxes: np.ndarray, first: int, new: np.ndarray) -> None:
+    """In place: boxes[first:first+k] grow to hold `new` (a batch may arrive in parts)."""
+    part = boxes[first: first + new.shape[0]]
+    part[:, 0:3] = np.fmin(part[:, 0:3], new[:, 0:3])
+    part[:, 4:7] = np.fmax(part[:, 4:7], new[:, 4:7])
+
+
+def corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(k, 8, 3) corners of k boxes."""
+    pick = np.array([[(c >> a) & 1 for a in range(3)] for c in range(8)], dtype=bool)
+    return np.where(pick[None], hi[:, None, :], lo[:, None, :])
+
+
+def in_view(boxes: np.ndarray, view: ViewUniforms) -> np.ndarray:
+    """Which boxes the GPU's test keeps: no frustum plane (near, far, the four sides)
+    has all eight corners of the box, padded by BOX_MARGIN, outside it by more than
+    BOX_MARGIN of the terms it compares. Empty boxes are culled."""
+    lo, hi = boxes[:, 0:3].astype(np.float64), boxes[:, 4:7].astype(np.float64)
+    empty = ~(lo <= hi).all(axis=1)
+    with np.errstate(invalid="ignore", over="ignore"):
+        pad = BOX_MARGIN * ((hi - lo) + np.maximum(np.abs(lo), np.abs(hi))) + 1e-30
+        v = corners(lo - pad, hi + pad) @ view.rotation.astype(np.float64).T + view.translation.astype(np.float64)
+        depth = -v[..., 2]
+        fa, f, near, far = (float(x) for x in view.projection)
+        d, x, y = np.abs(depth), fa * v[..., 0], f * v[..., 1]
+        planes = np.stack([depth - near + BOX_MARGIN * (d + near), far - depth + BOX_MARGIN * (d + far),
+                           depth - x + BOX_MARGIN * (d + np.abs(x)), depth + x + BOX_MARGIN * (d + np.abs(x)),
+                           depth - y + BOX_MARGIN * (d + np.abs(y)), depth + y + BOX_MARGIN * (d + np.abs(y))], axis=-1)
+        outside = (planes < 0).all(axis=1).any(axis=1)
+    return ~empty & ~outside

@@ -1,0 +1,123 @@
+"""Batch boxes and culling: boxes hold their points (against numpy per batch), the
+frustum test never drops a batch with a point in view (against the float64 render
+contract), and the GPU's culled render has the ids of the unculled one for views
+inside, at the edge of and outside the cloud."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from progressive import batches
+from progressive.attributes import find_attribute
+from progressive.camera import Camera, auto_camera, project, view_uniforms
+from progressive.passes.raster_compute import ComputeRaster
+from progressive.permutation import BATCH_POINTS
+from progressive.renderer import Renderer
+from progressive.scene import Scene
+
+W, H = 160, 120
+
+
+def numpy_boxes(p: np.ndarray) -> np.ndarray:
+    """Per batch of BATCH_POINTS file points: min and max of the finite rows."""
+    out = batches.empty_boxes(-(-p.shape[0] // BATCH_POINTS))
+    for b in range(out.shape[0]):
+        part = p[b * BATCH_POINTS:(b + 1) * BATCH_POINTS]
+        part = part[~np.isnan(part).any(axis=1)]
+        if part.size:
+            out[b, 0:3], out[b, 4:7] = part.min(axis=0), part.max(axis=0)
+    return out
+
+
+@pytest.mark.parametrize("cuts", [[], [1], [BATCH_POINTS], [5000, 5001, 30_000], [BATCH_POINTS * 2 - 1]])
+def test_boxes_of_any_split_equal_numpy(cuts):
+    rng = np.random.default_rng(len(cuts))
+    n = 3 * BATCH_POINTS + 77
+    p = rng.normal(0, 100, (n, 3)).astype(np.float32)
+    p[rng.integers(0, n, 50)] = np.nan
+    p[BATCH_POINTS:2 * BATCH_POINTS] = np.nan          # a batch of points that never draw stays empty
+    boxes = batches.empty_boxes(4)
+    edges = [0, *cuts, n]
+    for a, b in zip(edges[:-1], edges[1:]):
+        first, new = batches.boxes_of(p[a:b], a)
+        batches.merge(boxes, first, new)
+    assert np.array_equal(boxes, numpy_boxes(p))
+    assert not (boxes[1, 0:3] <= boxes[1, 4:7]).any()
+
+
+def cameras(info) -> dict[str, Camera]:
+    lo, hi = info.bounds_min, info.bounds_max
+    base = auto_camera(lo, hi, W / H)
+    centre, size = (lo + hi) / 2, hi - lo
+    low = np.array([centre[0], centre[1], lo[2] + 0.3 * size[2]])
+    return {
+        "overview": base,
+        "inside": Camera(position=tuple(low), target=tuple(low + [size[0], 0.2 * size[1], 0]), near=0.5, far=1e4),
+        "zoomed corner": Camera(position=tuple(lo + [0.1 * size[0], 0.1 * size[1], 0.3 * size[0]]),
+                                target=tuple(lo + [0.1 * size[0], 0.1 * size[1], 0.0]), up=(0, 1, 0), near=1.0, far=1e4),
+        "edge": Camera(position=tuple(low - [0.6 * size[0], 0, 0]), target=tuple(low - [0.5 * size[0], 0, 0]),
+                       near=1.0, far=1e5),
+        "behind near plane": Camera(position=base.position, target=base.target, near=0.9 * np.linalg.norm(
+            np.subtract(base.position, base.target)), far=1e5),
+        "outside": Camera(position=tuple(low - [2 * size[0], 0, 0]), target=tuple(low - [3 * size[0], 0, 0]),
+                          near=1.0, far=1e5),
+    }
+
+
+@pytest.fixture(scope="module")
+def sample(sample_batches):
+    info, parts = sample_batches
+    positions = np.concatenate([b.positions for b in parts])
+    xyz = positions.astype(np.float64) + info.origin
+    return info, parts, positions, xyz
+
+
+@pytest.mark.parametrize("name", ["overview", "inside", "zoomed corner", "edge", "behind near plane", "outside"])
+def test_culled_batches_have_no_point_in_view(sample, name):
+    info, _, positions, xyz = sample
+    cam = cameras(info)[name]
+    boxes = numpy_boxes(positions)
+    kept = batches.in_view(boxes, view_uniforms(cam, info.origin, W, H))
+    pixel, _ = project(cam, xyz, W, H)
+    seen = np.unique(np.nonzero(pixel >= 0)[0] // BATCH_POINTS)
+    assert kept[seen].all(), f"batches {seen[~kept[seen]]} culled with points in view"
+    if name in ("zoomed corner", "outside"):
+        assert not kept.all()
+
+
+@pytest.mark.parametrize("name", ["overview", "inside", "zoomed corner", "edge", "behind near plane", "outside"])
+def test_culling_keeps_every_visible_point_on_the_gpu(gl, sample, name):
+    info, parts, _, _ = sample
+    cam = cameras(info)[name]
+    scene = Scene(gl, info, find_attribute(info, "elevation"))
+    r = Renderer(gl, info, scene.attribute, width=W, height=H, scene=scene)
+    try:
+        for b in parts:
+            scene.add_batch(b)
+        culled = r.render(cam, W, H, r.style())
+        assert r.raster.cull
+        plain = ComputeRaster(gl, scene.store, r.vis, atomic64=r.raster.atomic64, cull=False)
+        r.raster.release()
+        r.raster = plain
+        unculled = r.render(cam, W, H, r.style())
+        assert np.array_equal(culled.ids, unculled.ids)
+        assert gl.ctx.error == "GL_NO_ERROR"
+    finally:
+        r.release()
+        scene.release()
+
+
+def test_store_boxes_hold_the_loaded_points(gl, sample):
+    info, parts, positions, _ = sample
+    scene = Scene(gl, info, find_attribute(info, "elevation"))
+    try:
+        for b in parts[::-1]:
+            scene.add_batch(b)
+        expected = numpy_boxes(positions)
+        assert np.array_equal(scene.store.boxes, expected)
+        gpu = np.frombuffer(scene.store.box_buffer.read(), dtype=np.float32).reshape(-1, batches.BOX_FLOATS)
+        assert np.array_equal(gpu[:, [0, 1, 2, 4, 5, 6]], expected[:, [0, 1, 2, 4, 5, 6]])
+    finally:
+        scene.release()
+
