@@ -340,6 +340,7 @@ def _stats(session, camera, frames: int, converged_at: int | None) -> dict:
         "height": session.options.height,
         "attribute": session.attribute.name,
         "color_range": session.color_range(),
+        "batches": session.batch_counts(camera),
         "peak_rss_bytes": memory.peak_rss_bytes(),
         "camera": camera.to_dict(),
         "frames_rendered": frames,

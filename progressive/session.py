@@ -17,10 +17,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from progressive import memory
+from progressive import batches, memory
 from progressive.attributes import default_choice, find_attribute
 from progressive.budget import BudgetParams
-from progressive.camera import Camera, auto_camera
+from progressive.camera import Camera, auto_camera, view_uniforms
 from progressive.colors import Colormap, ColorStyle
 from progressive.context import GLContext, create_context
 from progressive.effects import Effects
@@ -161,6 +161,16 @@ class Session:
         self.attribute = attribute
         self._given_range = None
         return self.renderer.scene.switch
+
+    def batch_counts(self, camera: Camera) -> dict[str, int]:
+        """Batches of the store and how many the rasterizer's culling test keeps for
+        `camera` (its numpy twin); empty batches are culled."""
+        store = self.renderer.store
+        if not store.batched:
+            return {"total": 0, "drawn": 0, "culled": 0}
+        view = view_uniforms(camera, self.info.origin, *self.size)
+        drawn = int(np.count_nonzero(batches.in_view(store.boxes, view)))
+        return {"total": store.permutation.batches, "drawn": drawn, "culled": store.permutation.batches - drawn}
 
     def set_budget(self, params: BudgetParams) -> None:
         """Another fill budget from the next frame on (progressive)."""

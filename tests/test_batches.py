@@ -121,3 +121,21 @@ def test_store_boxes_hold_the_loaded_points(gl, sample):
     finally:
         scene.release()
 
+
+
+def test_stats_report_batches_culled(tmp_path, sample):
+    import json
+
+    from progressive.cli import main
+
+    info = sample[0]
+    counts = {}
+    for name in ("overview", "zoomed corner", "outside"):
+        stats = tmp_path / f"{name}.json"
+        camera = json.dumps(cameras(info)[name].to_dict())
+        assert main(["render", "--width", str(W), "--height", str(H), "--camera", camera, "--stats", str(stats)]) == 0
+        counts[name] = json.loads(stats.read_text())["batches"]
+    total = -(-info.points // BATCH_POINTS)
+    assert counts["overview"] == {"total": total, "drawn": total, "culled": 0}
+    assert 0 < counts["zoomed corner"]["culled"] < total
+    assert counts["outside"] == {"total": total, "drawn": 0, "culled": total}
