@@ -169,10 +169,10 @@ def _table_damage(stream, vlr: lazrs.LazVlr, point_data: int, table_at: int, siz
         return "it cannot be read"
     span = table_at - point_data - TABLE_OFFSET_BYTES
     counted = sum(n for _, n in table)
-    if counted != span or any(n <= 0 for _, n in table):
+    if counted != span:
         return f"the byte counts of its {len(table)} chunks add up to {counted}, not to the {span} bytes of chunk data"
-    if vlr.uses_variable_size_chunks() and any(points <= 0 for points, _ in table):
-        return "a chunk has no points"
+    if any((n <= 0) != (points == 0) if vlr.uses_variable_size_chunks() else n <= 0 for points, n in table):
+        return "a chunk has points but no bytes, or bytes but no points"
     return table
 
 

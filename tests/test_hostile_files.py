@@ -22,6 +22,7 @@ import tempfile
 from pathlib import Path
 
 import laspy
+import lazrs
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -86,6 +87,37 @@ def small(tmp_path_factory, sample) -> dict[str, Path]:
                                                                     laz_backend=laspy.LazBackend.Lazrs)
     sample.write(paths["chunks3"], laz_backend=laspy.LazBackend.Lazrs)
     return paths
+
+
+@pytest.fixture(scope="module")
+def variable(tmp_path_factory, small) -> Path:
+    """The small layered LAZ rewritten with variable-size chunks (of 1000, 1200 and 800
+    points, as COPC files have), compressed by lazrs."""
+    source = laspy.read(small["laz14"])
+    vlr = lazrs.LazVlr.new_for_compression(7, 0, use_variable_size_chunks=True)
+    header = laspy.LasHeader(point_format=7, version="1.4")
+    header.scales, header.offsets = source.header.scales, source.header.offsets
+    header.mins, header.maxs = source.header.mins, source.header.maxs
+    header.point_count = POINTS
+    header.vlrs.append(laspy.VLR("laszip encoded", 22204, "lazrs", vlr.record_data()))
+    head = io.BytesIO()
+    header.write_to(head)
+    data = bytearray(head.getvalue())
+    data[104] |= 0x80                                   # compressed
+    body = io.BytesIO()
+    compressor = lazrs.LasZipCompressor(body, vlr)
+    compressor.reserve_offset_to_chunk_table()
+    raw, size = source.points.array.tobytes(), source.points.array.itemsize
+    for lo, hi in ((0, 1000), (1000, 2200), (2200, POINTS)):
+        compressor.compress_many(raw[lo * size:hi * size])
+        compressor.finish_current_chunk()
+    compressor.done()
+    points = bytearray(body.getvalue())
+    struct.pack_into("<q", points, 0, struct.unpack_from("<q", points, 0)[0] + len(data))
+    path = tmp_path_factory.mktemp("variable") / "variable.laz"
+    path.write_bytes(bytes(data + points))
+    assert np.array_equal(laspy.read(path).points.array, source.points.array)
+    return path
 
 
 @pytest.fixture
@@ -597,11 +629,11 @@ def chunk_table_fields(data: bytes):
 
 
 @pytest.mark.filterwarnings("error")
-@pytest.mark.parametrize("name", ["laz", "laz14"])
+@pytest.mark.parametrize("name", ["laz", "laz14", "variable"])
 @FUZZ
 @given(data=st.data())
-def test_property_laz_chunk_table(tmp_path, capfd, small, name, data):
-    base = bytearray(small[name].read_bytes())
+def test_property_laz_chunk_table(tmp_path, capfd, small, variable, name, data):
+    base = bytearray((variable if name == "variable" else small[name]).read_bytes())
     edits = data.draw(st.lists(chunk_table_fields(base), min_size=1, max_size=3), label="edits")
     path = tmp_path / "case.laz"
     path.write_bytes(apply(base, edits))
@@ -666,3 +698,32 @@ def test_property_fast_header(tmp_path, capfd, fast, name, data):
     path = tmp_path / "case.prgs"
     path.write_bytes(apply(bytearray(fast[name].read_bytes()), edits))
     check_cli(capfd, path, data.draw(st.booleans(), label="partial"))
+
+
+@pytest.mark.filterwarnings("error")
+@pytest.mark.parametrize("case", ["plain", "cut", "count more", "count less"])
+def test_variable_size_chunks(folders, capsys, variable, case):
+    """Variable-size chunks need the table's point counts: without a table (a cut file)
+    nothing decodes, in one line, with or without --partial (lazrs panicked); a count the
+    table contradicts is refused, and read as far as both agree with --partial."""
+    inputs, outputs = folders
+    data = bytearray(variable.read_bytes())
+    if case == "cut":
+        del data[len(data) * 2 // 3:]
+    elif case != "plain":
+        struct.pack_into("<Q", data, 247, POINTS + (100 if case == "count more" else -100))
+    path = inputs / "variable.laz"
+    path.write_bytes(data)
+    code, _, err = cli(capsys, "render", *TINY, path, "--out", outputs / "x.png")
+    if case == "plain":
+        assert code == 0 and not err, err
+        return
+    assert_one_error_line(code, err, outputs)
+    code, err, ids = render(capsys, path, outputs, "--partial")
+    if case == "cut":
+        assert_one_error_line(code, err, outputs)
+        assert "variable size" in err
+        return
+    assert code == 0 and err.count("\n") == 1 and err.startswith("progressive: warning: "), err
+    read = POINTS - 100 if case == "count less" else POINTS
+    assert (ids != EMPTY_ID).sum() > 100 and ids[ids != EMPTY_ID].max() < read
