@@ -31,7 +31,15 @@ from progressive.loaders.types import (
     nonfinite_rows,
     quiet_nans,
 )
-from progressive.loaders.validate import BOUNDS_SLACK, contradicted_bounds, fail, one_line, open_binary, shown
+from progressive.loaders.validate import (
+    BOUNDS_SLACK,
+    check_addressable,
+    contradicted_bounds,
+    fail,
+    one_line,
+    open_binary,
+    shown,
+)
 
 SIGNATURE = b"LASF"
 MAX_POINT_FORMAT = 10
@@ -332,6 +340,7 @@ def open_las(path: str | os.PathLike, *, partial: bool = False) -> LasSource:
             count = laz.points
         else:
             count = _checked_count(path, raw, size, partial, warnings)
+    check_addressable(path, count)
     pf = header.point_format
     has_rgb = "red" in pf.dimension_names
     max_rgb, first, seen = _probe(path, laz, count, has_rgb, partial, patches)

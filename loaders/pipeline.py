@@ -22,7 +22,7 @@ from progressive.errors import InputError
 from progressive.loaders.fastformat import FastSource, is_fast, open_fast
 from progressive.loaders.las import LasSource, TruncatedInput, open_las
 from progressive.loaders.types import BATCH_POINTS, AttributeInfo, Batch, CloudInfo
-from progressive.loaders.validate import fail, shown
+from progressive.loaders.validate import check_addressable, fail, shown
 
 Source = LasSource | FastSource
 Task = tuple[str, Callable[[], Batch]]
@@ -123,6 +123,7 @@ class CloudLoader:
         if batch_points < 1 or parser_threads < 1:
             raise ValueError("batch_points and parser_threads must be at least 1")
         self.info, self._sources = open_sources(paths, partial=partial)
+        check_addressable(self.info.files[-1].path, self.info.points)
         self.batch_points = batch_points
         self.parser_threads = parser_threads
         self.partial = partial

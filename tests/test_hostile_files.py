@@ -727,3 +727,23 @@ def test_variable_size_chunks(folders, capsys, variable, case):
     assert code == 0 and err.count("\n") == 1 and err.startswith("progressive: warning: "), err
     read = POINTS - 100 if case == "count less" else POINTS
     assert (ids != EMPTY_ID).sum() > 100 and ids[ids != EMPTY_ID].max() < read
+
+
+def test_more_points_than_slots_is_one_line(folders, capsys):
+    """A (sparse) file that does hold 2^32 - 1 points of 34 bytes: more than the uint32
+    slots of the shuffled buffer address. It failed with a ValueError deep in the renderer;
+    now it is refused when the cloud is opened, before any point is read."""
+    inputs, outputs = folders
+    data = bytearray(SAMPLE.read_bytes())
+    (point_data,) = struct.unpack_from("<I", data, 96)
+    struct.pack_into("<I", data, LEGACY_COUNT, 2**32 - 1)
+    path = inputs / "sparse.las"
+    with path.open("wb") as stream:
+        stream.write(data[:point_data + 34 * 10])
+        try:
+            stream.truncate(point_data + 34 * (2**32 - 1))
+        except OSError as exc:
+            pytest.skip(f"no sparse file of 146 GB here: {exc}")
+    code, _, err = cli(capsys, "render", *TINY, path, "--out", outputs / "x.png")
+    assert_one_error_line(code, err, outputs)
+    assert "4,294,967,295 points" in err
