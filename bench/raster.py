@@ -13,11 +13,13 @@ import statistics
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from bench.report import RunInfo, Table
 from bench.synthetic import SAMPLE, Order, TiledCloud, load, tiled
-from progressive import shaderlib
+from progressive import batches, shaderlib
 from progressive.bindings import Binding
-from progressive.camera import auto_camera
+from progressive.camera import Camera, auto_camera, view_uniforms
 from progressive.context import GLContext, create_context
 from progressive.gpu import grid
 from progressive.packing import RECORD_BYTES
@@ -75,24 +77,44 @@ def rasters(glc: GLContext) -> list[Raster]:
     return ([Raster.COMPUTE] if glc.caps.atomic_int64 else []) + [Raster.COMPUTE32, Raster.POINTS]
 
 
+def close_up(cloud: TiledCloud, aspect: float) -> Camera:
+    """A view of one corner tile from above at 45 degrees: most batches are outside."""
+    lo = cloud.info.bounds_min
+    size = np.asarray(cloud.tile_size, dtype=np.float64)
+    target = lo + size * np.array([0.5, 0.5, 0.0])
+    position = target + np.array([0.0, -0.6, 0.6]) * size[:2].max()
+    return Camera(position=tuple(position), target=tuple(target), near=0.01 * size[:2].max(), far=10 * size[:2].max())
+
+
+def views(cloud: TiledCloud, aspect: float) -> dict[str, Camera]:
+    return {"overview": auto_camera(cloud.info.bounds_min, cloud.info.bounds_max, aspect),
+            "close-up": close_up(cloud, aspect)}
+
+
 def measure(glc: GLContext, cloud: TiledCloud, layouts, sizes, repeats: int) -> list[dict]:
     rows = []
     for layout in layouts:
         scene, upload_s = load(glc, cloud, layout.order, layout.fill)
         for width, height in sizes:
-            cam = auto_camera(cloud.info.bounds_min, cloud.info.bounds_max, width / height)
-            for raster in rasters(glc):
-                r = Renderer(glc, cloud.info, cloud.attribute, raster=raster, width=width, height=height, scene=scene)
-                style = r.style()
-                times = [r.render(cam, width, height, style).gpu_ms["raster"] for _ in range(repeats + 1)]
-                frame = r.render(cam, width, height, style)
-                ms = statistics.median(times[1:])
-                rows.append({"points": cloud.points, "width": width, "height": height, "layout": layout.label,
-                             "raster": r.raster_path, "ms": ms, "ms_all": times[1:], "passes": r.raster.passes,
-                             "points_per_s": cloud.points / (ms / 1e3),
-                             "bytes_per_s": cloud.points * RECORD_BYTES * r.raster.passes / (ms / 1e3),
-                             "covered_pixels": int((frame.slots != 0xFFFFFFFF).sum()), "upload_s": upload_s})
-                r.release()
+            for view, cam in views(cloud, width / height).items():
+                culled = (1.0 - float(np.mean(batches.in_view(scene.store.boxes, view_uniforms(
+                    cam, cloud.info.origin, width, height))))) if scene.store.batched else 0.0
+                for raster in rasters(glc):
+                    if raster is Raster.POINTS and view != "overview":
+                        continue
+                    r = Renderer(glc, cloud.info, cloud.attribute, raster=raster, width=width, height=height,
+                                 scene=scene)
+                    style = r.style()
+                    times = [r.render(cam, width, height, style).gpu_ms["raster"] for _ in range(repeats + 1)]
+                    frame = r.render(cam, width, height, style)
+                    ms = statistics.median(times[1:])
+                    rows.append({"points": cloud.points, "width": width, "height": height, "layout": layout.label,
+                                 "view": view, "raster": r.raster_path, "ms": ms, "ms_all": times[1:],
+                                 "passes": r.raster.passes, "points_per_s": cloud.points / (ms / 1e3),
+                                 "bytes_per_s": cloud.points * RECORD_BYTES * r.raster.passes / (ms / 1e3),
+                                 "batches_culled": culled, "covered_pixels": int((frame.slots != 0xFFFFFFFF).sum()),
+                                 "upload_s": upload_s})
+                    r.release()
         scene.release()
     return rows
 
@@ -106,16 +128,22 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
         rows += measure(glc, tiled(str(SAMPLE), n), layouts, sizes, repeats)
     table = Table(f"raster_{max(points)}", "Brute-force rasterization of every point", f"{SAMPLE.name} tiled on a grid",
                   ", ".join(f"{n:,}" for n in points), (
-                      "points", "size", "store order", "rasterizer", "ms (median)", "Mpoints/s", "GB/s read",
-                      "share of copy bandwidth", "× GL_POINTS", "covered pixels"))
+                      "points", "size", "store order", "view", "rasterizer", "ms (median)", "Mpoints/s", "GB/s read",
+                      "share of copy bandwidth", "× GL_POINTS", "batches culled", "× overview", "covered pixels"))
+    def twin(r: dict, **keys) -> float:
+        """ms of the row of the same cloud, size and layout with `keys` changed."""
+        want = dict(points=r["points"], width=r["width"], layout=r["layout"], **keys)
+        return next(b["ms"] for b in rows if all(b[k] == v for k, v in want.items()))
+
     for r in rows:
-        base = next(b["ms"] for b in rows if b["raster"] == "GL_POINTS" and
-                    (b["points"], b["width"], b["layout"]) == (r["points"], r["width"], r["layout"]))
-        r["vs_points"] = base / r["ms"]
+        base = twin(r, view="overview", raster="GL_POINTS")
+        overview = twin(r, view="overview", raster=r["raster"])
+        r["vs_points"] = base / r["ms"] if r["view"] == "overview" else None
+        r["vs_overview"] = overview / r["ms"]
         r["share_of_copy"] = r["bytes_per_s"] / copy
-        table.rows.append((r["points"], f"{r['width']}x{r['height']}", r["layout"], r["raster"], r["ms"],
+        table.rows.append((r["points"], f"{r['width']}x{r['height']}", r["layout"], r["view"], r["raster"], r["ms"],
                            r["points_per_s"] / 1e6, r["bytes_per_s"] / 1e9, r["share_of_copy"], r["vs_points"],
-                           r["covered_pixels"]))
+                           r["batches_culled"], r["vs_overview"], r["covered_pixels"]))
     missing = [] if glc.caps.atomic_int64 else [
         ("Compute 64-bit atomicMin: not run, this GPU lacks GL_NV_shader_atomic_int64 (llvmpipe has no 64-bit "
         "atomics); `--raster compute` falls back to the 32-bit two-pass path here.")]
@@ -128,7 +156,10 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
         "same cloud, size and order. Store order: file/Morton/scan = points in the buffer in that file order "
         "(FillOrder.FILE); shuffled = the paper's permutation of the whole file order; batched = the renderer's "
         "layout (shuffled inside batches of 10,240 consecutive points, slices of 256 interleaved). Scan order: a scanner station "
-        "per tile, vertical scan lines by azimuth (bench/synthetic.py).")]
+        "per tile, vertical scan lines by azimuth (bench/synthetic.py). Views: overview = the auto camera on the "
+        "whole cloud; close-up = one corner tile from above at 45° (GL_POINTS not run); batches culled = share of "
+        "the store's batches the culling test leaves out (batched layouts only); × overview = overview ms / this "
+        "ms, same rasterizer. Mpoints/s and GB/s count every point of the cloud, culled ones included.")]
     table.raw = {"copy_bytes": copy_bytes, "copy_bytes_per_s": copy, "copy_methods": copies, "rows": rows}
     return table
 

@@ -37,6 +37,7 @@ class Binding(enum.IntEnum):
     DILATED_WORDS = 26      # point-size pass output, laid out as PIXEL_WORDS
     HISTOGRAM = 27          # percentile select counts (passes/percentile.py)
     BATCH_BOXES = 28        # batched layout: each batch's box (progressive/batches.py)
+    BATCH_FLAGS = 29        # batched layout: each batch in view this frame (passes/cull.py)
 
     @classmethod
     def points(cls, chunk: int) -> Binding:

@@ -197,7 +197,7 @@ class ProgressiveRenderer:
             passes.append("reproject")
         b.stamp(Stamp.FRAME)
         self.vis.clear()
-        raster.begin_frame()
+        raster.begin_frame(view)
         for p in range(raster.passes):
             if self._has_visible:
                 raster.draw_list(view, self.prepare, p)

@@ -1,6 +1,9 @@
-"""Small GPU helpers shared by passes: dispatch grids within GL's guaranteed limits."""
+"""Small GPU helpers shared by passes: dispatch grids within GL's guaranteed limits,
+the camera uniforms of camera.glsl."""
 
 from __future__ import annotations
+
+from progressive.camera import ViewUniforms
 
 GUARANTEED_GROUPS = 65535
 
@@ -17,3 +20,14 @@ def grid(count: int, local_size: int = 256) -> tuple[int, int, int]:
 
 def grid_2d(width: int, height: int, tile: int = 16) -> tuple[int, int, int]:
     return -(-width // tile), -(-height // tile), 1
+
+
+def set_view(program, view: ViewUniforms) -> None:
+    """Camera uniforms (camera.glsl); a program may not use all of them."""
+    program["u_view_rotation"].write(view.rotation.T.tobytes())
+    program["u_view_translation"].write(view.translation.tobytes())
+    program["u_projection"].write(view.projection.tobytes())
+    if "u_size" in program:
+        program["u_size"] = view.size
+    if "u_hidden" in program:
+        program["u_hidden"].write(view.hidden.tobytes())

@@ -17,36 +17,15 @@ layout(std430, binding = BINDING_VISIBILITY) buffer Visibility { uint visibility
 #endif
 
 #if CULL
-// Batched layout: a group's slots lie in at most two batches (a slice is a group's
-// size); two invocations test their boxes, and the group skips the points of a batch
-// outside the view.
 #include "batches.glsl"
-shared uint group_batch[2];
-shared bool group_visible[2];
-
-void cull_group() {
-    uint count = source_count();
-    uint first = (gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x) * gl_WorkGroupSize.x;
-    uint k = gl_LocalInvocationIndex;
-    if (k < 2u) {
-        bool valid = first < count;
-        uint b = valid ? slot_batch(source_slot(k == 0u ? first : min(first + gl_WorkGroupSize.x, count) - 1u)) : 0u;
-        group_batch[k] = b;
-        group_visible[k] = valid && batch_in_view(b);
-    }
-    barrier();
-}
 #endif
 
 void main() {
-#if CULL
-    cull_group();
-#endif
     uint i;
     if (!range_index(source_count(), i)) return;
     uint slot = source_slot(i);
 #if CULL
-    if (!group_visible[slot_batch(slot) == group_batch[0] ? 0 : 1]) return;
+    if (!slot_in_view(slot)) return;
 #endif
     uvec4 record = source_record(i, slot);
     if (!finite_position(record) || !category_shown(record.w)) return;

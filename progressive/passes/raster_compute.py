@@ -6,23 +6,13 @@ from __future__ import annotations
 from progressive import shaderlib
 from progressive.camera import ViewUniforms
 from progressive.context import GLContext
-from progressive.gpu import grid
+from progressive.gpu import grid, set_view
 from progressive.passes.budget import ARGS_BYTES, BudgetPass, layout_defines
+from progressive.passes.cull import CullPass
 from progressive.passes.prepare import Meta, PreparePass
 from progressive.passes.sources import Source
 from progressive.passes.visibility import VisibilityBuffer
 from progressive.pointstore import PointStore
-
-
-def set_view(program, view: ViewUniforms) -> None:
-    """Camera uniforms (camera.glsl); a program may not use all of them."""
-    program["u_view_rotation"].write(view.rotation.T.tobytes())
-    program["u_view_translation"].write(view.translation.tobytes())
-    program["u_projection"].write(view.projection.tobytes())
-    if "u_size" in program:
-        program["u_size"] = view.size
-    if "u_hidden" in program:
-        program["u_hidden"].write(view.hidden.tobytes())
 
 
 class ComputeRaster:
@@ -37,7 +27,7 @@ class ComputeRaster:
             raise ValueError("64-bit atomics requested but GL_NV_shader_atomic_int64 is missing")
         self.glc, self.store, self.vis = glc, store, vis
         self.atomic64 = atomic64
-        self.cull = cull and store.batched
+        self.culling = CullPass(glc, store) if cull and store.batched else None
         self.passes = 1 if atomic64 else 2
         self._programs: dict[tuple[Source, int], object] = {}
         for source in Source:
@@ -61,11 +51,17 @@ class ComputeRaster:
             self._programs[key] = shaderlib.compute(self.glc.ctx, "raster_compute.comp", defines, ext, label)
         return self._programs[key]
 
-    def begin_frame(self) -> None:
-        """Nothing to set up: the frame loop clears the visibility buffer."""
+    def begin_frame(self, view: ViewUniforms) -> None:
+        """Flag the batches in view (the frame loop clears the visibility buffer)."""
+        if self.culling is not None:
+            self.culling.run(view)
 
     def end_frame(self, view: ViewUniforms) -> None:
         """Nothing to gather: atomics wrote the visibility buffer directly."""
+
+    @property
+    def cull(self) -> bool:
+        return self.culling is not None
 
     def _culls(self, source: Source) -> bool:
         return self.cull and source is not Source.LIST
@@ -75,7 +71,7 @@ class ComputeRaster:
         set_view(program, view)
         if self._culls(source):
             program["u_batches"] = self.store.permutation.batches
-            self.store.bind_boxes()
+            self.culling.bind()
         self.store.bind()
         self.vis.bind()
         return program
@@ -84,6 +80,7 @@ class ComputeRaster:
         """All passes over slots [first, first+count) (brute force)."""
         if count <= 0:
             return
+        self.begin_frame(view)
         for pass_index in range(self.passes):
             program = self._prepare(Source.RANGE, pass_index, view)
             program["u_first"] = first
@@ -110,3 +107,6 @@ class ComputeRaster:
         for p in self._programs.values():
             p.release()
         self._programs = {}
+        if self.culling is not None:
+            self.culling.release()
+            self.culling = None

@@ -10,17 +10,16 @@ from progressive import shaderlib
 from progressive.bindings import Binding
 from progressive.camera import ViewUniforms
 from progressive.context import GLContext
-from progressive.gpu import grid_2d
+from progressive.gpu import grid_2d, set_view
 from progressive.passes.budget import BudgetPass, layout_defines
 from progressive.passes.prepare import Meta, PreparePass
-from progressive.passes.raster_compute import set_view
 from progressive.passes.sources import Source
 from progressive.passes.visibility import EMPTY, VisibilityBuffer
 from progressive.pointstore import PointStore
 
 
 class PointsRaster:
-    """`passes` is 1. A frame is begin_frame(), draws, end_frame(); draw() is a whole
+    """`passes` is 1. A frame is begin_frame(view), draws, end_frame(); draw() is a whole
     brute-force frame from vertex buffers, as in the paper."""
 
     passes = 1
@@ -63,8 +62,8 @@ class PointsRaster:
         self._targets = [self.fbo, slots, depths, depth]
         self.size = size
 
-    def begin_frame(self) -> None:
-        """Empty targets, bound with a depth test, until end_frame()."""
+    def begin_frame(self, view: ViewUniforms) -> None:
+        """Empty targets, bound with a depth test, until end_frame() (the baseline culls nothing)."""
         self._ensure_targets()
         ctx = self.glc.ctx
         _, slots, depths, _ = self._targets
@@ -94,7 +93,7 @@ class PointsRaster:
 
     def draw(self, view: ViewUniforms, first: int, count: int) -> None:
         """A whole frame of slots [first, first+count) from vertex buffers, chunk by chunk."""
-        self.begin_frame()
+        self.begin_frame(view)
         set_view(self.program, view)
         for chunk, local_first, n in self.store.chunk_ranges(first, count):
             self.program["u_chunk_base"] = chunk * self.store.chunk_points

@@ -1,0 +1,40 @@
+"""Culling of the batched layout: once a frame, one invocation a batch tests its box
+against the view (the test of progressive/batches.py in_view) and writes a flag the
+rasterizer reads before each point, so points of batches outside the view cost a
+4-byte cached read and no projection. A flag pass instead of a test in every work
+group: no barrier in the raster (costly on llvmpipe), one test a batch, not a slice."""
+
+from __future__ import annotations
+
+from progressive import shaderlib
+from progressive.bindings import Binding
+from progressive.camera import ViewUniforms
+from progressive.context import GLContext
+from progressive.gpu import grid, set_view
+from progressive.pointstore import PointStore
+
+
+class CullPass:
+    def __init__(self, glc: GLContext, store: PointStore):
+        self.glc, self.store = glc, store
+        self.program = shaderlib.compute(glc.ctx, "cull.comp", label="cull")
+        self.flags = glc.ctx.buffer(reserve=max(1, store.permutation.batches) * 4)
+        self.flags.label = "batch flags"
+
+    def run(self, view: ViewUniforms) -> None:
+        
+        program = self.program
+        set_view(program, view)
+        program["u_batches"] = self.store.permutation.batches
+        self.store.bind_boxes()
+        self.flags.bind_to_storage_buffer(Binding.BATCH_FLAGS)
+        program.run(*grid(self.store.permutation.batches))
+        self.glc.ctx.memory_barrier()
+
+    def bind(self) -> None:
+        """For the rasterizer: the flags of the last run (batches.glsl)."""
+        self.flags.bind_to_storage_buffer(Binding.BATCH_FLAGS)
+
+    def release(self) -> None:
+        self.program.release()
+        self.flags.release()

@@ -1,0 +1,41 @@
+// Per batch, whether its box can hold a point in view (progressive/batches.py in_view):
+// one invocation a batch, once a frame; the rasterizer skips points of batches flagged 0.
+layout(local_size_x = 256) in;
+#include "common.glsl"
+#include "camera.glsl"
+
+layout(std430, binding = BINDING_BATCH_BOXES) readonly buffer Boxes { vec4 boxes[]; };  // min, max per batch
+layout(std430, binding = BINDING_BATCH_FLAGS) writeonly buffer Flags { uint batch_flags[]; };
+uniform uint u_batches;
+
+// The frustum test of progressive/batches.py in_view: false iff the box is empty or
+// some plane has all eight corners (padded by BOX_MARGIN) outside it by more than
+// BOX_MARGIN of the terms it compares. Never false for a box holding a drawn point.
+bool batch_in_view(uint b) {
+    vec3 lo = boxes[2u * b].xyz, hi = boxes[2u * b + 1u].xyz;
+    if (!all(lessThanEqual(lo, hi))) return false;
+    vec3 pad = BOX_MARGIN * ((hi - lo) + max(abs(lo), abs(hi))) + 1e-30;
+    lo -= pad;
+    hi += pad;
+    float near = u_projection.z, far = u_projection.w;
+    bool out_near = true, out_far = true, out_right = true, out_left = true, out_top = true, out_bottom = true;
+    for (int c = 0; c < 8; ++c) {
+        vec3 v = to_view(vec3((c & 1) != 0 ? hi.x : lo.x, (c & 2) != 0 ? hi.y : lo.y, (c & 4) != 0 ? hi.z : lo.z));
+        float depth = -v.z, d = abs(depth);
+        float x = u_projection.x * v.x, y = u_projection.y * v.y;
+        float tx = BOX_MARGIN * (d + abs(x)), ty = BOX_MARGIN * (d + abs(y));
+        out_near = out_near && depth - near + BOX_MARGIN * (d + near) < 0.0;
+        out_far = out_far && far - depth + BOX_MARGIN * (d + far) < 0.0;
+        out_right = out_right && depth - x + tx < 0.0;
+        out_left = out_left && depth + x + tx < 0.0;
+        out_top = out_top && depth - y + ty < 0.0;
+        out_bottom = out_bottom && depth + y + ty < 0.0;
+    }
+    return !(out_near || out_far || out_right || out_left || out_top || out_bottom);
+}
+
+void main() {
+    uint b;
+    if (!range_index(u_batches, b)) return;
+    batch_flags[b] = batch_in_view(b) ? 1u : 0u;
+}
