@@ -143,6 +143,8 @@ def main(argv=None) -> int:
     ap.add_argument("--sections", nargs="+", type=Section, default=list(Section), metavar="SECTION",
                     help=", ".join(s.value for s in Section))
     ap.add_argument("--raster-points", type=int, nargs="+", help="override the raster section's point counts")
+    ap.add_argument("--raster-layouts", nargs="+", choices=[layout.label for layout in raster.LAYOUTS],
+                    help="store orders of the raster section (default: all)")
     ap.add_argument("--progressive-points", type=int, nargs="+", help="override the progressive section's counts")
     ap.add_argument("--cache", type=Path, default=data.CACHE, help="where generated files are kept")
     ap.add_argument("--readme", action="store_true", help="insert headline.md into README.md")
@@ -161,8 +163,9 @@ def main(argv=None) -> int:
         if section is Section.LOAD:
             tables = section_load(glc, scale, args.cache)
         elif section is Section.RASTER:
+            layouts = [x for x in raster.LAYOUTS if not args.raster_layouts or x.label in args.raster_layouts]
             tables = [raster.run(glc, list(scale.raster_points), list(scale.raster_sizes), scale.raster_repeats,
-                                 scale.copy_bytes)]
+                                 scale.copy_bytes, layouts)]
         elif section is Section.PROGRESSIVE:
             tables = [progressive.run(glc, n, scale.progressive_size, list(scale.fixed_budgets),
                                       list(scale.targets_ms), list(progressive.CameraPath), scale.motion_frames,
