@@ -33,21 +33,42 @@ def _x(v: float) -> str:
 
 
 def raster_lines(raster: dict) -> list[str]:
-    rows = [r for r in raster["raw"]["rows"] if r["layout"] == "shuffled"]
+    """The renderer's layout against GL_POINTS and against the paper's global shuffle,
+    and a close-up view against the overview, all rows of one run."""
+    rows = raster["raw"]["rows"]
     n = max(r["points"] for r in rows)
     width = max(r["width"] for r in rows)
     rows = [r for r in rows if r["points"] == n and r["width"] == width]
-    points = next(r for r in rows if r["raster"] == "GL_POINTS")
+    layout = "batched" if any(r["layout"] == "batched" for r in rows) else "shuffled"
+
+    def row(layout: str, raster_path: str, view: str = "overview") -> dict | None:
+        return next((r for r in rows if r["layout"] == layout and r["raster"] == raster_path
+                     and r.get("view", "overview") == view), None)
+
+    points = row(layout, "GL_POINTS")
+    where = f"{n:,} points at {points['width']}x{points['height']}"
     out = []
     for r in rows:
-        if r["raster"] != "GL_POINTS":
-            # Runs before the shader copy was measured compared with the driver's copy engine only.
-            share = (f"; it streams {r['share_of_copy']:.0%} of the copy bandwidth measured in the same run "
-                     f"({raster['raw']['copy_bytes_per_s'] / 1e9:.1f} GB/s)" if "copy_methods" in raster["raw"] else "")
-            out.append(f"- Brute force, {n:,} points at {r['width']}x{r['height']} (shuffled store): {r['raster']} "
-                       f"{r['ms']:.2f} ms against GL_POINTS {points['ms']:.2f} ms: **{_x(points['ms'] / r['ms'])} "
-                       f"faster**{share} (`{raster['_file']}`).")
-    missing = [n for n in raster.get("notes", []) if n.startswith("Compute 64-bit")]
+        if r["layout"] != layout or r["raster"] == "GL_POINTS" or r.get("view", "overview") != "overview":
+            continue
+        # Runs before the shader copy was measured compared with the driver's copy engine only.
+        share = (f"; it streams {r['share_of_copy']:.0%} of the copy bandwidth measured in the same run "
+                 f"({raster['raw']['copy_bytes_per_s'] / 1e9:.1f} GB/s)" if "copy_methods" in raster["raw"] else "")
+        out.append(f"- Brute force, {where} ({layout} store): {r['raster']} {r['ms']:.2f} ms, "
+                   f"{r['points_per_s'] / 1e9:.1f} G points/s, against GL_POINTS {points['ms']:.2f} ms: "
+                   f"**{_x(points['ms'] / r['ms'])} faster**{share} (`{raster['_file']}`).")
+        shuffled = row("shuffled", r["raster"]) if layout != "shuffled" else None
+        if shuffled:
+            out.append(f"- Brute force, {where}, {r['raster']}: {layout} store {r['ms']:.2f} ms against the paper's "
+                       f"shuffle of the whole cloud {shuffled['ms']:.2f} ms (median of "
+                       f"{', '.join(f'{t:.1f}' for t in shuffled['ms_all'])}): **{_x(shuffled['ms'] / r['ms'])}** "
+                       f"(`{raster['_file']}`).")
+        close = row(layout, r["raster"], "close-up")
+        if close:
+            out.append(f"- Brute force, {where}, {r['raster']}, a close-up of one tile ({close['batches_culled']:.0%} "
+                       f"of the batches culled): {close['ms']:.2f} ms, **{_x(r['ms'] / close['ms'])}** faster than "
+                       f"the overview (`{raster['_file']}`).")
+    missing = [m for m in raster.get("notes", []) if m.startswith("Compute 64-bit")]
     return out + [f"- {m.split(';')[0]}." for m in missing]
 
 

@@ -1,8 +1,8 @@
 """Reading LAS/LAZ and the fast format into batches for the GPU."""
 
 from progressive.loaders.describe import describe, format_text
-from progressive.loaders.fastformat import write_fast
+from progressive.loaders.fastformat import write_fast, write_fast_stream
 from progressive.loaders.pipeline import CloudLoader, open_cloud
 from progressive.loaders.types import BATCH_POINTS
 
-__all__ = ["BATCH_POINTS", "CloudLoader", "describe", "format_text", "open_cloud", "write_fast"]
+__all__ = ["BATCH_POINTS", "CloudLoader", "describe", "format_text", "open_cloud", "write_fast", "write_fast_stream"]

@@ -15,6 +15,7 @@ import tempfile
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
@@ -213,31 +214,39 @@ def fast_header(count: int, info: CloudInfo, attr: AttributeInfo) -> bytes:
     return head.ljust(HEADER_BYTES, b"\x00")
 
 
+def write_fast_stream(stream: BinaryIO, loader_or_batches: Iterable[Batch], info: CloudInfo,
+                      attr: AttributeInfo, name: str) -> int:
+    """Write every batch at its offset (they may arrive out of order) into a seekable
+    binary stream. A contiguous prefix, as a partial load of a truncated file gives, is
+    written with its own count; anything else short is an error (`name` in its message)."""
+    origin_z = float(info.origin[2])
+    written = end = 0
+    stream.write(fast_header(info.points, info, attr))
+    for batch in loader_or_batches:
+        stream.seek(HEADER_BYTES + RECORD_BYTES * batch.start)
+        stream.write(np.ascontiguousarray(pack_records(batch, attr, origin_z)).data)
+        written += batch.count
+        end = max(end, batch.start + batch.count)
+    if written != info.points:
+        if written == 0 or written != end:
+            raise InputError(f"{shown(name)}: only {written} of {info.points} points were read, "
+                             f"not a contiguous run from the first; not written")
+        stream.seek(0)
+        stream.write(fast_header(written, info, attr))
+        stream.truncate(HEADER_BYTES + RECORD_BYTES * written)
+    return written
+
+
 def write_fast(out_path: str | os.PathLike, loader_or_batches: Iterable[Batch], info: CloudInfo,
                attr: AttributeInfo) -> int:
-    """Write every batch at its offset (they may arrive out of order) into a temporary file
-    beside out_path, replaced into place only when complete. A contiguous prefix, as a
-    partial load of a truncated file gives, is written with its own count."""
+    """write_fast_stream into a temporary file beside out_path, replaced into place only
+    when complete (the CLI writes through its output transaction instead)."""
     out_path = Path(out_path)
-    origin_z = float(info.origin[2])
     fd, tmp = tempfile.mkstemp(prefix=f".{out_path.name}.", suffix=".tmp", dir=out_path.parent)
     try:
         os.fchmod(fd, 0o644)
-        written = end = 0
         with os.fdopen(fd, "wb") as stream:
-            stream.write(fast_header(info.points, info, attr))
-            for batch in loader_or_batches:
-                stream.seek(HEADER_BYTES + RECORD_BYTES * batch.start)
-                stream.write(np.ascontiguousarray(pack_records(batch, attr, origin_z)).data)
-                written += batch.count
-                end = max(end, batch.start + batch.count)
-            if written != info.points:
-                if written == 0 or written != end:
-                    raise InputError(f"{shown(out_path)}: only {written} of {info.points} points were read, "
-                                     f"not a contiguous run from the first; not written")
-                stream.seek(0)
-                stream.write(fast_header(written, info, attr))
-                stream.truncate(HEADER_BYTES + RECORD_BYTES * written)
+            written = write_fast_stream(stream, loader_or_batches, info, attr, str(out_path))
         os.replace(tmp, out_path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

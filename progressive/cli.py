@@ -431,7 +431,7 @@ def commit_saying(outputs, message: str) -> None:
 
 def cmd_convert(args) -> int:
     from progressive.attributes import default_attribute, find_attribute
-    from progressive.loaders import CloudLoader, write_fast
+    from progressive.loaders import CloudLoader, write_fast_stream
     from progressive.output import Outputs, check_outputs
 
     check_outputs([args.output], args.inputs)
@@ -439,8 +439,9 @@ def cmd_convert(args) -> int:
         info = loader.info
         attr = find_attribute(info, args.attribute) if args.attribute else default_attribute(info)
         loader.start()
-        write_fast(outputs.reserve(args.output), loader, info, attr)
-        commit_saying(outputs, f"wrote {info.points:,} points ({attr.name}) to {args.output}")
+        with open(outputs.reserve(args.output), "wb") as stream:     # the transaction's temporary, no other
+            written = write_fast_stream(stream, loader, info, attr, args.output)
+        commit_saying(outputs, f"wrote {written:,} points ({attr.name}) to {args.output}")
     return 0
 
 
