@@ -32,7 +32,10 @@ class PointStore:
         limit = chunk_capacity(glc.caps.max_ssbo_bytes)
         self.chunk_points = min(chunk_points or limit, limit)
         self.count = count
-        self.permutation = Permutation.for_count(count, rotate=rotate, order=order)
+        try:
+            self.permutation = Permutation.for_count(count, rotate=rotate, order=order)
+        except ValueError as exc:
+            raise ProgressiveError(f"{count:,} points do not fit the store's 32-bit slots ({exc})") from None
         slots = self.permutation.slots
         # A capacity that holds the cloud holds the layout's padding too (under one batch).
         self.capacity = slots if capacity is None or capacity >= count else max(0, capacity)
