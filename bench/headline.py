@@ -41,15 +41,17 @@ def raster_lines(raster: dict) -> list[str]:
     rows = [r for r in rows if r["points"] == n and r["width"] == width]
     layout = "batched" if any(r["layout"] == "batched" for r in rows) else "shuffled"
 
-    def row(layout: str, raster_path: str, view: str = "overview") -> dict | None:
+    def row(layout: str, raster_path: str, view: str = "overview", reduced: bool | None = None) -> dict | None:
         return next((r for r in rows if r["layout"] == layout and r["raster"] == raster_path
-                     and r.get("view", "overview") == view), None)
+                     and r.get("view", "overview") == view
+                     and (reduced is None or r.get("subgroup_reduction", False) == reduced)), None)
 
     points = row(layout, "GL_POINTS")
     where = f"{n:,} points at {points['width']}x{points['height']}"
     out = []
     for r in rows:
-        if r["layout"] != layout or r["raster"] == "GL_POINTS" or r.get("view", "overview") != "overview":
+        if (r["layout"] != layout or r["raster"] == "GL_POINTS" or r.get("view", "overview") != "overview"
+                or r is not row(layout, r["raster"])):
             continue
         # Runs before the shader copy was measured compared with the driver's copy engine only.
         share = (f"; it streams {r['share_of_copy']:.0%} of the copy bandwidth measured in the same run "
@@ -62,6 +64,11 @@ def raster_lines(raster: dict) -> list[str]:
             out.append(f"- Brute force, {where}, {r['raster']}: {layout} store {r['ms']:.2f} ms against the paper's "
                        f"shuffle of the whole cloud {shuffled['ms']:.2f} ms (median of "
                        f"{', '.join(f'{t:.1f}' for t in shuffled['ms_all'])}): **{_x(shuffled['ms'] / r['ms'])}** "
+                       f"(`{raster['_file']}`).")
+        plain = row(layout, r["raster"], reduced=False) if r.get("subgroup_reduction") else None
+        if plain:
+            out.append(f"- Brute force, {where}, {r['raster']}, {layout} store: with the subgroup reduction "
+                       f"{r['ms']:.2f} ms against {plain['ms']:.2f} ms without: **{_x(plain['ms'] / r['ms'])}** "
                        f"(`{raster['_file']}`).")
         close = row(layout, r["raster"], "close-up")
         if close:

@@ -77,6 +77,15 @@ def rasters(glc: GLContext) -> list[Raster]:
     return ([Raster.COMPUTE] if glc.caps.atomic_int64 else []) + [Raster.COMPUTE32, Raster.POINTS]
 
 
+def variants(glc: GLContext) -> list[tuple[Raster, bool]]:
+    """Each rasterizer, the compute ones also without the subgroup reduction where the
+    GPU has it (so its gain is measured side by side)."""
+    from progressive.passes.raster_compute import SUBGROUP_EXTENSIONS
+
+    reduce = all(e in glc.ctx.extensions for e in SUBGROUP_EXTENSIONS)
+    return [(r, p) for r in rasters(glc) for p in ((True, False) if reduce and r is not Raster.POINTS else (True,))]
+
+
 def close_up(cloud: TiledCloud, aspect: float) -> Camera:
     """A view of one corner tile from above at 45 degrees: most batches are outside."""
     lo = cloud.info.bounds_min
@@ -99,17 +108,18 @@ def measure(glc: GLContext, cloud: TiledCloud, layouts, sizes, repeats: int) -> 
             for view, cam in views(cloud, width / height).items():
                 culled = (1.0 - float(np.mean(batches.in_view(scene.store.boxes, view_uniforms(
                     cam, cloud.info.origin, width, height))))) if scene.store.batched else 0.0
-                for raster in rasters(glc):
+                for raster, partitioned in variants(glc):
                     if raster is Raster.POINTS and view != "overview":
                         continue
                     r = Renderer(glc, cloud.info, cloud.attribute, raster=raster, width=width, height=height,
-                                 scene=scene)
+                                 scene=scene, partitioned=partitioned)
                     style = r.style()
                     times = [r.render(cam, width, height, style).gpu_ms["raster"] for _ in range(repeats + 1)]
                     frame = r.render(cam, width, height, style)
                     ms = statistics.median(times[1:])
                     rows.append({"points": cloud.points, "width": width, "height": height, "layout": layout.label,
                                  "view": view, "raster": r.raster_path, "ms": ms, "ms_all": times[1:],
+                                 "subgroup_reduction": getattr(r.raster, "partitioned", False),
                                  "passes": r.raster.passes, "points_per_s": cloud.points / (ms / 1e3),
                                  "bytes_per_s": cloud.points * RECORD_BYTES * r.raster.passes / (ms / 1e3),
                                  "batches_culled": culled, "covered_pixels": int((frame.slots != 0xFFFFFFFF).sum()),
@@ -128,7 +138,7 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
         rows += measure(glc, tiled(str(SAMPLE), n), layouts, sizes, repeats)
     table = Table(f"raster_{max(points)}", "Brute-force rasterization of every point", f"{SAMPLE.name} tiled on a grid",
                   ", ".join(f"{n:,}" for n in points), (
-                      "points", "size", "store order", "view", "rasterizer", "ms (median)", "Mpoints/s", "GB/s read",
+                      "points", "size", "store order", "view", "rasterizer", "subgroup reduction", "ms (median)", "Mpoints/s", "GB/s read",
                       "share of copy bandwidth", "× GL_POINTS", "batches culled", "× overview", "covered pixels"))
     def twin(r: dict, **keys) -> float:
         """ms of the row of the same cloud, size and layout with `keys` changed."""
@@ -137,11 +147,12 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
 
     for r in rows:
         base = twin(r, view="overview", raster="GL_POINTS")
-        overview = twin(r, view="overview", raster=r["raster"])
+        overview = twin(r, view="overview", raster=r["raster"], subgroup_reduction=r["subgroup_reduction"])
         r["vs_points"] = base / r["ms"] if r["view"] == "overview" else None
         r["vs_overview"] = overview / r["ms"]
         r["share_of_copy"] = r["bytes_per_s"] / copy
-        table.rows.append((r["points"], f"{r['width']}x{r['height']}", r["layout"], r["view"], r["raster"], r["ms"],
+        table.rows.append((r["points"], f"{r['width']}x{r['height']}", r["layout"], r["view"], r["raster"],
+                           "yes" if r["subgroup_reduction"] else "no", r["ms"],
                            r["points_per_s"] / 1e6, r["bytes_per_s"] / 1e9, r["share_of_copy"], r["vs_points"],
                            r["batches_culled"], r["vs_overview"], r["covered_pixels"]))
     missing = [] if glc.caps.atomic_int64 else [

@@ -42,7 +42,7 @@ class Renderer:
     def __init__(self, glc: GLContext, info: CloudInfo, attribute: AttributeInfo, *,
                  raster: Raster = Raster.COMPUTE, width: int = 1280, height: int = 720,
                  chunk_points: int | None = None, capacity: int | None = None, scene: Scene | None = None,
-                 keep_batches: bool = False):
+                 keep_batches: bool = False, partitioned: bool = True):
         """`scene`: a cloud already on the GPU to render (kept on release)."""
         self.glc, self.info, self.attribute = glc, info, attribute
         self._own_scene = scene is None
@@ -51,7 +51,7 @@ class Renderer:
         self.store = self.scene.store
         self.vis = VisibilityBuffer(glc, width, height)
         self.raster_kind = raster
-        self.raster = make_raster(glc, self.store, self.vis, raster)
+        self.raster = make_raster(glc, self.store, self.vis, raster, partitioned)
         self.shading = Shading(glc, self.store, self.vis)
         self.timestamps = Timestamps(glc)
 
@@ -104,10 +104,12 @@ class Renderer:
             self.scene.release()
 
 
-def make_raster(glc: GLContext, store: PointStore, vis: VisibilityBuffer, raster: Raster):
+def make_raster(glc: GLContext, store: PointStore, vis: VisibilityBuffer, raster: Raster, partitioned: bool = True):
+    """partitioned: the subgroup reduction where the GPU has it (benchmarks turn it off)."""
     if raster is Raster.POINTS:
         return PointsRaster(glc, store, vis)
-    return ComputeRaster(glc, store, vis, atomic64=raster is Raster.COMPUTE and glc.caps.atomic_int64)
+    return ComputeRaster(glc, store, vis, atomic64=raster is Raster.COMPUTE and glc.caps.atomic_int64,
+                         partitioned=partitioned)
 
 
 def raster_path(kind: Raster, raster) -> str:

@@ -33,6 +33,18 @@ void main() {
     float depth;
     if (!project(uintBitsToFloat(record.xyz), pixel, depth)) return;
     uint depth_bits = floatBitsToUint(depth);
+#if PARTITIONED
+    // Points of one subgroup that hit one pixel (many, in a compact batch) meet first:
+    // only the lane holding their least key (depth, then slot) goes on to the atomic.
+#if ATOMIC64 || DEPTH_PASS
+    uvec4 same = subgroupPartitionNV(pixel);
+    uint least = subgroupPartitionedMinNV(depth_bits, same);
+    if (subgroupPartitionedMinNV(depth_bits == least ? slot : EMPTY, same) != slot) return;
+#else
+    if (depth_bits != visibility[2u * pixel + 1u]) return;
+    if (subgroupPartitionedMinNV(slot, subgroupPartitionNV(pixel)) != slot) return;
+#endif
+#endif
     // A reprojected point that improves its pixel leaves a hint (its list index), so
     // prepare can copy its record from the list; prepare validates it, races are harmless.
 #if ATOMIC64

@@ -139,3 +139,30 @@ def test_stats_report_batches_culled(tmp_path, sample):
     assert counts["overview"] == {"total": total, "drawn": total, "culled": 0}
     assert 0 < counts["zoomed corner"]["culled"] < total
     assert counts["outside"] == {"total": total, "drawn": 0, "culled": total}
+
+
+@pytest.mark.parametrize("atomic64", [True, False], ids=["64-bit", "32-bit"])
+@pytest.mark.parametrize("name", ["overview", "zoomed corner"])
+def test_subgroup_reduction_keeps_the_ids(gl, sample, atomic64, name):
+    """Where GL_NV_shader_subgroup_partitioned exists, a subgroup's points on one pixel
+    meet before the atomic; the ids equal those of one atomic per point."""
+    if atomic64 and not gl.caps.atomic_int64:
+        pytest.skip("no GL_NV_shader_atomic_int64")
+    info, parts, _, _ = sample
+    scene = Scene(gl, info, find_attribute(info, "elevation"))
+    r = Renderer(gl, info, scene.attribute, width=W, height=H, scene=scene)
+    try:
+        for b in parts:
+            scene.add_batch(b)
+        ids = {}
+        for partitioned in (True, False):
+            r.raster.release()
+            r.raster = ComputeRaster(gl, scene.store, r.vis, atomic64=atomic64, partitioned=partitioned)
+            if partitioned and not r.raster.partitioned:
+                pytest.skip("no GL_NV_shader_subgroup_partitioned")
+            ids[partitioned] = r.render(cameras(info)[name], W, H, r.style()).ids
+        assert np.array_equal(ids[True], ids[False])
+        assert gl.ctx.error == "GL_NO_ERROR"
+    finally:
+        r.release()
+        scene.release()

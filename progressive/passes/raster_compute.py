@@ -14,19 +14,25 @@ from progressive.passes.sources import Source
 from progressive.passes.visibility import VisibilityBuffer
 from progressive.pointstore import PointStore
 
+SUBGROUP_EXTENSIONS = ("GL_KHR_shader_subgroup", "GL_NV_shader_subgroup_partitioned")     # as the driver names them
+SUBGROUP_PARTITIONED = ("GL_KHR_shader_subgroup_basic", "GL_NV_shader_subgroup_partitioned")   # as GLSL enables them
+
 
 class ComputeRaster:
     """`passes` is 1 (64-bit) or 2 (depth, then index): a frame runs pass 0 over all
     its sources before pass 1, so the index pass sees the final depths."""
 
     def __init__(self, glc: GLContext, store: PointStore, vis: VisibilityBuffer, *, atomic64: bool,
-                 cull: bool = True):
+                 cull: bool = True, partitioned: bool = True):
         """cull: skip batches whose box is outside the view (batched layout; ranges and
-        fill pieces, not the reprojection list, whose points were visible)."""
+        fill pieces, not the reprojection list, whose points were visible).
+        partitioned: where GL_NV_shader_subgroup_partitioned exists, the points of a
+        subgroup that hit one pixel are reduced to one atomic (same result: the least key)."""
         if atomic64 and not glc.caps.atomic_int64:
             raise ValueError("64-bit atomics requested but GL_NV_shader_atomic_int64 is missing")
         self.glc, self.store, self.vis = glc, store, vis
         self.atomic64 = atomic64
+        self.partitioned = partitioned and all(e in glc.ctx.extensions for e in SUBGROUP_EXTENSIONS)
         self.culling = CullPass(glc, store) if cull and store.batched else None
         self.passes = 1 if atomic64 else 2
         self._programs: dict[tuple[Source, int], object] = {}
@@ -48,6 +54,8 @@ class ComputeRaster:
                 defines.update(ATOMIC64=0, DEPTH_PASS=int(pass_index == 0))
                 ext = ()
                 label = f"raster32 {('depth', 'index')[pass_index]} {source.name.lower()}"
+            defines["PARTITIONED"] = int(self.partitioned)
+            ext += SUBGROUP_PARTITIONED if self.partitioned else ()
             self._programs[key] = shaderlib.compute(self.glc.ctx, "raster_compute.comp", defines, ext, label)
         return self._programs[key]
 
