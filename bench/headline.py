@@ -65,10 +65,10 @@ def raster_lines(raster: dict) -> list[str]:
                        f"shuffle of the whole cloud {shuffled['ms']:.2f} ms (median of "
                        f"{', '.join(f'{t:.1f}' for t in shuffled['ms_all'])}): **{_x(shuffled['ms'] / r['ms'])}** "
                        f"(`{raster['_file']}`).")
-        plain = row(layout, r["raster"], reduced=False) if r.get("subgroup_reduction") else None
-        if plain:
+        reduced = None if r.get("subgroup_reduction") else row(layout, r["raster"], reduced=True)
+        if reduced:
             out.append(f"- Brute force, {where}, {r['raster']}, {layout} store: with the subgroup reduction "
-                       f"{r['ms']:.2f} ms against {plain['ms']:.2f} ms without: **{_x(plain['ms'] / r['ms'])}** "
+                       f"{reduced['ms']:.2f} ms against {r['ms']:.2f} ms without: **{_x(r['ms'] / reduced['ms'])}** "
                        f"(`{raster['_file']}`).")
         close = row(layout, r["raster"], "close-up")
         if close:

@@ -42,7 +42,7 @@ class Renderer:
     def __init__(self, glc: GLContext, info: CloudInfo, attribute: AttributeInfo, *,
                  raster: Raster = Raster.COMPUTE, width: int = 1280, height: int = 720,
                  chunk_points: int | None = None, capacity: int | None = None, scene: Scene | None = None,
-                 keep_batches: bool = False, partitioned: bool = True):
+                 keep_batches: bool = False, partitioned: bool = False):
         """`scene`: a cloud already on the GPU to render (kept on release)."""
         self.glc, self.info, self.attribute = glc, info, attribute
         self._own_scene = scene is None
@@ -104,8 +104,8 @@ class Renderer:
             self.scene.release()
 
 
-def make_raster(glc: GLContext, store: PointStore, vis: VisibilityBuffer, raster: Raster, partitioned: bool = True):
-    """partitioned: the subgroup reduction where the GPU has it (benchmarks turn it off)."""
+def make_raster(glc: GLContext, store: PointStore, vis: VisibilityBuffer, raster: Raster, partitioned: bool = False):
+    """partitioned: the subgroup reduction where the GPU has it (ComputeRaster; opt-in)."""
     if raster is Raster.POINTS:
         return PointsRaster(glc, store, vis)
     return ComputeRaster(glc, store, vis, atomic64=raster is Raster.COMPUTE and glc.caps.atomic_int64,

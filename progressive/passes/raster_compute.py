@@ -23,11 +23,12 @@ class ComputeRaster:
     its sources before pass 1, so the index pass sees the final depths."""
 
     def __init__(self, glc: GLContext, store: PointStore, vis: VisibilityBuffer, *, atomic64: bool,
-                 cull: bool = True, partitioned: bool = True):
+                 cull: bool = True, partitioned: bool = False):
         """cull: skip batches whose box is outside the view (batched layout; ranges and
         fill pieces, not the reprojection list, whose points were visible).
         partitioned: where GL_NV_shader_subgroup_partitioned exists, the points of a
-        subgroup that hit one pixel are reduced to one atomic (same result: the least key)."""
+        subgroup that hit one pixel are reduced to one atomic (same result: the least key).
+        Off by default until it has run on a GPU that has the extension (none has yet)."""
         if atomic64 and not glc.caps.atomic_int64:
             raise ValueError("64-bit atomics requested but GL_NV_shader_atomic_int64 is missing")
         self.glc, self.store, self.vis = glc, store, vis
