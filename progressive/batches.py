@@ -65,9 +65,11 @@ def corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
 def in_view(boxes: np.ndarray, view: ViewUniforms) -> np.ndarray:
     """Which boxes the GPU's test keeps: no frustum plane (near, far, the four sides)
     has all eight corners of the box, padded by BOX_MARGIN, outside it by more than
-    BOX_MARGIN of the terms it compares. Empty boxes are culled."""
+    BOX_MARGIN of the terms it compares. Empty boxes, and boxes that miss the clip box
+    (compared exactly, in float32), are culled."""
     lo, hi = boxes[:, 0:3].astype(np.float64), boxes[:, 4:7].astype(np.float64)
     empty = ~(lo <= hi).all(axis=1)
+    empty |= ~((boxes[:, 0:3] <= view.clip_hi).all(axis=1) & (boxes[:, 4:7] >= view.clip_lo).all(axis=1))
     with np.errstate(invalid="ignore", over="ignore"):
         pad = BOX_MARGIN * ((hi - lo) + np.maximum(np.abs(lo), np.abs(hi))) + 1e-30
         v = corners(lo - pad, hi + pad) @ view.rotation.astype(np.float64).T + view.translation.astype(np.float64)

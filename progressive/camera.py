@@ -10,7 +10,7 @@ import math
 import os
 import re
 import stat
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
@@ -219,6 +219,40 @@ def read_json_file(path: str | os.PathLike, what: str) -> object:
 
 
 @dataclass(frozen=True)
+class Clip:
+    """An axis-aligned box in file coordinates that a point must lie in to be drawn
+    (sides inclusive); infinite sides make a slab (between two heights) or nothing.
+    The test is on the stored positions: float32 relative to the origin, against the
+    box's corners rounded to float32 in that frame (`relative`)."""
+
+    lo: tuple[float, float, float] = (-math.inf, -math.inf, -math.inf)
+    hi: tuple[float, float, float] = (math.inf, math.inf, math.inf)
+
+    def __post_init__(self):
+        lo, hi = np.asarray(self.lo, dtype=np.float64), np.asarray(self.hi, dtype=np.float64)
+        if lo.shape != (3,) or hi.shape != (3,) or np.isnan(lo).any() or np.isnan(hi).any() or (lo > hi).any():
+            raise CameraError(f"clip box {_show(lo)} to {_show(hi)} is not a box (min <= max, no NaN)")
+
+    def intersect(self, other: Clip) -> Clip:
+        return Clip(tuple(np.maximum(self.lo, other.lo).tolist()), tuple(np.minimum(self.hi, other.hi).tolist()))
+
+    def relative(self, origin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The corners as the shaders compare them: float32 of corner - origin (float64 first)."""
+        o = np.asarray(origin, dtype=np.float64)
+        with np.errstate(over="ignore"):
+            return ((np.asarray(self.lo) - o).astype(np.float32), (np.asarray(self.hi) - o).astype(np.float32))
+
+    def keeps(self, positions: np.ndarray, origin: np.ndarray) -> np.ndarray:
+        """Which float32 positions (relative to origin) the shaders keep (numpy twin of clip_keeps)."""
+        lo, hi = self.relative(origin)
+        p = np.asarray(positions, dtype=np.float32)
+        return ((p >= lo) & (p <= hi)).all(axis=1)
+
+
+NO_CLIP = Clip()
+
+
+@dataclass(frozen=True)
 class ViewUniforms:
     """What the shaders get: float32, relative to the cloud origin."""
 
@@ -227,6 +261,8 @@ class ViewUniforms:
     projection: np.ndarray    # (4,) float32: f/aspect, f, near, far
     size: tuple[int, int]
     hidden: np.ndarray        # (8,) uint32: bit c set = category code c not drawn
+    clip_lo: np.ndarray = field(default_factory=lambda: np.full(3, -np.inf, dtype=np.float32))
+    clip_hi: np.ndarray = field(default_factory=lambda: np.full(3, np.inf, dtype=np.float32))
 
 
 def hidden_mask(hidden: frozenset[int]) -> np.ndarray:
@@ -240,13 +276,14 @@ def hidden_mask(hidden: frozenset[int]) -> np.ndarray:
 
 
 def view_uniforms(camera: Camera, origin: np.ndarray, width: int, height: int,
-                  hidden: frozenset[int] = frozenset()) -> ViewUniforms:
+                  hidden: frozenset[int] = frozenset(), clip: Clip = NO_CLIP) -> ViewUniforms:
     r = camera.rotation()
     t = r @ (np.asarray(origin, dtype=np.float64) - np.asarray(camera.position, dtype=np.float64))
     f = camera.focal()
     proj = np.array([f * height / width, f, camera.near, camera.far], dtype=np.float64)
+    lo, hi = clip.relative(origin)
     return ViewUniforms(r.astype(np.float32), t.astype(np.float32), proj.astype(np.float32), (width, height),
-                        hidden_mask(hidden))
+                        hidden_mask(hidden), lo, hi)
 
 
 def auto_camera(bounds_min: np.ndarray, bounds_max: np.ndarray, aspect: float, fov_y_deg: float = 60.0) -> Camera:

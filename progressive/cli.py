@@ -126,6 +126,35 @@ def range_arg(text: str) -> tuple[float, float]:
     return lo, hi
 
 
+def floats_arg(count: int, what: str):
+    """COUNT comma-separated finite numbers."""
+    def parse(text: str) -> tuple[float, ...]:
+        try:
+            values = tuple(float(p) for p in text.split(","))
+        except ValueError:
+            values = ()
+        if len(values) != count or not all(np.isfinite(values)):
+            raise argparse.ArgumentTypeError(f"{shown(text)} is not {what}")
+        return values
+    parse.__name__ = what
+    return parse
+
+
+def clip_from(args):
+    """The clip box of --clip-box and --clip-z (both: their intersection), file coordinates."""
+    from progressive.camera import NO_CLIP, CameraError, Clip
+
+    try:
+        clip = NO_CLIP
+        if args.clip_box:
+            clip = clip.intersect(Clip(args.clip_box[:3], args.clip_box[3:]))
+        if args.clip_z:
+            clip = clip.intersect(Clip((-np.inf, -np.inf, args.clip_z[0]), (np.inf, np.inf, args.clip_z[1])))
+        return clip
+    except CameraError as exc:
+        raise UsageError(str(exc)) from None
+
+
 def effects_from(args):
     """The screen-space effects asked for on the command line."""
     from progressive.effects import Effects, EyeDome
@@ -158,6 +187,9 @@ def add_look_args(parser) -> None:
     parser.add_argument("--eye-dome-radius", type=float_arg, default=1.4, help="pixels")
     parser.add_argument("--hide-classes", type=classes_arg, default=frozenset(),
                         help="classification codes left out, e.g. 7,18 (when colouring by classification)")
+    parser.add_argument("--clip-box", type=floats_arg(6, "xmin,ymin,zmin,xmax,ymax,zmax"),
+                        help="draw only points inside this box (file coordinates, sides included)")
+    parser.add_argument("--clip-z", type=floats_arg(2, "zmin,zmax"), help="draw only points between these heights")
 
 
 def one_line(text: str) -> str:
@@ -279,7 +311,7 @@ def cmd_render(args) -> int:
         converged_at, frames = _run_frames(session, cameras, args)
         for w in session.warnings:
             warn(w)
-        stats = _stats(session, cameras[-1], frames, converged_at)
+        stats = _stats(session, cameras[-1], frames, converged_at, clip_from(args))
         image, ids = session.image(), session.ids()
         if args.out:
             outputs.write(args.out, png_writer(image))
@@ -299,15 +331,15 @@ def cmd_render(args) -> int:
 
 def _run_frames(session, cameras, args) -> tuple[int | None, int]:
     """Frames as asked: a fixed count, the camera path, or until equal to brute force."""
-    effects, hidden = effects_from(args), args.hide_classes
+    effects, hidden, clip = effects_from(args), args.hide_classes, clip_from(args)
     if not session.progressive:
-        session.frame(cameras[0], None, effects, hidden)
+        session.frame(cameras[0], None, effects, hidden, clip)
         return None, 1
     limit = args.frames or (args.max_frames if args.converge else len(cameras))
     limit = max(limit, len(cameras)) if not args.frames else limit
     converged_at = None
     for k in range(limit):
-        session.frame(cameras[min(k, len(cameras) - 1)], None, effects, hidden)
+        session.frame(cameras[min(k, len(cameras) - 1)], None, effects, hidden, clip)
         if args.converge and k + 1 >= len(cameras):
             converged_at = _first_equal(session.renderer.history, len(cameras) - 1)
             if converged_at is not None:
@@ -321,7 +353,7 @@ def _first_equal(history, after: int) -> int | None:
     return next((s.frame for s in history if s.frame >= after and s.equal_fraction == 1.0), None)
 
 
-def _stats(session, camera, frames: int, converged_at: int | None) -> dict:
+def _stats(session, camera, frames: int, converged_at: int | None, clip) -> dict:
     from progressive import memory
 
     renderer = session.renderer
@@ -340,7 +372,9 @@ def _stats(session, camera, frames: int, converged_at: int | None) -> dict:
         "height": session.options.height,
         "attribute": session.attribute.name,
         "color_range": session.color_range(),
-        "batches": session.batch_counts(camera),
+        "batches": session.batch_counts(camera, clip),
+        "clip": {"min": [v if np.isfinite(v) else None for v in clip.lo],
+                 "max": [v if np.isfinite(v) else None for v in clip.hi]},
         "peak_rss_bytes": memory.peak_rss_bytes(),
         "camera": camera.to_dict(),
         "frames_rendered": frames,
@@ -377,7 +411,8 @@ def cmd_view(args) -> int:
             viewer = Viewer(paths, ViewerOptions(width=args.width, height=args.height, color_by=args.color_by,
                                                  value_range=args.value_range,
                                                  partial=args.partial, gpu_memory_limit=args.gpu_memory_limit,
-                                                 ui=not args.no_ui, effects=effects, hidden_classes=args.hide_classes))
+                                                 ui=not args.no_ui, effects=effects, hidden_classes=args.hide_classes,
+                                                 clip=clip_from(args)))
         except GLCapabilityError as exc:
             print(f"progressive: cannot open a window ({one_line(exc)}); rendering headless instead", file=sys.stderr)
         else:
@@ -401,7 +436,7 @@ def _view_headless(paths: list[str], effects, args) -> int:
         camera = session.auto_camera()
         frames = 0
         while not session.converged and frames < MAX_HEADLESS_FRAMES:
-            session.frame(camera, None, effects, args.hide_classes)
+            session.frame(camera, None, effects, args.hide_classes, clip_from(args))
             session.stats()
             frames += 1
         for w in session.warnings:

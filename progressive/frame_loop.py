@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from progressive.budget import BudgetParams
-from progressive.camera import Camera, view_uniforms
+from progressive.camera import NO_CLIP, Camera, Clip, view_uniforms
 from progressive.colors import ColorStyle
 from progressive.context import GLContext
 from progressive.effects import Effects
@@ -95,7 +95,7 @@ class ProgressiveRenderer:
         self.change = 0
         self.converged_change = -1
         self.history: list[FrameStats] = []
-        self._camera: tuple[Camera, frozenset[int]] | None = None
+        self._camera: tuple[Camera, frozenset[int], Clip] | None = None
         self._look: tuple[ColorStyle, Effects] | None = None
         self._regather = False
         self._has_visible = False
@@ -139,9 +139,10 @@ class ProgressiveRenderer:
         return self.scene.switch is not None and not self.scene.switch.done
 
     def frame(self, camera: Camera, style: ColorStyle, effects: Effects = Effects(),
-              hidden: frozenset[int] = frozenset()) -> tuple[str, ...]:
+              hidden: frozenset[int] = frozenset(), clip: Clip = NO_CLIP) -> tuple[str, ...]:
         """Issue one frame's GPU work; returns the passes that ran. `hidden`: category
-        codes left out (with a category attribute shown), a change like a camera move."""
+        codes left out (with a category attribute shown), and `clip`: the box points must
+        lie in; each a change like a camera move."""
         self._pace()
         self._take(self.stats_ring.collect())
         if self.switching:
@@ -152,11 +153,11 @@ class ProgressiveRenderer:
             passes.append("distribute")
         style = self.scene.resolved(style)
         hidden = self.scene.drawable(hidden)
-        moved = (camera, hidden) != self._camera
+        moved = (camera, hidden, clip) != self._camera
         if passes or moved:
             self.change += 1
         restyled = (style, effects) != self._look
-        self._camera, self._look = (camera, hidden), (style, effects)
+        self._camera, self._look = (camera, hidden, clip), (style, effects)
         if self.scene.loaded == 0:
             self.vis.clear()
             passes += self.shading.run(style, effects, self.prepare.pixel_words)
@@ -168,7 +169,7 @@ class ProgressiveRenderer:
             if restyled or regather:
                 passes += self.shading.run(style, effects, self.prepare.pixel_words)
         else:
-            return self._render(camera, hidden, style, effects, passes, reset=bool(passes) or moved)
+            return self._render(camera, hidden, clip, style, effects, passes, reset=bool(passes) or moved)
         self.budget.end_frame(complete=False)
         self._idle_frame(tuple(passes))
         return tuple(passes)
@@ -189,9 +190,9 @@ class ProgressiveRenderer:
         self._idle_frame(("stream",))
         return ("stream",)
 
-    def _render(self, camera: Camera, hidden: frozenset[int], style: ColorStyle, effects: Effects,
+    def _render(self, camera: Camera, hidden: frozenset[int], clip: Clip, style: ColorStyle, effects: Effects,
                 passes: list[str], reset: bool) -> tuple[str, ...]:
-        view = view_uniforms(camera, self.info.origin, self.vis.width, self.vis.height, hidden)
+        view = view_uniforms(camera, self.info.origin, self.vis.width, self.vis.height, hidden, clip)
         b, raster = self.budget, self.raster
         if self._has_visible:
             passes.append("reproject")

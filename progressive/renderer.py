@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from progressive.camera import Camera, view_uniforms
+from progressive.camera import NO_CLIP, Camera, Clip, view_uniforms
 from progressive.colors import Colormap, ColorStyle
 from progressive.context import GLContext
 from progressive.effects import Effects
@@ -80,10 +80,10 @@ class Renderer:
             pass
 
     def render(self, camera: Camera, width: int, height: int, style: ColorStyle,
-               effects: Effects = Effects(), hidden: frozenset[int] = frozenset()) -> Frame:
+               effects: Effects = Effects(), hidden: frozenset[int] = frozenset(), clip: Clip = NO_CLIP) -> Frame:
         self.vis.resize(width, height)
         style = self.scene.resolved(style)
-        view = view_uniforms(camera, self.info.origin, width, height, self.scene.drawable(hidden))
+        view = view_uniforms(camera, self.info.origin, width, height, self.scene.drawable(hidden), clip)
         t = self.timestamps
         t.reset()
         t.stamp("start")

@@ -20,7 +20,7 @@ import numpy as np
 from progressive import batches, memory
 from progressive.attributes import default_choice, find_attribute
 from progressive.budget import BudgetParams
-from progressive.camera import Camera, auto_camera, view_uniforms
+from progressive.camera import NO_CLIP, Camera, Clip, auto_camera, view_uniforms
 from progressive.colors import Colormap, ColorStyle
 from progressive.context import GLContext, create_context
 from progressive.effects import Effects
@@ -162,13 +162,13 @@ class Session:
         self._given_range = None
         return self.renderer.scene.switch
 
-    def batch_counts(self, camera: Camera) -> dict[str, int]:
+    def batch_counts(self, camera: Camera, clip: Clip = NO_CLIP) -> dict[str, int]:
         """Batches of the store and how many the rasterizer's culling test keeps for
-        `camera` (its numpy twin); empty batches are culled."""
+        `camera` and `clip` (its numpy twin); empty batches are culled."""
         store = self.renderer.store
         if not store.batched:
             return {"total": 0, "drawn": 0, "culled": 0}
-        view = view_uniforms(camera, self.info.origin, *self.size)
+        view = view_uniforms(camera, self.info.origin, *self.size, clip=clip)
         drawn = int(np.count_nonzero(batches.in_view(store.boxes, view)))
         return {"total": store.permutation.batches, "drawn": drawn, "culled": store.permutation.batches - drawn}
 
@@ -198,17 +198,18 @@ class Session:
             self.load_seconds = time.perf_counter() - self.opened
 
     def frame(self, camera: Camera, style: ColorStyle | None = None, effects: Effects = Effects(),
-              hidden: frozenset[int] = frozenset()) -> tuple[str, ...]:
+              hidden: frozenset[int] = frozenset(), clip: Clip = NO_CLIP) -> tuple[str, ...]:
         """Progressive: one frame with whatever has loaded. Brute: load all, render.
-        `hidden`: category codes not drawn while a category attribute is shown."""
+        `hidden`: category codes not drawn while a category attribute is shown; `clip`:
+        the box (file coordinates) points must lie in to be drawn."""
         style = style or self.style()
         if not self.progressive:
             self._pump(block=True)
-            self._last = self.renderer.render(camera, *self.size, style, effects, hidden)
+            self._last = self.renderer.render(camera, *self.size, style, effects, hidden, clip)
             passes = ("distribute", "raster", "resolve")
         else:
             self._pump(block=False)
-            passes = self.renderer.frame(camera, style, effects, hidden)
+            passes = self.renderer.frame(camera, style, effects, hidden, clip)
         if self.first_image_seconds is None and self.renderer.scene.loaded > 0:
             self.first_image_seconds = time.perf_counter() - self.opened
         return passes

@@ -8,12 +8,19 @@ uniform vec3 u_view_translation;
 uniform vec4 u_projection;   // f/aspect, f, near, far
 uniform uvec2 u_size;        // width, height
 uniform uint u_hidden[8];    // category codes not drawn, a bit each (classification toggles)
+uniform vec3 u_clip_lo;      // the clip box relative to the origin (progressive/camera.py Clip),
+uniform vec3 u_clip_hi;      // infinite sides where it has none
 
 // Hidden categories are left out of the raster, so points behind them show. All bits
 // are zero unless the shown attribute is a category (its code is the record's word).
 bool category_shown(uint word) {
     uint c = min(word, 255u);
     return (u_hidden[c >> 5u] & (1u << (c & 31u))) == 0u;
+}
+
+// Points outside the clip box are left out of the raster, like hidden categories.
+bool clip_keeps(vec3 p) {
+    return all(greaterThanEqual(p, u_clip_lo)) && all(lessThanEqual(p, u_clip_hi));
 }
 
 vec3 to_view(vec3 p) {

@@ -14,6 +14,8 @@ uniform uint u_batches;
 bool batch_in_view(uint b) {
     vec3 lo = boxes[2u * b].xyz, hi = boxes[2u * b + 1u].xyz;
     if (!all(lessThanEqual(lo, hi))) return false;
+    // The box and the clip box compare in the same float32 frame as clip_keeps: exact.
+    if (!all(lessThanEqual(lo, u_clip_hi)) || !all(greaterThanEqual(hi, u_clip_lo))) return false;
     vec3 pad = BOX_MARGIN * ((hi - lo) + max(abs(lo), abs(hi))) + 1e-30;
     lo -= pad;
     hi += pad;

@@ -28,7 +28,7 @@ void main() {
     if (!slot_in_view(slot)) return;
 #endif
     uvec4 record = source_record(i, slot);
-    if (!finite_position(record) || !category_shown(record.w)) return;
+    if (!finite_position(record) || !category_shown(record.w) || !clip_keeps(uintBitsToFloat(record.xyz))) return;
     uint pixel;
     float depth;
     if (!project(uintBitsToFloat(record.xyz), pixel, depth)) return;

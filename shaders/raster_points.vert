@@ -33,7 +33,8 @@ void main() {
 #endif
     uint pixel;
     float depth;
-    if (!finite_position(record) || !category_shown(record.w) || !project(uintBitsToFloat(record.xyz), pixel, depth)) return;
+    if (!finite_position(record) || !category_shown(record.w) || !clip_keeps(uintBitsToFloat(record.xyz))
+        || !project(uintBitsToFloat(record.xyz), pixel, depth)) return;
     v_depth_bits = floatBitsToUint(depth);
     uint row = pixel / u_size.x;
     uint col = pixel - row * u_size.x;

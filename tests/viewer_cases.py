@@ -339,3 +339,24 @@ def test_class_toggles_in_the_window(viewer):
     settle(viewer)
     np.testing.assert_array_equal(viewer.session.image(), before)
     no_gl_error(viewer)
+
+
+def test_clip_box_in_the_window(viewer):
+    """A clip slab set in the viewer's settings (what the panel's numbers edit): no point
+    outside it stays visible, and clearing it brings the image back."""
+    from progressive.camera import NO_CLIP, Clip
+
+    settle(viewer)
+    before = viewer.session.image()
+    las = laspy.read(SAMPLE)
+    z = np.asarray(las.z)
+    low, high = np.percentile(z, [20, 40])
+    viewer.settings = replace(viewer.settings, clip=Clip((-np.inf, -np.inf, low), (np.inf, np.inf, high)))
+    settle(viewer)
+    ids = viewer.session.ids()
+    shown = z[ids[ids != EMPTY]]
+    assert shown.size and shown.min() >= low - 0.01 and shown.max() <= high + 0.01
+    viewer.settings = replace(viewer.settings, clip=NO_CLIP)
+    settle(viewer)
+    np.testing.assert_array_equal(viewer.session.image(), before)
+    no_gl_error(viewer)

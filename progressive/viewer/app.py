@@ -13,7 +13,7 @@ import glfw
 import numpy as np
 
 from progressive.budget import BudgetParams
-from progressive.camera import Camera, CameraError
+from progressive.camera import NO_CLIP, Camera, CameraError, Clip
 from progressive.context import Backend, GLContext, create_context
 from progressive.effects import Effects, EyeDome
 from progressive.errors import ProgressiveError
@@ -55,6 +55,7 @@ class ViewerOptions:
     gpu_memory_limit: int | None = None
     effects: Effects = Effects()        # the first point size and eye-dome lighting
     hidden_classes: frozenset[int] = frozenset()
+    clip: Clip = NO_CLIP                # the first clip box (file coordinates)
     ui: bool = True                    # the Dear ImGui panel
     visible: bool = True               # tests run hidden windows too
     screenshot_dir: Path = Path(".")
@@ -137,7 +138,8 @@ class Viewer:
         self.navigator = Navigator.for_bounds(session.info.bounds_min, session.info.bounds_max, width / height)
         self.orbit, self.pasted = self.navigator.home, None
         self.settings = replace(self.settings, attribute=session.attribute.name, value_range=None,
-                                hidden_classes=self.options.hidden_classes if not add else frozenset())
+                                hidden_classes=self.options.hidden_classes if not add else frozenset(),
+                                clip=self.options.clip if not add else self.settings.clip)
         self.messages = [*session.warnings]
         self._categories = None
         return True
@@ -220,7 +222,8 @@ class Viewer:
         s = self.session
         try:
             style = s.style(self.settings.colormap, self.settings.value_range, self.settings.background)
-            self.last_passes = s.frame(self.camera, style, self.settings.effects, self.settings.hidden_classes)
+            self.last_passes = s.frame(self.camera, style, self.settings.effects, self.settings.hidden_classes,
+                                       self.settings.clip)
         except ProgressiveError as exc:
             self.fail(f"{exc} (showing the {s.renderer.scene.loaded:,} points read before)")
             s.stop_loading()

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 from imgui_bundle import imgui
 
+from progressive.camera import NO_CLIP, Clip
 from progressive.colors import ASPRS_CLASSES, NO_RANGE, UNKNOWN_CLASS, Colormap, ColorMode
 from progressive.effects import MAX_POINT_SIZE, EyeDome
 from progressive.loaders.types import AttributeKind
@@ -74,6 +75,7 @@ class Panel:
             self._files(s)
             self._colouring(s)
             self._effects()
+            self._clip(s)
             self._budget()
             self._stats(s)
         self._messages()
@@ -150,6 +152,26 @@ class Panel:
             c2, radius = imgui.slider_float("radius", p.radius, 0.5, 8.0)
             if c1 or c2:
                 v.settings = replace(v.settings, eye_dome_params=EyeDome(strength, radius))
+
+    def _clip(self, s) -> None:
+        """A clip box edited with numbers in the file's coordinates (an axis left at the
+        cloud's bounds is open on that side)."""
+        v = self.viewer
+        if not imgui.collapsing_header("Clip"):
+            return
+        lo, hi = s.info.bounds_min, s.info.bounds_max
+        clip = v.settings.clip
+        changed, on = imgui.checkbox("clip box", clip != NO_CLIP)
+        if changed:
+            v.settings = replace(v.settings, clip=Clip(tuple(lo), tuple(hi)) if on else NO_CLIP)
+        if v.settings.clip == NO_CLIP:
+            return
+        shown_lo = [float(a if np.isfinite(a) else b) for a, b in zip(v.settings.clip.lo, lo)]
+        shown_hi = [float(a if np.isfinite(a) else b) for a, b in zip(v.settings.clip.hi, hi)]
+        c1, new_lo = imgui.input_float3("min", shown_lo, "%.3f")
+        c2, new_hi = imgui.input_float3("max", shown_hi, "%.3f")
+        if (c1 or c2) and all(a <= b for a, b in zip(new_lo, new_hi)):
+            v.settings = replace(v.settings, clip=Clip(tuple(new_lo), tuple(new_hi)))
 
     def _budget(self) -> None:
         v = self.viewer
