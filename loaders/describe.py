@@ -109,6 +109,8 @@ def _summary(info: FileInfo, stats: _FileStats, cloud: CloudInfo) -> dict:
         "attributes": {attr.name: _attribute(attr, bounds, stats.attributes) for attr in cloud.attributes},
         "nonfinite_positions": stats.nonfinite_positions,
         "nonfinite_values": dict(stats.nonfinite_values),
+        "scans": [{"name": s.name, "points": s.points, "coordinates": s.coordinates,
+                   "rotation": list(s.rotation), "translation": list(s.translation)} for s in info.scans],
     }
 
 
@@ -139,7 +141,7 @@ def describe(paths, *, partial: bool = False) -> dict:
     for s in stats:
         total.merge(s)
     desc = _summary(cloud.files[0], total, cloud)
-    del desc["path"], desc["rgb_16bit"], desc["header_points"]
+    del desc["path"], desc["rgb_16bit"], desc["header_points"], desc["scans"]
     desc["header_bounds"] = {"min": cloud.bounds_min.tolist(), "max": cloud.bounds_max.tolist()}
     desc.update(origin=cloud.origin.tolist(), files=files, warnings=warnings)
     return desc
@@ -157,7 +159,8 @@ def format_text(desc: dict) -> str:
     """A human-readable table of describe()'s result."""
     rows = [
         ("points", f"{desc['points']:,}"),
-        ("format", f"{desc['format']} {desc['version']}, point format {desc['point_format']}"),
+        ("format", f"{desc['format']} {desc['version']}"
+                   + (f", point format {desc['point_format']}" if desc["point_format"] >= 0 else "")),
         ("crs", desc["crs"] or "-"),
         ("scale", _num(desc["scale"])),
         ("offset", _num(desc["offset"])),
@@ -173,6 +176,11 @@ def format_text(desc: dict) -> str:
         lines += ["", f"files ({len(desc['files'])}):"]
         lines += [f"  {f['path']}  {f['points']:,} points, {f['format']} {f['version']} PF {f['point_format']}"
                   for f in desc["files"]]
+    for f in desc["files"]:
+        if f["scans"]:
+            lines += ["", f"scans of {f['path']} ({len(f['scans'])}):"]
+            lines += [f"  {s['name']}: {s['points']:,} points, {s['coordinates']}, rotation (w, x, y, z) "
+                      f"{_num(s['rotation'])}, translation {_num(s['translation'])}" for s in f["scans"]]
     if desc["nonfinite_positions"]:
         lines += ["", f"{desc['nonfinite_positions']:,} points have a non-finite x, y or z and are never drawn"]
     lines += [f"{name}: {n:,} non-finite values" for name, n in desc["nonfinite_values"].items()]

@@ -23,10 +23,12 @@ from progressive.errors import InputError
 from progressive.loaders.laz import LazLayout, Patch, laz_layout, open_patched
 from progressive.loaders.types import (
     BATCH_POINTS,
+    RGB8_MAX,
     AttributeInfo,
     AttributeKind,
     Batch,
     FileInfo,
+    channel8,
     nonfinite_count,
     nonfinite_rows,
     quiet_nans,
@@ -105,7 +107,7 @@ class RawHeader:
         if not data:
             raise fail(path, "is empty")
         if data[:4] != SIGNATURE:
-            raise fail(path, f"is not a LAS/LAZ or fast-format file (it starts with {data[:4]!r}, not b'LASF')")
+            raise fail(path, f"is not a LAS/LAZ or fast-format file, nor an E57 or PLY one (it starts with {data[:4]!r}, not b'LASF')")
         if len(data) < 26:
             raise fail(path, f"is too short for a LAS header ({len(data)} bytes)")
         major, minor = data[24], data[25]
@@ -192,10 +194,9 @@ class LasSource:
     def _values(self, chunk: laspy.ScaleAwarePointRecord, name: str) -> np.ndarray:
         if name == "rgb":
             # The depth is decided once per file (FileInfo.rgb_16bit); 8-bit files clip.
-            shift = 8 if self.info.rgb_16bit else 0
             rgb = np.empty((len(chunk), 3), dtype=np.uint8)
             for i, dim in enumerate(("red", "green", "blue")):
-                rgb[:, i] = np.minimum(np.asarray(chunk[dim]) >> shift, 255)
+                rgb[:, i] = channel8(chunk[dim], self.info.rgb_16bit)
             return rgb
         if name == "scan_angle":
             if self.info.point_format < 6:
@@ -355,7 +356,7 @@ def open_las(path: str | os.PathLike, *, partial: bool = False) -> LasSource:
         offset=tuple(float(v) for v in header.offsets),
         bounds_min=tuple(float(v) for v in header.mins),
         bounds_max=tuple(float(v) for v in header.maxs),
-        rgb_16bit=max_rgb > 255 if has_rgb else None,
+        rgb_16bit=max_rgb > RGB8_MAX if has_rgb else None,
         crs=crs_name(header),
     )
     names = tuple(n for n in STANDARD if n in columns or n in ("scan_angle", "elevation")
@@ -517,7 +518,7 @@ def _probe(path: str, laz: LazLayout | None, count: int, has_rgb: bool, partial:
                     seen = np.stack([coords.min(axis=0), coords.max(axis=0)])
             if has_rgb:
                 max_rgb = max(max_rgb, *(int(np.max(chunk[c])) for c in ("red", "green", "blue")))
-                if max_rgb > 255:
+                if max_rgb > RGB8_MAX:
                     break
     except TruncatedInput as exc:
         if not (partial and first is not None):

@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from progressive.loaders.e57 import read_point as read_e57_point
 from progressive.loaders.fastformat import HEADER_BYTES
+from progressive.loaders.ply import read_point as read_ply_point
 from progressive.loaders.types import CloudInfo
 
 FAST_FORMAT = "PRGS"
@@ -24,6 +26,10 @@ def read_point(info: CloudInfo, index: int) -> np.ndarray:
             stream.seek(HEADER_BYTES + 16 * index)
             xyz = np.frombuffer(stream.read(12), dtype="<f4")
         return info.origin + xyz.astype(np.float64)
+    if file.format == "PLY":
+        return read_ply_point(file.path, index)
+    if file.format == "E57":
+        return read_e57_point(file.path, index)
     import laspy
 
     with laspy.open(file.path) as reader:

@@ -19,12 +19,16 @@ from collections.abc import Callable, Iterable, Iterator
 import numpy as np
 
 from progressive.errors import InputError
+from progressive.loaders.e57 import E57Source, is_e57, open_e57
 from progressive.loaders.fastformat import FastSource, is_fast, open_fast
 from progressive.loaders.las import LasSource, TruncatedInput, open_las
+from progressive.loaders.ply import PlySource, is_ply, open_ply
 from progressive.loaders.types import BATCH_POINTS, AttributeInfo, Batch, CloudInfo
 from progressive.loaders.validate import check_addressable, fail, shown
 
-Source = LasSource | FastSource
+Source = LasSource | FastSource | E57Source | PlySource
+OPENERS = ((is_fast, open_fast), (is_e57, open_e57), (is_ply, open_ply))
+"""Formats told apart by their magic; anything else is opened (and checked) as LAS/LAZ."""
 Task = tuple[str, Callable[[], Batch]]
 WAIT_S = 0.05
 """How long a blocked thread waits before it looks at the stop flag again."""
@@ -42,8 +46,7 @@ def open_sources(paths, *, partial: bool = False) -> tuple[CloudInfo, tuple[Sour
     paths = [paths] if isinstance(paths, (str, os.PathLike)) else list(paths)
     if not paths:
         raise InputError("no input files given")
-    sources = tuple(open_fast(p, partial=partial) if is_fast(p) else open_las(p, partial=partial)
-                    for p in paths)
+    sources = tuple(_open(p, partial) for p in paths)
     files = tuple(s.info for s in sources)
     lo = np.min([f.bounds_min for f in files], axis=0).astype(np.float64)
     hi = np.max([f.bounds_max for f in files], axis=0).astype(np.float64)
@@ -51,13 +54,18 @@ def open_sources(paths, *, partial: bool = False) -> tuple[CloudInfo, tuple[Sour
         origin, attributes = _fast_cloud(sources)
     elif any(isinstance(s, FastSource) for s in sources):
         first = next(s for s in sources if isinstance(s, FastSource))
-        raise fail(first.info.path, "is in the fast format; it cannot be mixed with LAS/LAZ files")
+        raise fail(first.info.path, "is in the fast format; it cannot be mixed with LAS/LAZ, E57 or PLY files")
     else:
         origin = (lo + hi) / 2
         attributes = _common_attributes(sources, origin)
     info = CloudInfo(files=files, points=sum(f.points for f in files), origin=origin,
                      bounds_min=lo, bounds_max=hi, attributes=attributes)
     return info, sources
+
+
+def _open(path, partial: bool) -> Source:
+    opener = next((open_ for is_format, open_ in OPENERS if is_format(path)), open_las)
+    return opener(path, partial=partial)
 
 
 def _fast_cloud(sources: tuple[FastSource, ...]) -> tuple[np.ndarray, tuple[AttributeInfo, ...]]:
@@ -69,7 +77,7 @@ def _fast_cloud(sources: tuple[FastSource, ...]) -> tuple[np.ndarray, tuple[Attr
     return first.origin.copy(), (first.attribute,)
 
 
-def _common_attributes(sources: tuple[LasSource, ...], origin: np.ndarray) -> tuple[AttributeInfo, ...]:
+def _common_attributes(sources: tuple[LasSource | E57Source | PlySource, ...], origin: np.ndarray) -> tuple[AttributeInfo, ...]:
     """Attributes every file has, in the first file's order (standard ones, then extra
     bytes), with the offsets that keep float32 detail on the GPU."""
     by_file = [{a.name: a for a in s.attributes} for s in sources]

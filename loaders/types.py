@@ -11,6 +11,10 @@ BATCH_POINTS = 500_000
 """Largest batch a reader yields; also the size of the GPU distribute buffer."""
 
 
+RGB8_MAX = 255
+"""A file is 16-bit colour iff a channel among its first BATCH_POINTS points exceeds this."""
+
+
 class AttributeKind(enum.Enum):
     """How an attribute is shown, and so how it is packed into the 4-byte GPU word."""
 
@@ -38,9 +42,9 @@ class FileInfo:
     """Header facts of one input file, for `progressive info` and for errors."""
 
     path: str
-    format: str                 # "LAS", "LAZ" or "PRGS" (the fast format)
-    version: str                # "1.2", "1.4", ...
-    point_format: int           # LAS point data record format, -1 for the fast format
+    format: str                 # "LAS", "LAZ", "PRGS" (the fast format), "E57" or "PLY"
+    version: str                # "1.2", "1.4", ...; E57 "1.0"; PLY "1.0 binary_little_endian", ...
+    point_format: int           # LAS point data record format, -1 for the other formats
     points: int
     scale: tuple[float, float, float]
     offset: tuple[float, float, float]
@@ -52,6 +56,20 @@ class FileInfo:
     later value above 255 is clipped to 255. Decided once per file, so the colours do
     not depend on the loader's batch size."""
     crs: str | None = None
+    scans: tuple[ScanInfo, ...] = ()
+    """E57 only: the file's scans (data3D entries), in the order their points are loaded."""
+
+
+@dataclass(frozen=True)
+class ScanInfo:
+    """One scan of an E57 file. Its pose (rotation quaternion w, x, y, z, normalised, and
+    translation) takes its local coordinates to the file's, applied in float64."""
+
+    name: str
+    points: int
+    coordinates: str            # "cartesian" or "spherical"
+    rotation: tuple[float, float, float, float]
+    translation: tuple[float, float, float]
 
 
 @dataclass(frozen=True)
@@ -103,6 +121,12 @@ class Batch:
     @property
     def count(self) -> int:
         return int(self.positions.shape[0])
+
+
+def channel8(values: np.ndarray, sixteen_bit: bool) -> np.ndarray:
+    """One colour channel (unsigned integers) as 8 bits by the rule of FileInfo.rgb_16bit:
+    a 16-bit file's values shifted right by 8, an 8-bit file's clipped at RGB8_MAX."""
+    return np.minimum(np.asarray(values) >> (8 if sixteen_bit else 0), RGB8_MAX)
 
 
 def nonfinite_rows(positions: np.ndarray) -> int:
