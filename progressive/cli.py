@@ -368,6 +368,8 @@ def _stats(session, camera, frames: int, converged_at: int | None, clip) -> dict
         "load_seconds": session.load_seconds,
         "load_points_per_second": renderer.scene.loaded / session.load_seconds if session.load_seconds else None,
         "first_image_seconds": session.first_image_seconds,
+        "startup_seconds": session.startup,
+        "programs": session.glc.programs.stats.as_dict(),
         "width": session.options.width,
         "height": session.options.height,
         "attribute": session.attribute.name,

@@ -4,7 +4,9 @@ what the implementation can do, so passes choose their path from facts, not name
 from __future__ import annotations
 
 import enum
+import os
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import moderngl
 
@@ -13,8 +15,10 @@ from progressive.glext import (
     GL_GPU_MEMORY_INFO_CURRENT_AVAILABLE_VIDMEM_NVX,
     GL_GPU_MEMORY_INFO_TOTAL_AVAILABLE_MEMORY_NVX,
     GLFunctions,
+    ProgramFunctions,
     egl_proc_loader,
 )
+from progressive.programs import Programs, cache_directory
 
 REQUIRED_VERSION = 450
 
@@ -82,6 +86,7 @@ class GLContext:
     ctx: moderngl.Context
     gl: GLFunctions
     caps: Capabilities
+    programs: Programs
     window: object | None = None
     _released: bool = field(default=False, repr=False)
 
@@ -103,8 +108,11 @@ class GLContext:
 
 
 def create_context(backend: Backend = Backend.HEADLESS, *, size: tuple[int, int] = (1280, 720),
-                   title: str = "progressive", visible: bool = True) -> GLContext:
-    """A GL 4.5 context; a clear error names what is missing when there is none."""
+                   title: str = "progressive", visible: bool = True,
+                   program_cache: Path | None | bool = True) -> GLContext:
+    """A GL 4.5 context; a clear error names what is missing when there is none.
+    program_cache: True: the directory the environment gives (progressive/programs.py),
+    a Path: that directory, None or False: compile every program."""
     window = None
     if backend is Backend.HEADLESS:
         try:
@@ -119,7 +127,16 @@ def create_context(backend: Backend = Backend.HEADLESS, *, size: tuple[int, int]
         ctx.release()
         raise GLCapabilityError(f"OpenGL 4.5 is required (compute shaders, direct state access); this driver offers {version}")
     gl = GLFunctions.load(loader)
-    return GLContext(ctx=ctx, gl=gl, caps=read_capabilities(ctx, gl), window=window)
+    caps = read_capabilities(ctx, gl)
+    directory = cache_directory(os.environ) if program_cache is True else (program_cache or None)
+    programs = Programs(ProgramFunctions.load(loader), program_key(caps), directory)
+    ctx.extra = programs     # moderngl's slot for user data: shaderlib.compute reaches it from ctx alone
+    return GLContext(ctx=ctx, gl=gl, caps=caps, programs=programs, window=window)
+
+
+def program_key(caps: Capabilities) -> str:
+    """What a program binary is valid for besides its source."""
+    return f"{caps.vendor}\n{caps.renderer}\n{caps.version}"
 
 
 def _glfw_context(size: tuple[int, int], title: str, visible: bool):

@@ -1,7 +1,9 @@
 """OpenGL entry points moderngl does not wrap, reached through ctypes.
 
 moderngl has no glQueryCounter, GL_QUERY_BUFFER or glClearBufferSubData; buffer
-clears must stay on the GPU (moderngl's Buffer.clear fills from the CPU)."""
+clears must stay on the GPU (moderngl's Buffer.clear fills from the CPU). Nor has it
+GL_ARB_get_program_binary: ProgramFunctions builds and loads compute programs itself
+(progressive/programs.py)."""
 
 from __future__ import annotations
 
@@ -24,6 +26,17 @@ GL_ALREADY_SIGNALED = 0x911A
 GL_CONDITION_SATISFIED = 0x911C
 GL_GPU_MEMORY_INFO_TOTAL_AVAILABLE_MEMORY_NVX = 0x9048
 GL_GPU_MEMORY_INFO_CURRENT_AVAILABLE_VIDMEM_NVX = 0x9049
+GL_COMPUTE_SHADER = 0x91B9
+GL_COMPILE_STATUS = 0x8B81
+GL_LINK_STATUS = 0x8B82
+GL_INFO_LOG_LENGTH = 0x8B84
+GL_ACTIVE_UNIFORMS = 0x8B86
+GL_PROGRAM_BINARY_RETRIEVABLE_HINT = 0x8257
+GL_PROGRAM_BINARY_LENGTH = 0x8741
+GL_NUM_PROGRAM_BINARY_FORMATS = 0x87FE
+GL_DISPATCH_INDIRECT_BUFFER = 0x90EE
+GL_PROGRAM = 0x82E2
+GL_NO_ERROR = 0
 
 ProcLoader = Callable[[str], int]
 
@@ -38,6 +51,13 @@ def egl_proc_loader() -> ProcLoader:
     egl.eglGetProcAddress.restype = ctypes.c_void_p
     egl.eglGetProcAddress.argtypes = [ctypes.c_char_p]
     return lambda name: egl.eglGetProcAddress(name.encode()) or 0
+
+
+def _entry(loader: ProcLoader, name: str, *argtypes, restype=None) -> Callable:
+    address = loader(name)
+    if not address:
+        raise RuntimeError(f"OpenGL entry point {name} not found")
+    return ctypes.CFUNCTYPE(restype, *argtypes)(address)
 
 
 @dataclass(frozen=True)
@@ -64,10 +84,7 @@ class GLFunctions:
     @classmethod
     def load(cls, loader: ProcLoader) -> GLFunctions:
         def fn(name: str, *argtypes, restype=None):
-            address = loader(name)
-            if not address:
-                raise RuntimeError(f"OpenGL entry point {name} not found")
-            return ctypes.CFUNCTYPE(restype, *argtypes)(address)
+            return _entry(loader, name, *argtypes, restype=restype)
 
         return cls(
             clear_named_buffer_sub_data=fn("glClearNamedBufferSubData", _u, _u, _iptr, _iptr, _u, _u, _vp),
@@ -125,3 +142,99 @@ class GLFunctions:
         value = _i(0)
         self.get_integerv(pname, ctypes.byref(value))
         return int(value.value)
+
+
+_cp = ctypes.c_char_p
+_uptr = ctypes.POINTER(_u)
+_ip = ctypes.POINTER(_i)
+
+
+@dataclass(frozen=True)
+class ProgramFunctions:
+    """Compile, link, save and load compute programs, set their uniforms, dispatch."""
+
+    create_shader: Callable
+    shader_source: Callable
+    compile_shader: Callable
+    get_shaderiv: Callable
+    get_shader_info_log: Callable
+    delete_shader: Callable
+    create_program: Callable
+    attach_shader: Callable
+    detach_shader: Callable
+    program_parameteri: Callable
+    link_program: Callable
+    get_programiv: Callable
+    get_program_info_log: Callable
+    delete_program: Callable
+    get_program_binary: Callable
+    program_binary: Callable
+    get_active_uniform: Callable
+    get_uniform_location: Callable
+    use_program: Callable
+    dispatch_compute: Callable
+    dispatch_compute_indirect: Callable
+    bind_buffer: Callable
+    get_error: Callable
+    get_integerv: Callable
+    object_label: Callable
+    uniforms: dict          # (base type "f"/"i"/"ui", components) -> glProgramUniform*v
+    matrices: dict          # columns -> glProgramUniformMatrix*fv
+
+    @classmethod
+    def load(cls, loader: ProcLoader) -> ProgramFunctions:
+        def fn(name: str, *argtypes, restype=None):
+            return _entry(loader, name, *argtypes, restype=restype)
+
+        return cls(
+            create_shader=fn("glCreateShader", _u, restype=_u),
+            shader_source=fn("glShaderSource", _u, _i, ctypes.POINTER(_cp), _ip),
+            compile_shader=fn("glCompileShader", _u),
+            get_shaderiv=fn("glGetShaderiv", _u, _u, _ip),
+            get_shader_info_log=fn("glGetShaderInfoLog", _u, _i, _ip, _cp),
+            delete_shader=fn("glDeleteShader", _u),
+            create_program=fn("glCreateProgram", restype=_u),
+            attach_shader=fn("glAttachShader", _u, _u),
+            detach_shader=fn("glDetachShader", _u, _u),
+            program_parameteri=fn("glProgramParameteri", _u, _u, _i),
+            link_program=fn("glLinkProgram", _u),
+            get_programiv=fn("glGetProgramiv", _u, _u, _ip),
+            get_program_info_log=fn("glGetProgramInfoLog", _u, _i, _ip, _cp),
+            delete_program=fn("glDeleteProgram", _u),
+            get_program_binary=fn("glGetProgramBinary", _u, _i, _ip, _uptr, _vp),
+            program_binary=fn("glProgramBinary", _u, _u, _vp, _i),
+            get_active_uniform=fn("glGetActiveUniform", _u, _u, _i, _ip, _ip, _uptr, _cp),
+            get_uniform_location=fn("glGetUniformLocation", _u, _cp, restype=_i),
+            use_program=fn("glUseProgram", _u),
+            dispatch_compute=fn("glDispatchCompute", _u, _u, _u),
+            dispatch_compute_indirect=fn("glDispatchComputeIndirect", _iptr),
+            bind_buffer=fn("glBindBuffer", _u, _u),
+            get_error=fn("glGetError", restype=_u),
+            get_integerv=fn("glGetIntegerv", _u, _ip),
+            object_label=fn("glObjectLabel", _u, _u, _i, _cp),
+            uniforms={(t, n): fn(f"glProgramUniform{n}{t}v", _u, _i, _i, _vp) for t in ("f", "i", "ui") for n in (1, 2, 3, 4)},
+            matrices={n: fn(f"glProgramUniformMatrix{n}fv", _u, _i, _i, ctypes.c_ubyte, _vp) for n in (2, 3, 4)},
+        )
+
+    def integer(self, pname: int) -> int:
+        value = _i(0)
+        self.get_integerv(pname, ctypes.byref(value))
+        return int(value.value)
+
+    def program_integer(self, program: int, pname: int) -> int:
+        value = _i(0)
+        self.get_programiv(program, pname, ctypes.byref(value))
+        return int(value.value)
+
+    def program_log(self, program: int) -> str:
+        size = max(1, self.program_integer(program, GL_INFO_LOG_LENGTH))
+        buf = ctypes.create_string_buffer(size)
+        self.get_program_info_log(program, size, None, buf)
+        return buf.value.decode("utf-8", "replace")
+
+    def shader_log(self, shader: int) -> str:
+        size = _i(0)
+        self.get_shaderiv(shader, GL_INFO_LOG_LENGTH, ctypes.byref(size))
+        buf = ctypes.create_string_buffer(max(1, size.value))
+        self.get_shader_info_log(shader, max(1, size.value), None, buf)
+        return buf.value.decode("utf-8", "replace")

@@ -64,6 +64,11 @@ class Session:
         self._given_range = options.value_range
         self._early: list = []
         self._notes: list[str] = []
+        self.startup: dict[str, float] = {}
+        """Seconds of each phase before the first image: read (the header, and the first
+        batch where the default colouring needs it), context, passes (buffers and
+        programs), programs (of passes: compiled or loaded), upload and first_frame
+        (the frame that showed points first, its distributes included; GPU work queued)."""
         try:
             self.info = self.loader.info
             self.loader.start()
@@ -73,8 +78,14 @@ class Session:
                 self._early = self._first_batches()
                 self.attribute, note = default_choice(self.info, self._early[0] if self._early else None)
                 self._notes += [note] if note else []
+            t0 = time.perf_counter()
+            self.startup["read"] = t0 - self.opened
             self._own_context = glc is None
             self.glc = glc or create_context()
+            t1 = time.perf_counter()
+            self.startup["context"] = t1 - t0
+            programs_before = self.glc.programs.stats.seconds
+            self._program_warnings = len(self.glc.programs.warnings)    # a shared context's earlier ones are not ours
             self.memory = memory.plan(self.info.points, self.glc.caps, options.width * options.height,
                                       options.gpu_memory_limit)
             if self.memory.capacity == 0:
@@ -92,6 +103,8 @@ class Session:
         except BaseException:
             self.loader.close()
             raise
+        self.startup["passes"] = time.perf_counter() - t1
+        self.startup["programs"] = self.glc.programs.stats.seconds - programs_before
         for batch in self._early:
             self.renderer.add_batch(batch)
         self.load_seconds: float | None = None
@@ -128,7 +141,7 @@ class Session:
         subset = [self.memory.message(self.renderer.store.kept)] if self.memory.subset and self.renderer else []
         skipped = self.renderer.scene.skipped if self.renderer is not None else 0
         nonfinite = [f"{skipped:,} points not drawn: non-finite coordinates or {self.attribute.name} values"] if skipped else []
-        return subset + self._notes + nonfinite + list(self.loader.warnings)
+        return subset + self._notes + nonfinite + list(self.loader.warnings) + self.glc.programs.warnings[self._program_warnings:]
 
     def auto_camera(self) -> Camera:
         return auto_camera(self.info.bounds_min, self.info.bounds_max, self.size[0] / self.size[1])
@@ -202,6 +215,7 @@ class Session:
         """Progressive: one frame with whatever has loaded. Brute: load all, render.
         `hidden`: category codes not drawn while a category attribute is shown; `clip`:
         the box (file coordinates) points must lie in to be drawn."""
+        t0 = time.perf_counter()
         style = style or self.style()
         if not self.progressive:
             self._pump(block=True)
@@ -211,7 +225,10 @@ class Session:
             self._pump(block=False)
             passes = self.renderer.frame(camera, style, effects, hidden, clip)
         if self.first_image_seconds is None and self.renderer.scene.loaded > 0:
-            self.first_image_seconds = time.perf_counter() - self.opened
+            now = time.perf_counter()
+            self.first_image_seconds = now - self.opened
+            self.startup["upload"] = self.renderer.scene.upload_seconds
+            self.startup["first_frame"] = now - t0
         return passes
 
     def stats(self) -> list[FrameStats]:

@@ -12,6 +12,7 @@ import moderngl
 
 from progressive import batches, permutation
 from progressive.bindings import glsl_defines
+from progressive.programs import ComputeProgram, Programs
 
 _INCLUDE = re.compile(r'^\s*#include\s+"([^"]+)"\s*$', re.MULTILINE)
 Defines = Mapping[str, int | str | bool]
@@ -37,7 +38,12 @@ def source(name: str, defines: Defines | None = None, extensions: tuple[str, ...
 
 
 def compute(ctx: moderngl.Context, name: str, defines: Defines | None = None,
-            extensions: tuple[str, ...] = (), label: str | None = None) -> moderngl.ComputeShader:
-    program = ctx.compute_shader(source(name, defines, extensions))
+            extensions: tuple[str, ...] = (), label: str | None = None) -> ComputeProgram | moderngl.ComputeShader:
+    """Through the context's program cache where create_context made it (ctx.extra),
+    else moderngl's compiler (a context made elsewhere)."""
+    text = source(name, defines, extensions)
+    if isinstance(ctx.extra, Programs):
+        return ctx.extra.compute(text, label or name)
+    program = ctx.compute_shader(text)
     program.label = label or name
     return program

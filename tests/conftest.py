@@ -27,6 +27,19 @@ def shared_file(name: str) -> Path:
     return path
 
 
+@pytest.fixture(scope="session", autouse=True)
+def program_cache(tmp_path_factory):
+    """Program binaries in a directory of this run (the CLI's subprocesses inherit it),
+    not the user's cache."""
+    from progressive.programs import ENV_VAR
+
+    before = os.environ.get(ENV_VAR)
+    os.environ[ENV_VAR] = str(tmp_path_factory.mktemp("programs")) if before is None else before
+    yield
+    if before is None:
+        del os.environ[ENV_VAR]
+
+
 @pytest.fixture(scope="session")
 def sample_path() -> Path:
     return SAMPLE

@@ -107,7 +107,9 @@ def test_frames_wider_than_2048(gl):
 
 def gpu_objects() -> int:
     gc.collect()
-    kinds = (moderngl.Buffer, moderngl.Texture, moderngl.Framebuffer, moderngl.ComputeShader,
+    from progressive.programs import ComputeProgram
+
+    kinds = (moderngl.Buffer, moderngl.Texture, moderngl.Framebuffer, moderngl.ComputeShader, ComputeProgram,
              moderngl.Program, moderngl.VertexArray)
     return sum(isinstance(o, kinds) for o in gc.get_objects())
 

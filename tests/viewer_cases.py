@@ -295,9 +295,12 @@ def test_viewer_objects_stay_flat_over_many_steps(viewer):
 
     import moderngl
 
+    from progressive.programs import ComputeProgram
+
     def objects():
         gc.collect()
-        return sum(isinstance(o, (moderngl.Buffer, moderngl.ComputeShader, moderngl.Program, moderngl.VertexArray))
+        kinds = (moderngl.Buffer, moderngl.ComputeShader, ComputeProgram, moderngl.Program, moderngl.VertexArray)
+        return sum(isinstance(o, kinds)
                    for o in gc.get_objects())
 
     def cycle(steps):

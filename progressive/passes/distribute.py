@@ -23,8 +23,10 @@ class DistributePass:
         int64 = glc.caps.shader_int64
         defines = dict(store.defines, PERMUTE_INT64=1) if int64 else dict(store.defines)
         ext = ("GL_ARB_gpu_shader_int64",) if int64 else ()
-        self.records = shaderlib.compute(glc.ctx, "distribute.comp", dict(defines, ATTRIBUTE_ONLY=0), ext, "distribute")
-        self.words = shaderlib.compute(glc.ctx, "distribute.comp", dict(defines, ATTRIBUTE_ONLY=1), ext, "distribute words")
+        self._build = lambda only, label: shaderlib.compute(glc.ctx, "distribute.comp", dict(defines, ATTRIBUTE_ONLY=only),
+                                                            ext, label)
+        self.records = self._build(0, "distribute")
+        self.words = None       # built at the first attribute switch: no first image waits for it
         self.points_distributed = 0
 
     def upload(self, records: np.ndarray, start: int) -> None:
@@ -33,6 +35,7 @@ class DistributePass:
 
     def upload_words(self, words: np.ndarray, start: int) -> None:
         """Replace only the attribute word of n points (attribute switching, paper 3.5)."""
+        self.words = self.words or self._build(1, "distribute words")
         self._scatter(self.words, np.ascontiguousarray(words, dtype=np.uint32), start)
 
     def _scatter(self, program, data: np.ndarray, start: int) -> None:
@@ -58,4 +61,5 @@ class DistributePass:
 
     def release(self) -> None:
         for obj in (self.stage, self.records, self.words):
-            obj.release()
+            if obj is not None:
+                obj.release()
