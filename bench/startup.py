@@ -1,0 +1,141 @@
+"""Startup: where the time to the first image goes for `progressive render` and
+`progressive view` (headless), each run a fresh process, under four cache states:
+no caches (Mesa's shader cache off, which also leaves the driver without program
+binary formats), a first run (both caches empty, filled by the run), Mesa's cache
+warm, and Mesa's cache with the program binary cache warm.
+
+    python -m bench.startup [--repeats 3] [--width 1280 --height 720]
+
+writes bench/results/<machine>/startup.{md,json}."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+RESULTS = Path(__file__).resolve().parent / "results"
+REPO = Path(__file__).resolve().parents[1]
+SAMPLE = REPO / "progressive" / "data" / "autzen_trim.las"
+LAZ = REPO.parent / "shared" / "data" / "wires.laz"
+PHASES = ("import", "read", "context", "passes", "programs", "upload", "first_frame", "finish")
+CACHE_STATES = ("no caches", "first run", "Mesa cache", "Mesa + program cache")
+
+
+def child(command: str, path: str, width: int, height: int) -> dict:
+    """One run as the command would make it, to glFinish after the first image (this
+module imports nothing of progressive before, so `import` is what the CLI pays)."""
+    t0 = time.perf_counter()
+    from progressive import cli
+    from progressive.session import Session, SessionOptions
+
+    imported = time.perf_counter()
+    if command == "render":
+        args = cli.build_parser().parse_args(["render", path, "--out", "unused.png", "--width", str(width),
+                                              "--height", str(height)])
+        options = cli.session_options(args)
+    else:       # as cli._view_headless builds it
+        options = SessionOptions(width=width, height=height)
+    with Session([path], options) as s:
+        s.frame(s.auto_camera())
+        returned = time.perf_counter()
+        s.glc.ctx.finish()
+        done = time.perf_counter()
+        out = {"import": imported - t0, **s.startup, "finish": done - returned, "in_process": done - t0,
+               "epoch_done": time.time(), "device": s.glc.caps.as_dict(), **s.glc.programs.stats.as_dict()}
+    return out
+
+
+def environment(state: str, warm: dict[str, str]) -> dict[str, str]:
+    env = dict(os.environ)
+    env.pop("MESA_SHADER_CACHE_DISABLE", None)
+    if state == "no caches":
+        env.update(MESA_SHADER_CACHE_DISABLE="true", PROGRESSIVE_PROGRAM_CACHE="0")
+    elif state == "first run":
+        env.update(MESA_SHADER_CACHE_DIR=tempfile.mkdtemp(prefix="mesa-"),
+                   PROGRESSIVE_PROGRAM_CACHE=tempfile.mkdtemp(prefix="programs-"))
+    elif state == "Mesa cache":
+        env.update(MESA_SHADER_CACHE_DIR=warm["mesa"], PROGRESSIVE_PROGRAM_CACHE="0")
+    else:
+        env.update(MESA_SHADER_CACHE_DIR=warm["mesa"], PROGRESSIVE_PROGRAM_CACHE=warm["programs"])
+    return env
+
+
+def one(command: str, path: Path, size: tuple[int, int], env: dict[str, str]) -> dict:
+    started = time.time()
+    done = subprocess.run([sys.executable, "-m", "bench.startup", "--child", command, str(path), str(size[0]), str(size[1])],
+                          env=env, cwd=REPO, capture_output=True, text=True, check=True)
+    result = json.loads(done.stdout.strip().splitlines()[-1])
+    result["process"] = result.pop("epoch_done") - started
+    return result
+
+
+def run(files: list[Path], size: tuple[int, int], repeats: int):
+    from bench.report import Table
+
+    table = Table("startup", "Time to first image: the phases, per command and cache state", ", ".join(p.name for p in files),
+                  "the files as they are", ("command", "file", "caches", "process s", "import", "read", "context",
+                                            "passes", "of which programs", "upload", "first frame", "glFinish",
+                                            "programs loaded / compiled"))
+    warm = {"mesa": tempfile.mkdtemp(prefix="mesa-warm-"), "programs": tempfile.mkdtemp(prefix="programs-warm-")}
+    rows, device = [], None
+    for command in ("render", "view"):
+        for path in files:
+            one(command, path, size, environment("Mesa + program cache", warm))      # fills the warm caches
+            for state in CACHE_STATES:
+                runs = [one(command, path, size, environment(state, warm)) for _ in range(repeats)]
+                device = runs[0]["device"]
+                med = {k: statistics.median(r[k] for r in runs) for k in (*PHASES, "process", "in_process")}
+                row = {"command": command, "file": path.name, "caches": state, "runs": runs, "median": med,
+                       "hits": runs[-1]["hits"], "misses": runs[-1]["misses"]}
+                rows.append(row)
+                table.rows.append((command, path.name, state, med["process"], *(med[k] for k in PHASES),
+                                   f"{row['hits']} / {row['misses']}"))
+    table.notes = [
+        (f"Each run a fresh `python` process at {size[0]}x{size[1]}, median of {repeats}; `process s`: from spawning "
+         "it to `glFinish` after the first frame with points. Phases (seconds): import of `progressive.cli` and the "
+         "session; read: header and the first batch (the default colouring looks at it); context: EGL context, "
+         "capabilities, GL entry points; passes: buffers and programs of the renderer (programs: compiled, or loaded "
+         "from the binary cache); upload: packing and distributing the batches of the first frame; first frame: "
+         "issuing it, upload included; glFinish: waiting for it (on llvmpipe, the shaders' JIT compile happens here "
+         "at their first dispatch unless Mesa's cache holds them)."),
+        ("Caches: Mesa's on-disk shader cache (`MESA_SHADER_CACHE_DIR`; `MESA_SHADER_CACHE_DISABLE=true` turns it "
+         "off, and with it the driver reports no program binary formats, so the program cache is inactive too) and "
+         "progressive's program binary cache (`PROGRESSIVE_PROGRAM_CACHE`). First run: both empty."),
+    ]
+    table.raw = {"rows": rows, "size": list(size), "repeats": repeats}
+    return table, device
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--child", nargs=4, metavar=("COMMAND", "FILE", "W", "H"), help=argparse.SUPPRESS)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--width", type=int, default=1280)
+    parser.add_argument("--height", type=int, default=720)
+    parser.add_argument("--out", type=Path, default=None, help="results folder (default bench/results/<machine>)")
+    args = parser.parse_args(argv)
+    if args.child:
+        command, path, w, h = args.child
+        print(json.dumps(child(command, path, int(w), int(h))))
+        return 0
+    files = [SAMPLE] + ([LAZ] if LAZ.is_file() else [])
+    table, device = run(files, (args.width, args.height), args.repeats)
+    from bench.report import RunInfo
+    from progressive.context import Capabilities
+
+    info = RunInfo.from_caps(Capabilities(**device), "startup")
+    out = args.out or RESULTS / info.machine
+    table.write(out, info)
+    print(table.markdown(info))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
