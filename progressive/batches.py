@@ -75,9 +75,10 @@ def in_view(boxes: np.ndarray, view: ViewUniforms) -> np.ndarray:
         v = corners(lo - pad, hi + pad) @ view.rotation.astype(np.float64).T + view.translation.astype(np.float64)
         depth = -v[..., 2]
         fa, f, near, far = (float(x) for x in view.projection)
-        d, x, y = np.abs(depth), fa * v[..., 0], f * v[..., 1]
+        w = depth if view.perspective else np.ones_like(depth)      # the side planes: |x| <= w
+        d, aw, x, y = np.abs(depth), np.abs(w), fa * v[..., 0], f * v[..., 1]
         planes = np.stack([depth - near + BOX_MARGIN * (d + near), far - depth + BOX_MARGIN * (d + far),
-                           depth - x + BOX_MARGIN * (d + np.abs(x)), depth + x + BOX_MARGIN * (d + np.abs(x)),
-                           depth - y + BOX_MARGIN * (d + np.abs(y)), depth + y + BOX_MARGIN * (d + np.abs(y))], axis=-1)
+                           w - x + BOX_MARGIN * (aw + np.abs(x)), w + x + BOX_MARGIN * (aw + np.abs(x)),
+                           w - y + BOX_MARGIN * (aw + np.abs(y)), w + y + BOX_MARGIN * (aw + np.abs(y))], axis=-1)
         outside = (planes < 0).all(axis=1).any(axis=1)
     return ~empty & ~outside

@@ -5,6 +5,7 @@ its view-space -z axis; depth is the distance along the viewing direction."""
 
 from __future__ import annotations
 
+import enum
 import json
 import math
 import os
@@ -39,6 +40,11 @@ class CameraError(ProgressiveError):
     pass
 
 
+class Projection(enum.Enum):
+    PERSPECTIVE = "perspective"
+    ORTHOGRAPHIC = "orthographic"     # parallel rays; `height` is the world height the image spans
+
+
 @dataclass(frozen=True)
 class Camera:
     position: Vec3
@@ -47,9 +53,18 @@ class Camera:
     fov_y_deg: float = 60.0
     near: float = 0.1
     far: float = 10_000.0
+    projection: Projection = Projection.PERSPECTIVE
+    height: float | None = None       # orthographic: the world height of the image
 
     def __post_init__(self) -> None:
         """Every bound the float64 maths and the float32 GPU values need, one message each."""
+        if not isinstance(self.projection, Projection):
+            raise CameraError("camera projection must be 'perspective' or 'orthographic'")
+        if self.projection is Projection.ORTHOGRAPHIC:
+            if self.height is None or not _finite(self.height) or not MIN_EXTENT <= self.height <= MAX_DEPTH:
+                raise CameraError(f"an orthographic camera needs a height in [{MIN_EXTENT:g}, {MAX_DEPTH:g}]")
+        elif self.height is not None:
+            raise CameraError("camera height is for orthographic cameras")
         for key in ("position", "target", "up"):
             vec = getattr(self, key)
             if len(vec) != 3 or not all(_finite(v) for v in vec):
@@ -70,22 +85,43 @@ class Camera:
         up = np.asarray(self.up, dtype=np.float64)
         if np.max(np.abs(up)) < MIN_EXTENT:
             raise CameraError("camera up is zero")
-        f, u = _unit(forward), _unit(up)
-        if not np.linalg.norm(np.cross(f, u)) > 1e-9:
-            raise CameraError("camera up is parallel to the viewing direction")
 
     def rotation(self) -> np.ndarray:
-        """Rows: right, up, backward (float64), so view = R @ (x - position)."""
+        """Rows: right, up, backward (float64), so view = R @ (x - position). An up
+        parallel to the view (a plan view with Z up) gives way to +Y, or to +X when
+        the view is along Y: the same screen orientation every time."""
         forward = _unit(np.subtract(self.target, self.position, dtype=np.float64))
-        right = _unit(np.cross(forward, _unit(np.asarray(self.up, dtype=np.float64))))
+        for up in (np.asarray(self.up, dtype=np.float64), np.array([0.0, 1.0, 0.0]), np.array([1.0, 0.0, 0.0])):
+            cross = np.cross(forward, _unit(up))
+            if np.linalg.norm(cross) > 1e-9:
+                break
+        right = _unit(cross)
         true_up = np.cross(right, forward)
         return np.stack([right, true_up, -forward])
+
+    @property
+    def orthographic(self) -> bool:
+        return self.projection is Projection.ORTHOGRAPHIC
 
     def focal(self) -> float:
         return 1.0 / math.tan(math.radians(self.fov_y_deg) / 2.0)
 
+    def scales(self, width: int, height: int) -> tuple[float, float]:
+        """ndc = scale * view x, y (divided by depth when perspective): f/aspect and f,
+        or for orthographic 2/(height·aspect) and 2/height."""
+        if self.orthographic:
+            return 2.0 * height / (self.height * width), 2.0 / self.height
+        f = self.focal()
+        return f * height / width, f
+
     def to_dict(self) -> dict:
-        return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
+        """The render contract's JSON; projection and height only for orthographic cameras."""
+        out = {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
+        if self.orthographic:
+            out["projection"] = self.projection.value
+        else:
+            del out["projection"], out["height"]
+        return out
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=2)
@@ -102,7 +138,12 @@ class Camera:
             raise CameraError(f"camera JSON lacks {', '.join(sorted(missing))}")
         kwargs = {}
         for key, value in data.items():
-            if key in ("position", "target", "up"):
+            if key == "projection":
+                names = {p.value: p for p in Projection}
+                if not isinstance(value, str) or value not in names:
+                    raise CameraError("camera projection must be 'perspective' or 'orthographic'")
+                kwargs[key] = names[value]
+            elif key in ("position", "target", "up"):
                 if not (isinstance(value, list) and len(value) == 3 and all(_is_number(v) for v in value)):
                     raise CameraError(f"camera {key} must be a list of 3 numbers")
                 kwargs[key] = tuple(_float(key, v) for v in value)
@@ -258,11 +299,12 @@ class ViewUniforms:
 
     rotation: np.ndarray      # (3, 3) float32
     translation: np.ndarray   # (3,) float32 = R @ (origin - position), in float64 first
-    projection: np.ndarray    # (4,) float32: f/aspect, f, near, far
+    projection: np.ndarray    # (4,) float32: x and y scales (Camera.scales), near, far
     size: tuple[int, int]
     hidden: np.ndarray        # (8,) uint32: bit c set = category code c not drawn
     clip_lo: np.ndarray = field(default_factory=lambda: np.full(3, -np.inf, dtype=np.float32))
     clip_hi: np.ndarray = field(default_factory=lambda: np.full(3, np.inf, dtype=np.float32))
+    perspective: float = 1.0  # 0: orthographic (no division by depth)
 
 
 def hidden_mask(hidden: frozenset[int]) -> np.ndarray:
@@ -279,11 +321,10 @@ def view_uniforms(camera: Camera, origin: np.ndarray, width: int, height: int,
                   hidden: frozenset[int] = frozenset(), clip: Clip = NO_CLIP) -> ViewUniforms:
     r = camera.rotation()
     t = r @ (np.asarray(origin, dtype=np.float64) - np.asarray(camera.position, dtype=np.float64))
-    f = camera.focal()
-    proj = np.array([f * height / width, f, camera.near, camera.far], dtype=np.float64)
+    proj = np.array([*camera.scales(width, height), camera.near, camera.far], dtype=np.float64)
     lo, hi = clip.relative(origin)
     return ViewUniforms(r.astype(np.float32), t.astype(np.float32), proj.astype(np.float32), (width, height),
-                        hidden_mask(hidden), lo, hi)
+                        hidden_mask(hidden), lo, hi, 0.0 if camera.orthographic else 1.0)
 
 
 def auto_camera(bounds_min: np.ndarray, bounds_max: np.ndarray, aspect: float, fov_y_deg: float = 60.0) -> Camera:
@@ -317,10 +358,11 @@ def project(camera: Camera, xyz: np.ndarray, width: int, height: int) -> tuple[n
     """The render contract in float64: (pixel index or -1, depth) for file coordinates."""
     v = (np.asarray(xyz, dtype=np.float64) - np.asarray(camera.position)) @ camera.rotation().T
     depth = -v[:, 2]
-    f = camera.focal()
+    sx, sy = camera.scales(width, height)
+    w = np.ones_like(depth) if camera.orthographic else depth
     with np.errstate(divide="ignore", invalid="ignore"):
-        fx = (f * height / width * v[:, 0] / depth * 0.5 + 0.5) * width
-        fy = (0.5 - f * v[:, 1] / depth * 0.5) * height
+        fx = (sx * v[:, 0] / w * 0.5 + 0.5) * width
+        fy = (0.5 - sy * v[:, 1] / w * 0.5) * height
     ok = (depth >= camera.near) & (depth <= camera.far) & (fx >= 0) & (fx < width) & (fy >= 0) & (fy < height)
     pixel = np.full(depth.shape, -1, dtype=np.int64)
     pixel[ok] = np.floor(fy[ok]).astype(np.int64) * width + np.floor(fx[ok]).astype(np.int64)

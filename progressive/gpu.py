@@ -27,6 +27,8 @@ def set_view(program, view: ViewUniforms) -> None:
     program["u_view_rotation"].write(view.rotation.T.tobytes())
     program["u_view_translation"].write(view.translation.tobytes())
     program["u_projection"].write(view.projection.tobytes())
+    if "u_perspective" in program:
+        program["u_perspective"] = view.perspective
     if "u_size" in program:
         program["u_size"] = view.size
     if "u_hidden" in program:

@@ -1,11 +1,13 @@
 // The render contract (README): a point is drawn iff near <= depth <= far and it falls
-// inside the image; pixel column floor((ndc.x*0.5+0.5)*W), row floor((0.5-ndc.y*0.5)*H),
+// inside the image; ndc = scale * view xy (/ depth when perspective); pixel column
+// floor((ndc.x*0.5+0.5)*W), row floor((0.5-ndc.y*0.5)*H),
 // row 0 at the top. The view transform arrives camera-relative: u_view_rotation and
 // u_view_translation = R*(origin - eye) are built in float64 on the CPU.
 
 uniform mat3 u_view_rotation;
 uniform vec3 u_view_translation;
-uniform vec4 u_projection;   // f/aspect, f, near, far
+uniform vec4 u_projection;   // x and y scales (f/aspect, f; orthographic 2/(height aspect), 2/height), near, far
+uniform float u_perspective; // 1: divide by depth; 0: orthographic
 uniform uvec2 u_size;        // width, height
 uniform uint u_hidden[8];    // category codes not drawn, a bit each (classification toggles)
 uniform vec3 u_clip_lo;      // the clip box relative to the origin (progressive/camera.py Clip),
@@ -31,8 +33,9 @@ bool project(vec3 p, out uint pixel, out float depth) {
     vec3 v = to_view(p);
     depth = -v.z;
     if (!(depth >= u_projection.z && depth <= u_projection.w)) return false;
-    float fx = (u_projection.x * v.x / depth * 0.5 + 0.5) * float(u_size.x);
-    float fy = (0.5 - u_projection.y * v.y / depth * 0.5) * float(u_size.y);
+    float w = u_perspective != 0.0 ? depth : 1.0;
+    float fx = (u_projection.x * v.x / w * 0.5 + 0.5) * float(u_size.x);
+    float fy = (0.5 - u_projection.y * v.y / w * 0.5) * float(u_size.y);
     if (!(fx >= 0.0 && fx < float(u_size.x) && fy >= 0.0 && fy < float(u_size.y))) return false;
     pixel = uint(fy) * u_size.x + uint(fx);
     return true;

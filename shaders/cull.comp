@@ -24,14 +24,15 @@ bool batch_in_view(uint b) {
     for (int c = 0; c < 8; ++c) {
         vec3 v = to_view(vec3((c & 1) != 0 ? hi.x : lo.x, (c & 2) != 0 ? hi.y : lo.y, (c & 4) != 0 ? hi.z : lo.z));
         float depth = -v.z, d = abs(depth);
+        float w = u_perspective != 0.0 ? depth : 1.0, aw = abs(w);    // the side planes: |x| <= w
         float x = u_projection.x * v.x, y = u_projection.y * v.y;
-        float tx = BOX_MARGIN * (d + abs(x)), ty = BOX_MARGIN * (d + abs(y));
+        float tx = BOX_MARGIN * (aw + abs(x)), ty = BOX_MARGIN * (aw + abs(y));
         out_near = out_near && depth - near + BOX_MARGIN * (d + near) < 0.0;
         out_far = out_far && far - depth + BOX_MARGIN * (d + far) < 0.0;
-        out_right = out_right && depth - x + tx < 0.0;
-        out_left = out_left && depth + x + tx < 0.0;
-        out_top = out_top && depth - y + ty < 0.0;
-        out_bottom = out_bottom && depth + y + ty < 0.0;
+        out_right = out_right && w - x + tx < 0.0;
+        out_left = out_left && w + x + tx < 0.0;
+        out_top = out_top && w - y + ty < 0.0;
+        out_bottom = out_bottom && w + y + ty < 0.0;
     }
     return !(out_near || out_far || out_right || out_left || out_top || out_bottom);
 }

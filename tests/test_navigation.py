@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -97,3 +98,33 @@ def test_far_plane_reaches_the_cloud_from_far_away(nav):
     cam = nav.camera(o)
     pixel, depth = project(cam, np.array([nav.centre]), W, H)
     assert pixel[0] >= 0 and cam.near < depth[0] < cam.far
+
+
+def test_presets_and_orthographic_orbit():
+    """Presets keep target and distance; the orthographic camera spans at the target
+    what the perspective one does, and round-trips through Orbit.from_camera."""
+    from progressive.viewer.navigation import PRESETS, View
+
+    nav = Navigator.for_bounds((0.0, 0.0, 0.0), (100.0, 60.0, 20.0), 4 / 3)
+    home = nav.home
+    for view in View:
+        o = nav.preset(home, view)
+        assert (o.yaw, o.pitch) == PRESETS[view] and o.target == home.target and o.distance == home.distance
+    top = nav.preset(home, View.TOP)
+    cam = nav.camera(top)
+    north = np.array([[top.target[0], top.target[1] + 1.0, top.target[2]]])
+    south = np.array([[top.target[0], top.target[1] - 1.0, top.target[2]]])
+    (pn,), _ = project(cam, north, 400, 300)
+    (ps,), _ = project(cam, south, 400, 300)
+    assert pn // 400 < ps // 400               # north is higher in the image
+    ortho = replace(top, orthographic=True)
+    ocam = nav.camera(ortho)
+    assert ocam.orthographic and math.isclose(ocam.height, top.view_height)
+    back = Orbit.from_camera(ocam)
+    assert back.orthographic and math.isclose(back.distance, ortho.distance, rel_tol=1e-9)
+    edge = np.array([[top.target[0], top.target[1] + 0.999 * top.view_height / 2, top.target[2]]])
+    (pixel,), _ = project(ocam, edge, 400, 300)
+    assert 0 <= pixel < 400                    # in the top row: the image's top edge is half the height away
+    point = nav.cursor_point(ortho, 0.5, 0.5, (400, 300), ortho.distance)
+    (corner,), _ = project(ocam, point[None], 400, 300)
+    assert corner == 0

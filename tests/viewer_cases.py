@@ -363,3 +363,20 @@ def test_clip_box_in_the_window(viewer):
     settle(viewer)
     np.testing.assert_array_equal(viewer.session.image(), before)
     no_gl_error(viewer)
+
+
+def test_views_and_projection_keys(viewer):
+    """1-4 give the standard views, O the orthographic projection; each changes the image
+    and the camera copied out is the contract's orthographic JSON."""
+    settle(viewer)
+    images = [viewer.session.image()]
+    for key in (glfw.KEY_1, glfw.KEY_2, glfw.KEY_4):
+        viewer.on_key(viewer.window, key, 0, glfw.PRESS, 0)
+        settle(viewer)
+        images.append(viewer.session.image())
+    viewer.on_key(viewer.window, glfw.KEY_O, 0, glfw.PRESS, 0)
+    settle(viewer)
+    assert viewer.camera.orthographic and Camera.from_json(viewer.camera.to_json()) == viewer.camera
+    images.append(viewer.session.image())
+    assert all(not np.array_equal(a, b) for a, b in zip(images, images[1:]))
+    no_gl_error(viewer)

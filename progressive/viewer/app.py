@@ -23,7 +23,7 @@ from progressive.passes.present import PresentPass
 from progressive.passes.visibility import EMPTY
 from progressive.renderer import ids_for
 from progressive.session import Session, SessionOptions
-from progressive.viewer.controls import Action, BudgetMode, ViewSettings, cycle
+from progressive.viewer.controls import VIEW_ACTIONS, Action, BudgetMode, ViewSettings, cycle
 from progressive.viewer.navigation import Navigator, Orbit
 
 DOUBLE_CLICK_SECONDS = 0.35
@@ -36,7 +36,8 @@ GLFW_KEYS: dict[int, Action] = {
     glfw.KEY_KP_ADD: Action.POINT_BIGGER, glfw.KEY_MINUS: Action.POINT_SMALLER, glfw.KEY_KP_SUBTRACT: Action.POINT_SMALLER,
     glfw.KEY_LEFT_BRACKET: Action.PREVIOUS_ATTRIBUTE, glfw.KEY_RIGHT_BRACKET: Action.NEXT_ATTRIBUTE,
     glfw.KEY_E: Action.EYE_DOME, glfw.KEY_H: Action.HELP, glfw.KEY_TAB: Action.PANEL, glfw.KEY_F: Action.FLY,
-    glfw.KEY_ESCAPE: Action.QUIT, glfw.KEY_Q: Action.QUIT,
+    glfw.KEY_ESCAPE: Action.QUIT, glfw.KEY_Q: Action.QUIT, glfw.KEY_O: Action.PROJECTION,
+    glfw.KEY_1: Action.VIEW_TOP, glfw.KEY_2: Action.VIEW_FRONT, glfw.KEY_3: Action.VIEW_SIDE, glfw.KEY_4: Action.VIEW_ISO,
 }
 CTRL_KEYS: dict[int, Action] = {glfw.KEY_C: Action.COPY_CAMERA, glfw.KEY_V: Action.PASTE_CAMERA}
 FLY_KEYS: dict[int, tuple[float, float, float]] = {
@@ -271,6 +272,10 @@ class Viewer:
             glfw.set_clipboard_string(None, self.camera.to_json())
         elif action is Action.PASTE_CAMERA:
             self.paste_camera(glfw.get_clipboard_string(None) or b"")
+        elif action is Action.PROJECTION and self.navigator is not None:
+            self.orbit, self.pasted = replace(self.orbit, orthographic=not self.orbit.orthographic), None
+        elif action in VIEW_ACTIONS and self.navigator is not None:
+            self.orbit, self.pasted = self.navigator.preset(self.orbit, VIEW_ACTIONS[action]), None
 
     def paste_camera(self, text: bytes | str) -> None:
         """Show exactly the render contract's camera given as JSON."""
@@ -433,11 +438,9 @@ class Viewer:
         if self.navigator is None or notches == 0:
             return
         o = self.orbit
-        ray = self.navigator.cursor_ray(o, x, y, self.framebuffer_size)
-        forward = -o.backward
         hit = self.pick(x, y)
         depth = hit[1] if hit is not None else o.distance
-        anchor = o.position + ray * depth / max(float(ray @ forward), 1e-6)
+        anchor = self.navigator.cursor_point(o, x, y, self.framebuffer_size, depth)
         self.orbit, self.pasted = self.navigator.zoom(o, notches, anchor), None
 
     def on_key(self, window, key: int, scancode: int, action: int, mods: int) -> None:

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field, replace
 from progressive.camera import NO_CLIP, Clip
 from progressive.colors import Colormap
 from progressive.effects import MAX_POINT_SIZE, Effects, EyeDome
+from progressive.viewer.navigation import View
 
 
 class Action(enum.Enum):
@@ -24,6 +25,11 @@ class Action(enum.Enum):
     FLY = "fly mode on/off (WASD, Space/Z up/down, drag to look)"
     COPY_CAMERA = "copy the camera as JSON"
     PASTE_CAMERA = "paste a camera JSON"
+    PROJECTION = "orthographic/perspective"
+    VIEW_TOP = "view from the top"
+    VIEW_FRONT = "view from the front (south)"
+    VIEW_SIDE = "view from the side (east)"
+    VIEW_ISO = "isometric view"
     QUIT = "quit"
 
 
@@ -31,9 +37,13 @@ KEYS: dict[str, Action] = {
     "R": Action.RESET, "P": Action.SCREENSHOT, "+": Action.POINT_BIGGER, "-": Action.POINT_SMALLER,
     "[": Action.PREVIOUS_ATTRIBUTE, "]": Action.NEXT_ATTRIBUTE, "E": Action.EYE_DOME, "H": Action.HELP,
     "Tab": Action.PANEL, "F": Action.FLY, "Ctrl+C": Action.COPY_CAMERA, "Ctrl+V": Action.PASTE_CAMERA,
-    "Esc": Action.QUIT, "Q": Action.QUIT,
+    "Esc": Action.QUIT, "Q": Action.QUIT, "O": Action.PROJECTION,
+    "1": Action.VIEW_TOP, "2": Action.VIEW_FRONT, "3": Action.VIEW_SIDE, "4": Action.VIEW_ISO,
 }
 """Key names as shown in the help; app.py maps glfw key codes onto them."""
+
+VIEW_ACTIONS: dict[Action, View] = {Action.VIEW_TOP: View.TOP, Action.VIEW_FRONT: View.FRONT,
+                                    Action.VIEW_SIDE: View.SIDE, Action.VIEW_ISO: View.ISO}
 
 MOUSE_HELP = (
     ("Left drag", "orbit"), ("Right drag / Shift+left drag", "pan"), ("Wheel", "zoom to the cursor"),

@@ -7,18 +7,35 @@ under the cursor, fly speed is a share of the cloud's size per second."""
 
 from __future__ import annotations
 
+import enum
 import math
 from dataclasses import dataclass, replace
 
 import numpy as np
 
-from progressive.camera import Camera, auto_camera
+from progressive.camera import Camera, Projection, auto_camera
 
 MAX_PITCH = math.radians(89.5)
 ZOOM_STEP = 0.85               # distance factor per wheel notch
 ORBIT_RADIANS_PER_PIXEL = 0.005
 FLY_EXTENTS_PER_SECOND = 0.25  # share of the cloud's diagonal flown per second
 NEAR_OVER_FAR = 1e-6           # depth is linear float32: near costs no precision
+
+
+class View(enum.Enum):
+    TOP = "top"
+    FRONT = "front"
+    SIDE = "side"
+    ISO = "iso"
+
+
+PRESETS: dict[View, tuple[float, float]] = {
+    View.TOP: (-math.pi / 2, MAX_PITCH),            # from above, north up
+    View.FRONT: (-math.pi / 2, 0.0),                # from the south, looking north
+    View.SIDE: (0.0, 0.0),                          # from the east, looking west
+    View.ISO: (-math.pi / 4, math.radians(35.0)),   # from the south-east, 35 degrees up
+}
+"""(yaw, pitch) of each view; yaw is the camera's azimuth seen from the target."""
 
 
 @dataclass(frozen=True)
@@ -28,6 +45,12 @@ class Orbit:
     yaw: float                 # azimuth of the camera seen from the target, radians
     pitch: float               # elevation of the camera above the target, radians
     fov_y_deg: float = 60.0
+    orthographic: bool = False  # parallel projection spanning what the perspective view spans at the target
+
+    @property
+    def view_height(self) -> float:
+        """The world height the image spans at the target (the orthographic camera's height)."""
+        return 2.0 * self.distance * math.tan(math.radians(self.fov_y_deg) / 2.0)
 
     @property
     def backward(self) -> np.ndarray:
@@ -52,8 +75,11 @@ class Orbit:
         distance = float(np.linalg.norm(back))
         back /= distance
         pitch = max(-MAX_PITCH, min(MAX_PITCH, math.asin(max(-1.0, min(1.0, back[2])))))
+        fov = camera.fov_y_deg
+        if camera.orthographic:      # keep the height: the distance that spans it at this field of view
+            distance = camera.height / (2.0 * math.tan(math.radians(fov) / 2.0))
         return cls(tuple(float(v) for v in camera.target), distance, math.atan2(back[1], back[0]), pitch,
-                   camera.fov_y_deg)
+                   fov, camera.orthographic)
 
 
 @dataclass(frozen=True)
@@ -82,7 +108,15 @@ class Navigator:
         position = o.position
         far = 1.05 * (float(np.linalg.norm(position - self.centre)) + self.diagonal / 2.0)
         far = max(far, o.distance * 1.05)
+        if o.orthographic:
+            return Camera(tuple(position.tolist()), o.target, (0.0, 0.0, 1.0), o.fov_y_deg, far * NEAR_OVER_FAR, far,
+                          Projection.ORTHOGRAPHIC, o.view_height)
         return Camera(tuple(position.tolist()), o.target, (0.0, 0.0, 1.0), o.fov_y_deg, far * NEAR_OVER_FAR, far)
+
+    def preset(self, o: Orbit, view: View) -> Orbit:
+        """A standard view of the target from the same distance and projection."""
+        yaw, pitch = PRESETS[view]
+        return replace(o, yaw=yaw, pitch=pitch)
 
     def orbit(self, o: Orbit, dx: float, dy: float) -> Orbit:
         """Drag right turns the cloud right; drag down tilts the view down onto it."""
@@ -95,6 +129,18 @@ class Navigator:
         right, up = o.basis()
         shift = (-dx * right + dy * up) * per_pixel
         return replace(o, target=tuple((np.asarray(o.target) + shift).tolist()))
+
+    def cursor_point(self, o: Orbit, x: float, y: float, size: tuple[int, int], depth: float) -> np.ndarray:
+        """The file-coordinate point under window pixel (x, y) at `depth` along the view."""
+        forward = -o.backward
+        if not o.orthographic:
+            ray = self.cursor_ray(o, x, y, size)
+            return o.position + ray * depth / max(float(ray @ forward), 1e-6)
+        w, h = size
+        right, up = o.basis()
+        half = o.view_height / 2.0
+        return (o.position + forward * depth + right * (2.0 * x / w - 1.0) * half * w / h
+                + up * (1.0 - 2.0 * y / h) * half)
 
     def cursor_ray(self, o: Orbit, x: float, y: float, size: tuple[int, int]) -> np.ndarray:
         """Unit direction through window pixel (x, y), row 0 at the top (camera.project's inverse)."""

@@ -16,7 +16,7 @@ from progressive.camera import NO_CLIP, Clip
 from progressive.colors import ASPRS_CLASSES, NO_RANGE, UNKNOWN_CLASS, Colormap, ColorMode
 from progressive.effects import MAX_POINT_SIZE, EyeDome
 from progressive.loaders.types import AttributeKind
-from progressive.viewer.controls import KEYS, MOUSE_HELP, BudgetMode
+from progressive.viewer.controls import KEYS, MOUSE_HELP, VIEW_ACTIONS, Action, BudgetMode
 
 ERROR_COLOUR = imgui.ImVec4(1.0, 0.35, 0.3, 1.0)
 NOTE_COLOUR = imgui.ImVec4(0.95, 0.8, 0.4, 1.0)
@@ -74,6 +74,7 @@ class Panel:
         else:
             self._files(s)
             self._colouring(s)
+            self._view()
             self._effects()
             self._clip(s)
             self._budget()
@@ -152,6 +153,20 @@ class Panel:
             c2, radius = imgui.slider_float("radius", p.radius, 0.5, 8.0)
             if c1 or c2:
                 v.settings = replace(v.settings, eye_dome_params=EyeDome(strength, radius))
+
+    def _view(self) -> None:
+        """Standard views (keys 1-4) and the projection (O)."""
+        v = self.viewer
+        if v.navigator is None or not imgui.collapsing_header("View", imgui.TreeNodeFlags_.default_open):
+            return
+        for i, action in enumerate(VIEW_ACTIONS):
+            if i:
+                imgui.same_line()
+            if imgui.small_button(VIEW_ACTIONS[action].value):
+                v.act(action)
+        changed, _ = imgui.checkbox("orthographic (O)", v.orbit.orthographic)
+        if changed:
+            v.act(Action.PROJECTION)
 
     def _clip(self, s) -> None:
         """A clip box edited with numbers in the file's coordinates (an axis left at the
