@@ -3,24 +3,32 @@ defines them (integer record times scale plus offset), not the float32 the GPU h
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from progressive.loaders.e57 import read_point as read_e57_point
 from progressive.loaders.fastformat import HEADER_BYTES
 from progressive.loaders.ply import read_point as read_ply_point
-from progressive.loaders.types import CloudInfo
+from progressive.loaders.types import CloudInfo, FileInfo
 
 FAST_FORMAT = "PRGS"
 
 
-def read_point(info: CloudInfo, index: int) -> np.ndarray:
-    """(3,) float64 x, y, z of the point with file-order `index` (files concatenated)."""
+def locate(info: CloudInfo, index: int) -> tuple[FileInfo, int]:
+    """The file holding cloud index `index` and the point's index in that file."""
     if not 0 <= index < info.points:
         raise IndexError(f"point {index} outside the cloud of {info.points} points")
     for file in info.files:
         if index < file.points:
-            break
+            return file, index
         index -= file.points
+    raise IndexError(f"point {index} outside the files")
+
+
+def read_point(info: CloudInfo, index: int) -> np.ndarray:
+    """(3,) float64 x, y, z of the point with file-order `index` (files concatenated)."""
+    file, index = locate(info, index)
     if file.format == FAST_FORMAT:
         with open(file.path, "rb") as stream:
             stream.seek(HEADER_BYTES + 16 * index)
@@ -36,3 +44,28 @@ def read_point(info: CloudInfo, index: int) -> np.ndarray:
         reader.seek(index)
         points = reader.read_points(1)
     return np.array([points.x[0], points.y[0], points.z[0]], dtype=np.float64)
+
+
+def read_record(info: CloudInfo, index: int) -> dict:
+    """All of one point, read back from its file: the file, the index in it, x, y, z in
+    float64 (LAS: rounded to the decimals its scale carries) and, for LAS/LAZ, every
+    dimension of its point format with the extra bytes (scaled as laspy scales them)."""
+    file, local = locate(info, index)
+    xyz = read_point(info, index)
+    out = {"file": file.path, "index": int(local), "cloud_index": int(index)}
+    attributes: dict = {}
+    if file.format in ("LAS", "LAZ"):
+        import laspy
+
+        digits = [max(0, math.ceil(-math.log10(s) - 1e-9)) if s > 0 else 9 for s in file.scale]
+        xyz = [round(float(v), d) for v, d in zip(xyz, digits)]
+        with laspy.open(file.path) as reader:
+            reader.seek(local)
+            points = reader.read_points(1)
+        for name in points.point_format.dimension_names:
+            if name in ("X", "Y", "Z"):
+                continue
+            value = np.asarray(points[name])[0]
+            attributes[name] = value.tolist() if isinstance(value, np.ndarray) else value.item()
+    out.update(x=float(xyz[0]), y=float(xyz[1]), z=float(xyz[2]), attributes=attributes)
+    return out

@@ -293,6 +293,8 @@ def session_options(args):
 
 
 def cmd_render(args) -> int:
+    import json
+
     from progressive.output import Outputs, check_outputs, json_writer, npy_writer, png_writer
     from progressive.session import Method, Session
 
@@ -322,7 +324,11 @@ def cmd_render(args) -> int:
         if args.stats:
             stats["covered_pixels"] = int((ids != 0xFFFFFFFF).sum())
             outputs.write(args.stats, json_writer(stats))
-        outputs.commit()
+        if args.pick:
+            picked = session.pick(*args.pick)
+            commit_saying(outputs, json.dumps({"found": picked is not None, **(picked or {})}))
+        else:
+            outputs.commit()
     if args.converge and converged_at is None:
         warn(f"did not converge within {frames} frames")
         return 1
@@ -507,6 +513,9 @@ def build_parser() -> Parser:
     add_look_args(render)
     render.add_argument("--ids", type=path_arg, help="write the (H, W) uint32 file-order index of each pixel (.npy)")
     render.add_argument("--stats", type=path_arg, help="write timings and counts (.json)")
+    render.add_argument("--pick", type=floats_arg(2, "X,Y"), metavar="X,Y",
+                        help="print the point shown nearest to image pixel X,Y (row 0 at the top) as one JSON "
+                             "object: file, index, x, y, z in file coordinates, every attribute")
     render.add_argument("--method", type=enum_arg(Method), default=Method.BRUTE,
                         help="brute (every point in one frame) or progressive (reproject + budgeted fill)")
     render.add_argument("--budget", type=budget_arg, default=None, help="points filled per frame, or auto (default)")
@@ -585,8 +594,8 @@ def _main(argv: list[str]) -> int:
         if len(argv) == 2 and argv[0] == "convert":
             raise UsageError("convert needs at least one input and one output")
         args = build_parser().parse_args(argv)
-        if args.command == "render" and not (args.out or args.ids or args.stats or args.save_camera):
-            raise UsageError("render needs --out (or --ids/--stats/--save-camera)")
+        if args.command == "render" and not (args.out or args.ids or args.stats or args.save_camera or args.pick):
+            raise UsageError("render needs --out (or --ids/--stats/--save-camera/--pick)")
         return args.func(args)
     except (ProgressiveError, OSError) as exc:
         error = exc

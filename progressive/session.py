@@ -26,10 +26,15 @@ from progressive.context import GLContext, create_context
 from progressive.effects import Effects
 from progressive.frame_loop import FrameStats, ProgressiveOptions, ProgressiveRenderer
 from progressive.loaders import CloudLoader
+from progressive.loaders.lookup import read_record
 from progressive.loaders.types import AttributeKind
+from progressive.passes.visibility import EMPTY
 from progressive.pointstore import GPUMemoryError
-from progressive.renderer import Frame, Raster, Renderer
+from progressive.renderer import Frame, Raster, Renderer, ids_for
 from progressive.scene import AttributeSwitch
+
+PICK_RADIUS = 7
+"""Pixels around a picked pixel searched for the nearest point shown."""
 
 
 class Method(enum.Enum):
@@ -184,6 +189,39 @@ class Session:
         view = view_uniforms(camera, self.info.origin, *self.size, clip=clip)
         drawn = int(np.count_nonzero(batches.in_view(store.boxes, view)))
         return {"total": store.permutation.batches, "drawn": drawn, "culled": store.permutation.batches - drawn}
+
+    def nearest_shown(self, x: float, y: float, radius: int = PICK_RADIUS) -> tuple[int, float, tuple[int, int]] | None:
+        """(file-order index, depth, (column, row)) of the point shown nearest to image
+        pixel (x, y) within `radius` pixels (row 0 at the top), from the last image's
+        visibility buffer in one read; None where no point is shown there."""
+        vis = self.shown_visibility
+        w, h = vis.width, vis.height
+        px, py = int(x), int(y)
+        x0, x1 = max(0, px - radius), min(w, px + radius + 1)
+        y0, y1 = max(0, py - radius), min(h, py + radius + 1)
+        if x0 >= x1 or y0 >= y1:
+            return None
+        first, last = y0 * w + x0, (y1 - 1) * w + x1
+        span = np.frombuffer(vis.buffer.read(size=(last - first) * 8, offset=first * 8), dtype=np.uint32)
+        span = np.concatenate([span, np.zeros(2 * (w - x1 + x0), dtype=np.uint32)])
+        block = span.reshape(y1 - y0, w, 2)[:, : x1 - x0]
+        ys, xs = np.nonzero(block[:, :, 0] != EMPTY)
+        if ys.size == 0:
+            return None
+        k = int(np.argmin((ys + y0 - py) ** 2 + (xs + x0 - px) ** 2))
+        slot, depth = block[ys[k], xs[k]]
+        index = ids_for(self.renderer.store, np.array([slot], dtype=np.uint32))[0]
+        return int(index), float(np.array(depth, np.uint32).view(np.float32)), (int(xs[k] + x0), int(ys[k] + y0))
+
+    def pick(self, x: float, y: float, radius: int = PICK_RADIUS) -> dict | None:
+        """All of the point shown nearest to image pixel (x, y) within `radius`: its file,
+        its index there and in the cloud, x, y, z in file coordinates and every attribute,
+        read back from its file; the pixel and depth it was found at. None: nothing there."""
+        hit = self.nearest_shown(x, y, radius)
+        if hit is None:
+            return None
+        index, depth, pixel = hit
+        return {**read_record(self.info, index), "pixel": list(pixel), "depth": depth}
 
     def set_budget(self, params: BudgetParams) -> None:
         """Another fill budget from the next frame on (progressive)."""

@@ -380,3 +380,20 @@ def test_views_and_projection_keys(viewer):
     images.append(viewer.session.image())
     assert all(not np.array_equal(a, b) for a, b in zip(images, images[1:]))
     no_gl_error(viewer)
+
+
+def test_click_picks_the_point_and_the_panel_shows_it(viewer):
+    """A click (press and release in place) picks the point shown there: its record equals
+    laspy's, and the next frame draws the panel's section and marker for it."""
+    settle(viewer)
+    ids = viewer.session.ids()
+    rows, cols = np.nonzero(ids != EMPTY)
+    x, y = float(cols[len(cols) // 2]) + 0.5, float(rows[len(rows) // 2]) + 0.5
+    viewer.mouse_button(glfw.MOUSE_BUTTON_LEFT, True, x, y)
+    viewer.mouse_button(glfw.MOUSE_BUTTON_LEFT, False, x, y)
+    p = viewer.picked
+    assert p is not None and p["index"] == int(ids[int(y), int(x)])
+    las = laspy.read(SAMPLE)
+    assert p["x"] == round(float(las.x[p["index"]]), 2) and p["attributes"]["intensity"] == int(las.intensity[p["index"]])
+    viewer.step()
+    no_gl_error(viewer)

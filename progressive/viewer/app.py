@@ -20,8 +20,6 @@ from progressive.errors import ProgressiveError
 from progressive.loaders.lookup import read_point
 from progressive.output import write_png
 from progressive.passes.present import PresentPass
-from progressive.passes.visibility import EMPTY
-from progressive.renderer import ids_for
 from progressive.session import Session, SessionOptions
 from progressive.viewer.controls import VIEW_ACTIONS, Action, BudgetMode, ViewSettings, cycle
 from progressive.viewer.navigation import Navigator, Orbit
@@ -104,6 +102,7 @@ class Viewer:
         self.frames = 0
         self.last_passes: tuple[str, ...] = ()
         self.last_focus: np.ndarray | None = None
+        self.picked: dict | None = None     # Session.pick's record of the last clicked point
         self.last_screenshot: Path | None = None
         self._drag: Drag | None = None
         self._last_click = (0.0, -1e9, -1e9)
@@ -329,25 +328,8 @@ class Viewer:
         """(file-order index, depth) of the point shown nearest to window pixel (x, y)."""
         if self.session is None:
             return None
-        vis = self.session.shown_visibility
-        w, h = vis.width, vis.height
-        px, py = int(x), int(y)
-        x0, x1 = max(0, px - CURSOR_SEARCH), min(w, px + CURSOR_SEARCH + 1)
-        y0, y1 = max(0, py - CURSOR_SEARCH), min(h, py + CURSOR_SEARCH + 1)
-        if x0 >= x1 or y0 >= y1:
-            return None
-        # One read (one wait for the GPU) of the rows' span, then the window cut from it.
-        first, last = y0 * w + x0, (y1 - 1) * w + x1
-        span = np.frombuffer(vis.buffer.read(size=(last - first) * 8, offset=first * 8), dtype=np.uint32)
-        span = np.concatenate([span, np.zeros(2 * (w - x1 + x0), dtype=np.uint32)])
-        block = span.reshape(y1 - y0, w, 2)[:, : x1 - x0]
-        ys, xs = np.nonzero(block[:, :, 0] != EMPTY)
-        if ys.size == 0:
-            return None
-        k = int(np.argmin((ys + y0 - py) ** 2 + (xs + x0 - px) ** 2))
-        slot, depth = block[ys[k], xs[k]]
-        index = ids_for(self.session.renderer.store, np.array([slot], dtype=np.uint32))[0]
-        return int(index), float(np.array(depth, np.uint32).view(np.float32))
+        hit = self.session.nearest_shown(x, y, CURSOR_SEARCH)
+        return None if hit is None else hit[:2]
 
     def point_at(self, x: float, y: float) -> np.ndarray | None:
         """Exact float64 file coordinates of the point under the cursor (read from its file)."""
@@ -359,6 +341,15 @@ class Viewer:
         except (OSError, ValueError, ProgressiveError) as exc:
             self.fail(f"reading the picked point: {exc}")
             return None
+
+    def pick_point(self, x: float, y: float) -> None:
+        """Remember all of the point shown nearest to window pixel (x, y) (or nothing)."""
+        if self.session is None:
+            return
+        try:
+            self.picked = self.session.pick(x, y, CURSOR_SEARCH)
+        except (OSError, ValueError, ProgressiveError) as exc:
+            self.fail(f"reading the picked point: {exc}")
 
     def focus(self, x: float, y: float) -> None:
         point = self.point_at(x, y)
@@ -386,9 +377,13 @@ class Viewer:
         self.mouse_button(button, action == glfw.PRESS, x, y, bool(mods & glfw.MOD_SHIFT))
 
     def mouse_button(self, button: int, pressed: bool, x: float, y: float, shift: bool = False) -> None:
-        """A press starts a drag (orbit, pan, or look in fly mode); two quick presses focus."""
+        """A press starts a drag (orbit, pan, or look in fly mode); a release where it was
+        pressed picks the point there (the panel shows all of it); two quick presses focus."""
         if not pressed:
-            self._drag = None
+            d, self._drag = self._drag, None
+            if (d is not None and d.kind is not DragKind.PAN and button == glfw.MOUSE_BUTTON_LEFT
+                    and abs(x - d.x) + abs(y - d.y) < DOUBLE_CLICK_PIXELS):
+                self.pick_point(x, y)
             return
         if self._ui_wants_mouse() or self.navigator is None:
             return

@@ -4,6 +4,7 @@ calls the viewer to change it; it owns no state of its own but imgui's."""
 
 from __future__ import annotations
 
+import json
 import time
 from collections import deque
 from dataclasses import replace
@@ -74,6 +75,7 @@ class Panel:
         else:
             self._files(s)
             self._colouring(s)
+            self._picked()
             self._view()
             self._effects()
             self._clip(s)
@@ -153,6 +155,23 @@ class Panel:
             c2, radius = imgui.slider_float("radius", p.radius, 0.5, 8.0)
             if c1 or c2:
                 v.settings = replace(v.settings, eye_dome_params=EyeDome(strength, radius))
+
+    def _picked(self) -> None:
+        """The last clicked point: a marker where it was found and all of it, as read
+        back from its file (x, y, z with the digits the file's scale carries)."""
+        p = self.viewer.picked
+        if p is None or not imgui.collapsing_header("Picked point", imgui.TreeNodeFlags_.default_open):
+            return
+        col, row = p["pixel"]
+        scale = imgui.get_io().display_framebuffer_scale
+        imgui.get_foreground_draw_list().add_circle(imgui.ImVec2(col / scale.x, row / scale.y), 6.0,
+                                                    imgui.get_color_u32(imgui.ImVec4(1, 0.2, 0.2, 1)), 0, 2.0)
+        imgui.text(f"{Path(p['file']).name}  point {p['index']:,}")
+        imgui.text(f"x {p['x']}  y {p['y']}  z {p['z']}")
+        for name, value in p["attributes"].items():
+            imgui.text(f"{name}: {value}")
+        if imgui.small_button("copy as JSON"):
+            imgui.set_clipboard_text(json.dumps(p))
 
     def _view(self) -> None:
         """Standard views (keys 1-4) and the projection (O)."""
