@@ -397,3 +397,23 @@ def test_click_picks_the_point_and_the_panel_shows_it(viewer):
     assert p["x"] == round(float(las.x[p["index"]]), 2) and p["attributes"]["intensity"] == int(las.intensity[p["index"]])
     viewer.step()
     no_gl_error(viewer)
+
+
+def test_shift_clicks_measure_between_picked_points(viewer):
+    """Shift+clicks add the picked points to the measurement, in the file's coordinates
+    (laspy's), and the next frame draws the line and the panel's numbers."""
+    settle(viewer)
+    ids = viewer.session.ids()
+    rows, cols = np.nonzero(ids != EMPTY)
+    chosen = [len(cols) // 4, len(cols) // 2, 3 * len(cols) // 4]
+    for k in chosen:
+        x, y = float(cols[k]) + 0.5, float(rows[k]) + 0.5
+        viewer.mouse_button(glfw.MOUSE_BUTTON_LEFT, True, x, y, shift=True)
+        viewer.mouse_button(glfw.MOUSE_BUTTON_LEFT, False, x, y, shift=True)
+    las = laspy.read(SAMPLE)
+    xyz = np.stack([las.x, las.y, las.z], axis=1)[[int(ids[rows[k], cols[k]]) for k in chosen]]
+    m = viewer.measurement
+    np.testing.assert_allclose(np.asarray(m.points), np.round(xyz, 2), atol=1e-9)
+    assert m.length == pytest.approx(float(np.linalg.norm(np.diff(xyz, axis=0), axis=1).sum()), abs=0.05)
+    viewer.step()
+    no_gl_error(viewer)

@@ -18,6 +18,7 @@ from progressive.context import Backend, GLContext, create_context
 from progressive.effects import Effects, EyeDome
 from progressive.errors import ProgressiveError
 from progressive.loaders.lookup import read_point
+from progressive.measure import Measurement
 from progressive.output import write_png
 from progressive.passes.present import PresentPass
 from progressive.session import Session, SessionOptions
@@ -103,6 +104,7 @@ class Viewer:
         self.last_passes: tuple[str, ...] = ()
         self.last_focus: np.ndarray | None = None
         self.picked: dict | None = None     # Session.pick's record of the last clicked point
+        self.measurement = Measurement(())  # Shift+clicked points
         self.last_screenshot: Path | None = None
         self._drag: Drag | None = None
         self._last_click = (0.0, -1e9, -1e9)
@@ -342,14 +344,18 @@ class Viewer:
             self.fail(f"reading the picked point: {exc}")
             return None
 
-    def pick_point(self, x: float, y: float) -> None:
-        """Remember all of the point shown nearest to window pixel (x, y) (or nothing)."""
+    def pick_point(self, x: float, y: float, measure: bool = False) -> None:
+        """Remember all of the point shown nearest to window pixel (x, y) (or nothing);
+        `measure`: add it to the measurement too."""
         if self.session is None:
             return
         try:
             self.picked = self.session.pick(x, y, CURSOR_SEARCH)
         except (OSError, ValueError, ProgressiveError) as exc:
             self.fail(f"reading the picked point: {exc}")
+            return
+        if measure and self.picked is not None:
+            self.measurement = self.measurement.add((self.picked["x"], self.picked["y"], self.picked["z"]))
 
     def focus(self, x: float, y: float) -> None:
         point = self.point_at(x, y)
@@ -378,12 +384,13 @@ class Viewer:
 
     def mouse_button(self, button: int, pressed: bool, x: float, y: float, shift: bool = False) -> None:
         """A press starts a drag (orbit, pan, or look in fly mode); a release where it was
-        pressed picks the point there (the panel shows all of it); two quick presses focus."""
+        pressed picks the point there (the panel shows all of it; with Shift it is also the
+        next point of the measurement); two quick presses focus."""
         if not pressed:
             d, self._drag = self._drag, None
-            if (d is not None and d.kind is not DragKind.PAN and button == glfw.MOUSE_BUTTON_LEFT
-                    and abs(x - d.x) + abs(y - d.y) < DOUBLE_CLICK_PIXELS):
-                self.pick_point(x, y)
+            if (d is not None and button == glfw.MOUSE_BUTTON_LEFT and abs(x - d.x) + abs(y - d.y) < DOUBLE_CLICK_PIXELS
+                    and (d.kind is not DragKind.PAN or shift)):
+                self.pick_point(x, y, measure=shift)
             return
         if self._ui_wants_mouse() or self.navigator is None:
             return

@@ -13,10 +13,11 @@ from pathlib import Path
 import numpy as np
 from imgui_bundle import imgui
 
-from progressive.camera import NO_CLIP, Clip
+from progressive.camera import NO_CLIP, Clip, project
 from progressive.colors import ASPRS_CLASSES, NO_RANGE, UNKNOWN_CLASS, Colormap, ColorMode
 from progressive.effects import MAX_POINT_SIZE, EyeDome
 from progressive.loaders.types import AttributeKind
+from progressive.measure import Measurement
 from progressive.viewer.controls import KEYS, MOUSE_HELP, VIEW_ACTIONS, Action, BudgetMode
 
 ERROR_COLOUR = imgui.ImVec4(1.0, 0.35, 0.3, 1.0)
@@ -76,6 +77,7 @@ class Panel:
             self._files(s)
             self._colouring(s)
             self._picked()
+            self._measure()
             self._view()
             self._effects()
             self._clip(s)
@@ -172,6 +174,36 @@ class Panel:
             imgui.text(f"{name}: {value}")
         if imgui.small_button("copy as JSON"):
             imgui.set_clipboard_text(json.dumps(p))
+
+    def _measure(self) -> None:
+        """Shift+clicked points: a line through them in the window with each segment's
+        length, and in the panel the 3D, horizontal and vertical lengths, the running
+        length and the enclosed area (file units)."""
+        v = self.viewer
+        m = v.measurement
+        if not m.points or not imgui.collapsing_header("Measure", imgui.TreeNodeFlags_.default_open):
+            return
+        width, height = v.framebuffer_size
+        pixel, _ = project(v.camera, np.asarray(m.points), width, height)
+        scale = imgui.get_io().display_framebuffer_scale
+        screen = [imgui.ImVec2((p % width + 0.5) / scale.x, (p // width + 0.5) / scale.y) if p >= 0 else None
+                  for p in pixel]
+        draw = imgui.get_foreground_draw_list()
+        colour = imgui.get_color_u32(imgui.ImVec4(1.0, 0.9, 0.2, 1.0))
+        segments = m.segments()
+        for i, seg in enumerate(segments):
+            a, b = screen[i], screen[i + 1]
+            if a is not None and b is not None:
+                draw.add_line(a, b, colour, 2.0)
+                draw.add_text(imgui.ImVec2((a.x + b.x) / 2, (a.y + b.y) / 2), colour, f"{seg['distance']:.3f}")
+            imgui.text(f"{i + 1}: {seg['distance']:.3f}  (horizontal {seg['horizontal']:.3f}, "
+                       f"vertical {seg['vertical']:.3f})")
+        imgui.text(f"{len(m.points)} points, length {m.length:.3f}, area {m.area:.3f}")
+        if imgui.small_button("copy measurement as JSON"):
+            imgui.set_clipboard_text(json.dumps(m.to_dict()))
+        imgui.same_line()
+        if imgui.small_button("clear"):
+            v.measurement = Measurement(())
 
     def _view(self) -> None:
         """Standard views (keys 1-4) and the projection (O)."""
