@@ -32,6 +32,10 @@ def _x(v: float) -> str:
     return f"{v:.1f}×" if v < 100 else f"{v:.0f}×"
 
 
+def _rate(points_per_s: float) -> str:
+    return f"{points_per_s / 1e9:.1f} G points/s" if points_per_s >= 1e9 else f"{points_per_s / 1e6:.0f} M points/s"
+
+
 def raster_lines(raster: dict) -> list[str]:
     """The renderer's layout against GL_POINTS and against the paper's global shuffle,
     and a close-up view against the overview, all rows of one run."""
@@ -57,7 +61,7 @@ def raster_lines(raster: dict) -> list[str]:
         share = (f"; it streams {r['share_of_copy']:.0%} of the copy bandwidth measured in the same run "
                  f"({raster['raw']['copy_bytes_per_s'] / 1e9:.1f} GB/s)" if "copy_methods" in raster["raw"] else "")
         out.append(f"- Brute force, {where} ({layout} store): {r['raster']} {r['ms']:.2f} ms, "
-                   f"{r['points_per_s'] / 1e9:.1f} G points/s, against GL_POINTS {points['ms']:.2f} ms: "
+                   f"{_rate(r['points_per_s'])}, against GL_POINTS {points['ms']:.2f} ms: "
                    f"**{_x(points['ms'] / r['ms'])} faster**{share} (`{raster['_file']}`).")
         shuffled = row("shuffled", r["raster"]) if layout != "shuffled" else None
         if shuffled:
