@@ -95,16 +95,16 @@ def first_image(glc: GLContext, path: Path, width: int, height: int, cold: bool,
         cam = s.auto_camera()
         for _ in range(max_frames):
             s.frame(cam)
-            if first is None and s.renderer.scene.loaded > 0:
+            if first is None and s.status().loaded > 0:
                 glc.ctx.finish()
                 first = time.perf_counter() - t0
-            if full is None and s.renderer.scene.complete:
+            if full is None and s.status().complete:
                 glc.ctx.finish()
                 full = time.perf_counter() - t0
             if s.converged:
                 converged = time.perf_counter() - t0
                 break
-        frames = s.renderer.frame_index
+        frames = s.status().frames
     return {"first_image_s": first, "loaded_s": full, "converged_s": converged, "frames": frames}
 
 

@@ -347,7 +347,7 @@ def _run_frames(session, cameras, args) -> tuple[int | None, int]:
     for k in range(limit):
         session.frame(cameras[min(k, len(cameras) - 1)], None, effects, hidden, clip)
         if args.converge and k + 1 >= len(cameras):
-            converged_at = _first_equal(session.renderer.history, len(cameras) - 1)
+            converged_at = _first_equal(session.history, len(cameras) - 1)
             if converged_at is not None:
                 return converged_at, k + 1
     if args.converge:
@@ -362,17 +362,17 @@ def _first_equal(history, after: int) -> int | None:
 def _stats(session, camera, frames: int, converged_at: int | None, clip) -> dict:
     from progressive import memory
 
-    renderer = session.renderer
+    status = session.status()
     out = {
         "device": session.glc.caps.description,
         "method": session.options.method.value,
-        "raster": renderer.raster_path,
-        "points": session.info.points,
-        "points_loaded": renderer.scene.loaded,
-        "points_on_gpu": renderer.scene.store.kept,
-        "points_not_drawn": renderer.scene.skipped,
+        "raster": status.raster,
+        "points": status.points,
+        "points_loaded": status.loaded,
+        "points_on_gpu": status.on_gpu,
+        "points_not_drawn": status.not_drawn,
         "load_seconds": session.load_seconds,
-        "load_points_per_second": renderer.scene.loaded / session.load_seconds if session.load_seconds else None,
+        "load_points_per_second": status.loaded / session.load_seconds if session.load_seconds else None,
         "first_image_seconds": session.first_image_seconds,
         "startup_seconds": session.startup,
         "programs": session.glc.programs.stats.as_dict(),

@@ -43,6 +43,32 @@ class Method(enum.Enum):
 
 
 @dataclass(frozen=True)
+class SwitchStatus:
+    """An attribute switch: points streamed of those loaded when it began."""
+
+    streamed: int
+    total: int
+    rate: float                 # points a second (CPU packing and upload)
+    done: bool
+
+
+@dataclass(frozen=True)
+class SessionStatus:
+    """What the CLI, the viewer and the benchmarks read of a session, at one moment."""
+
+    points: int                 # the cloud's points, every file
+    loaded: int                 # read and distributed to the GPU
+    complete: bool
+    on_gpu: int                 # points the GPU keeps (a memory limit keeps a subset)
+    slots: int                  # the store's slots (a progressive fill covers them all)
+    not_drawn: int              # non-finite coordinates or shown values
+    raster: str                 # the rasterizer's path, in words
+    frames: int                 # progressive frames issued
+    loading: bool               # batches still to come from the files or waiting for a frame
+    switch: SwitchStatus | None
+
+
+@dataclass(frozen=True)
 class SessionOptions:
     width: int = 1280
     height: int = 720
@@ -268,6 +294,26 @@ class Session:
             self.startup["upload"] = self.renderer.scene.upload_seconds
             self.startup["first_frame"] = now - t0
         return passes
+
+    def status(self) -> SessionStatus:
+        r = self.renderer
+        scene, sw = r.scene, r.scene.switch
+        pending = bool(r.pending) if self.progressive else False
+        return SessionStatus(
+            points=self.info.points, loaded=scene.loaded, complete=scene.complete, on_gpu=scene.store.kept,
+            slots=scene.store.capacity, not_drawn=scene.skipped, raster=r.raster_path,
+            frames=r.frame_index if self.progressive else int(self._last is not None),
+            loading=(self.loading and not self.loader.done) or pending,
+            switch=None if sw is None else SwitchStatus(sw.streamed, sw.total, sw.rate, sw.done))
+
+    def categories(self) -> list[int]:
+        """Category codes present in the shown attribute (kept batches; for a legend)."""
+        return self.renderer.scene.categories()
+
+    @property
+    def history(self) -> list[FrameStats]:
+        """The per-frame statistics the GPU has reported so far (no wait; see stats())."""
+        return self.renderer.history if self.progressive else []
 
     def stats(self) -> list[FrameStats]:
         """Per-frame statistics (progressive; waits for the GPU, so call after the loop)."""

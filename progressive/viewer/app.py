@@ -148,9 +148,8 @@ class Viewer:
 
     def categories(self) -> list[int]:
         """Category codes present in the shown attribute (for the legend), once loaded."""
-        if self._categories is None and self.session is not None and self.session.loader.done \
-                and not self.session.renderer.pending:
-            self._categories = self.session.renderer.scene.categories()
+        if self._categories is None and self.session is not None and not self.session.status().loading:
+            self._categories = self.session.categories()
         return self._categories or []
 
     def toggle_class(self, code: int) -> None:
@@ -227,7 +226,7 @@ class Viewer:
             self.last_passes = s.frame(self.camera, style, self.settings.effects, self.settings.hidden_classes,
                                        self.settings.clip)
         except ProgressiveError as exc:
-            self.fail(f"{exc} (showing the {s.renderer.scene.loaded:,} points read before)")
+            self.fail(f"{exc} (showing the {s.status().loaded:,} points read before)")
             s.stop_loading()
 
     def run(self) -> None:

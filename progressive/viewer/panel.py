@@ -91,8 +91,8 @@ class Panel:
         if imgui.collapsing_header("Files", imgui.TreeNodeFlags_.default_open):
             for f in s.info.files:
                 imgui.text(f"{Path(f.path).name}: {f.points:,} points ({f.format} {f.version})")
-            loaded = s.renderer.scene.loaded
-            total = s.info.points
+            status = s.status()
+            loaded, total = status.loaded, status.points
             imgui.progress_bar(loaded / max(1, total), imgui.ImVec2(320, 0), f"{loaded:,} / {total:,} loaded")
 
     def _colouring(self, s) -> None:
@@ -104,7 +104,7 @@ class Panel:
         changed, index = imgui.combo("attribute ([ ])", current, names)
         if changed:
             v.switch_attribute(names[index])
-        switch = s.renderer.scene.switch
+        switch = s.status().switch
         if switch is not None and not switch.done:
             imgui.progress_bar(switch.streamed / max(1, switch.total), imgui.ImVec2(-1, 0), "streaming")
         elif switch is not None and switch.rate:
@@ -263,14 +263,14 @@ class Panel:
             return
         mean = float(np.mean(self.frame_times)) if self.frame_times else 0.0
         imgui.text(f"{1.0 / mean if mean > 0 else 0.0:.0f} fps ({mean * 1e3:.1f} ms a frame on the CPU)")
-        history = s.renderer.history if s.progressive else []
+        history = s.history
         measured = next((h for h in reversed(history) if h.gpu_ms), None)
         if measured is not None:
             imgui.text("GPU ms: " + "  ".join(f"{k} {measured.gpu_ms[k]:.2f}" for k in PASSES))
             imgui.text(f"budget {measured.budget:,} points; {measured.covered_pixels:,} pixels covered")
             kept = 1.0 - measured.gathered / measured.covered_pixels if measured.covered_pixels else 0.0
             imgui.text(f"{kept:.1%} of pixels kept their point from the frame before")
-            share = min(1.0, measured.filled_since_change / max(1, s.renderer.store.capacity))
+            share = min(1.0, measured.filled_since_change / max(1, s.status().slots))
             label = "exact (every point filled since the last change)" if s.converged else "points filled since the last change"
             imgui.progress_bar(share, imgui.ImVec2(-1, 0), label)
         imgui.text("last frame: " + (" ".join(self.viewer.last_passes) or "idle"))
