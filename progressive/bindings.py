@@ -38,6 +38,7 @@ class Binding(enum.IntEnum):
     HISTOGRAM = 27          # percentile select counts (passes/percentile.py)
     BATCH_BOXES = 28        # batched layout: each batch's box (progressive/batches.py)
     BATCH_FLAGS = 29        # batched layout: each batch in view this frame (passes/cull.py)
+    CLASSES = 30            # per slot, its classification code: a byte each (pointstore.py class filter)
 
     @classmethod
     def points(cls, chunk: int) -> Binding:

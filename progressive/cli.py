@@ -186,7 +186,7 @@ def add_look_args(parser) -> None:
     parser.add_argument("--eye-dome-strength", type=float_arg, default=1.0)
     parser.add_argument("--eye-dome-radius", type=float_arg, default=1.4, help="pixels")
     parser.add_argument("--hide-classes", type=classes_arg, default=frozenset(),
-                        help="classification codes left out, e.g. 7,18 (when colouring by classification)")
+                        help="classification codes left out, e.g. 7,18 (whatever the colouring)")
     parser.add_argument("--clip-box", type=floats_arg(6, "xmin,ymin,zmin,xmax,ymax,zmax"),
                         help="draw only points inside this box (file coordinates, sides included)")
     parser.add_argument("--clip-z", type=floats_arg(2, "zmin,zmax"), help="draw only points between these heights")
@@ -289,7 +289,8 @@ def session_options(args):
     return SessionOptions(width=args.width, height=args.height, method=args.method, raster=args.raster,
                           budget=budget, reference=args.reference or args.converge, color_by=args.color_by,
                           colormap=args.colormap, background=args.background, partial=args.partial,
-                          gpu_memory_limit=args.gpu_memory_limit, value_range=args.value_range)
+                          gpu_memory_limit=args.gpu_memory_limit, value_range=args.value_range,
+                          class_filter=bool(args.hide_classes))
 
 
 def cmd_render(args) -> int:
@@ -308,6 +309,7 @@ def cmd_render(args) -> int:
         raise UsageError("--converge, --reference and --camera-path need --method progressive")
     effects_from(args)
     with Session(paths, session_options(args)) as session, Outputs() as outputs:
+        check_classes(session, args)
         if cameras is None:
             cameras = [camera or session.auto_camera()]
         converged_at, frames = _run_frames(session, cameras, args)
@@ -333,6 +335,11 @@ def cmd_render(args) -> int:
         warn(f"did not converge within {frames} frames")
         return 1
     return 0
+
+
+def check_classes(session, args) -> None:
+    if args.hide_classes and not session.filters_classes:
+        raise UsageError("--hide-classes: this cloud has no classification")
 
 
 def _run_frames(session, cameras, args) -> tuple[int | None, int]:
@@ -439,8 +446,10 @@ def _view_headless(paths: list[str], effects, args) -> int:
 
     check_outputs([args.out], paths)
     options = SessionOptions(width=args.width, height=args.height, color_by=args.color_by, partial=args.partial,
-                             gpu_memory_limit=args.gpu_memory_limit, value_range=args.value_range)
+                             gpu_memory_limit=args.gpu_memory_limit, value_range=args.value_range,
+                             class_filter=bool(args.hide_classes))
     with Session(paths, options) as session, Outputs() as outputs:
+        check_classes(session, args)
         camera = session.auto_camera()
         frames = 0
         while not session.converged and frames < MAX_HEADLESS_FRAMES:

@@ -43,6 +43,7 @@ class ProgressiveOptions:
     capacity: int | None = None         # points kept on the GPU (progressive/memory.py); None: all
     history_frames: int = 10_000        # per-frame statistics kept (a viewer runs for hours)
     keep_batches: bool = False          # keep loaded attributes in host memory to switch attributes
+    class_filter: bool = False          # keep classification codes on the GPU: hidden classes apply to any colouring
 
 
 @dataclass(frozen=True)
@@ -81,7 +82,8 @@ class ProgressiveRenderer:
         self.glc, self.info, self.options = glc, info, options
         self._own_scene = scene is None
         self.scene = scene or Scene(glc, info, attribute, chunk_points=options.chunk_points,
-                                    capacity=options.capacity, keep_batches=options.keep_batches)
+                                    capacity=options.capacity, keep_batches=options.keep_batches,
+                                    class_filter=options.class_filter)
         self.store = self.scene.store
         self.vis = VisibilityBuffer(glc, options.width, options.height)
         self.raster = make_raster(glc, self.store, self.vis, options.raster)

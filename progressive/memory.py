@@ -35,7 +35,9 @@ class MemoryPlan:
                 f"of {self.points:,} points")
 
 
-def plan(points: int, caps: Capabilities, pixels: int, limit_bytes: int | None = None) -> MemoryPlan:
+def plan(points: int, caps: Capabilities, pixels: int, limit_bytes: int | None = None,
+         extra_bytes_per_point: int = 0) -> MemoryPlan:
+    """extra_bytes_per_point: what a point costs beside its record (its class byte)."""
     available, source = None, "no limit known"
     if caps.free_memory_kib is not None:
         available, source = int(caps.free_memory_kib * 1024 * HEADROOM), "free GPU memory"
@@ -44,7 +46,7 @@ def plan(points: int, caps: Capabilities, pixels: int, limit_bytes: int | None =
     if available is None:
         return MemoryPlan(points, points, None, source)
     overhead = pixels * PIXEL_BYTES + BATCH_POINTS * RECORD_BYTES
-    capacity = max(0, min(points, (available - overhead) // RECORD_BYTES))
+    capacity = max(0, min(points, (available - overhead) // (RECORD_BYTES + extra_bytes_per_point)))
     return MemoryPlan(points, capacity, available, source)
 
 

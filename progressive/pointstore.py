@@ -14,6 +14,12 @@ EMPTY_WORD = 0xFFFFFFFF
 """Every slot starts as NaN coordinates, which no pass draws: unloaded slots stay dark."""
 
 
+CLASS_LIMIT = 2**31 - 1
+"""Points whose class bytes fit one GL buffer."""
+CLASS_BYTES = 1
+"""GPU memory a point's class takes where the store keeps classes."""
+
+
 class GPUMemoryError(ProgressiveError):
     """An allocation the driver refused (GL_OUT_OF_MEMORY)."""
 
@@ -28,7 +34,9 @@ class PointStore:
 
     def __init__(self, glc: GLContext, count: int, *, capacity: int | None = None,
                  chunk_points: int | None = None, rotate: bool = True,
-                 order: FillOrder = LAYOUT):
+                 order: FillOrder = LAYOUT, classes: bool = False):
+        """classes: keep each point's classification code (a byte a slot) for filters
+        that apply whatever attribute is shown."""
         limit = chunk_capacity(glc.caps.max_ssbo_bytes)
         self.chunk_points = min(chunk_points or limit, limit)
         self.count = count
@@ -45,6 +53,13 @@ class PointStore:
                 f"{self.capacity:,} points need {chunks} GPU buffers of {self.chunk_points:,} points; "
                 f"at most {MAX_POINT_CHUNKS} are supported")
         self._glc = glc
+        self.class_buffer = None
+        if classes:
+            if self.capacity > CLASS_LIMIT:
+                raise ProgressiveError(f"class filters keep a byte a point in one buffer: at most {CLASS_LIMIT:,} points")
+            self.class_buffer = glc.ctx.buffer(reserve=max(4, -(-self.capacity * CLASS_BYTES // 4) * 4))
+            self.class_buffer.label = "point classes"
+            glc.gl.clear_u32(self.class_buffer.glo, 0, total=self.class_buffer.size)
         self.boxes = batches.empty_boxes(max(1, self.permutation.batches))
         self.box_buffer = glc.ctx.buffer(self.boxes.tobytes())
         self.box_buffer.label = "batch boxes"
@@ -82,12 +97,18 @@ class PointStore:
         return self.permutation.kept(self.capacity)
 
     @property
+    def has_classes(self) -> bool:
+        return self.class_buffer is not None
+
+    @property
     def defines(self) -> dict[str, int]:
-        return {"POINT_CHUNKS": len(self.buffers), "CHUNK_POINTS": self.chunk_points}
+        return {"POINT_CHUNKS": len(self.buffers), "CHUNK_POINTS": self.chunk_points, "CLASS_FILTER": int(self.has_classes)}
 
     def bind(self) -> None:
         for c, buf in enumerate(self.buffers):
             buf.bind_to_storage_buffer(Binding.points(c))
+        if self.class_buffer is not None:
+            self.class_buffer.bind_to_storage_buffer(Binding.CLASSES)
 
     def chunk_ranges(self, first: int, count: int):
         """(chunk, local first, local count) pieces of the slot range [first, first+count)."""
@@ -113,3 +134,6 @@ class PointStore:
         if self.box_buffer is not None:
             self.box_buffer.release()
             self.box_buffer = None
+        if self.class_buffer is not None:
+            self.class_buffer.release()
+            self.class_buffer = None

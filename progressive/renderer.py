@@ -42,12 +42,12 @@ class Renderer:
     def __init__(self, glc: GLContext, info: CloudInfo, attribute: AttributeInfo, *,
                  raster: Raster = Raster.COMPUTE, width: int = 1280, height: int = 720,
                  chunk_points: int | None = None, capacity: int | None = None, scene: Scene | None = None,
-                 keep_batches: bool = False, partitioned: bool = False):
+                 keep_batches: bool = False, partitioned: bool = False, class_filter: bool = False):
         """`scene`: a cloud already on the GPU to render (kept on release)."""
         self.glc, self.info, self.attribute = glc, info, attribute
         self._own_scene = scene is None
         self.scene = scene or Scene(glc, info, attribute, chunk_points=chunk_points, capacity=capacity,
-                                    keep_batches=keep_batches)
+                                    keep_batches=keep_batches, class_filter=class_filter)
         self.store = self.scene.store
         self.vis = VisibilityBuffer(glc, width, height)
         self.raster_kind = raster

@@ -52,12 +52,18 @@ class AttributeSwitch:
 
 class Scene:
     def __init__(self, glc: GLContext, info: CloudInfo, attribute: AttributeInfo, *, chunk_points: int | None = None,
-                 capacity: int | None = None, keep_batches: bool = False, order: FillOrder = LAYOUT):
+                 capacity: int | None = None, keep_batches: bool = False, order: FillOrder = LAYOUT,
+                 class_filter: bool = False):
         """capacity: points kept on the GPU (default all; see progressive/memory.py).
         keep_batches: keep the loaded attributes in host memory to switch attributes.
-        order: FILE stores points in file order (the unshuffled baseline, for benchmarks)."""
+        order: FILE stores points in file order (the unshuffled baseline, for benchmarks).
+        class_filter: keep every point's classification code on the GPU, so hidden classes
+        apply whatever attribute is shown (the cloud must have classification)."""
         self.glc, self.info, self.attribute = glc, info, attribute
-        self.store = PointStore(glc, info.points, capacity=capacity, chunk_points=chunk_points, order=order)
+        if class_filter and CLASSIFICATION not in {a.name for a in info.attributes}:
+            raise ProgressiveError("this cloud has no classification to filter by")
+        self.store = PointStore(glc, info.points, capacity=capacity, chunk_points=chunk_points, order=order,
+                                classes=class_filter)
         self.distribute = DistributePass(glc, self.store)
         self.loaded = 0
         self.skipped = 0            # points never drawn: non-finite coordinates or shown value
@@ -78,6 +84,8 @@ class Scene:
         records = pack_records(batch, self.attribute, float(self.info.origin[2]))
         self.skipped += nonfinite_records(records)[0]     # what shaders/common.glsl finite_position skips
         self.distribute.upload(records, batch.start)
+        if self.store.has_classes:
+            self.distribute.upload_classes(class_codes(batch), batch.start)
         self.store.add_boxes(batch.positions, batch.start)
         if self.keep_batches:
             self.batches.append(batch)
@@ -128,16 +136,21 @@ class Scene:
         return sw.done
 
     def drawable(self, hidden: frozenset[int]) -> frozenset[int]:
-        """Category codes to leave out: only while a category attribute is shown."""
-        return frozenset(hidden) if self.attribute.kind is AttributeKind.CATEGORY else frozenset()
+        """Category codes to leave out: with the classes kept, always; else only while a
+        category attribute is shown (its word is the code)."""
+        keeps = self.store.has_classes or self.attribute.kind is AttributeKind.CATEGORY
+        return frozenset(hidden) if keeps else frozenset()
 
     def categories(self) -> list[int]:
-        """Codes present in the kept batches of the shown category attribute."""
-        if self.attribute.kind is not AttributeKind.CATEGORY:
+        """Codes present in the kept batches: of the classification where the classes are
+        kept, else of the shown category attribute."""
+        name = CLASSIFICATION if self.store.has_classes else self.attribute.name
+        if not self.store.has_classes and self.attribute.kind is not AttributeKind.CATEGORY:
             return []
         seen = np.zeros(256, dtype=bool)
         for b in self.batches:
-            values = b.attributes.get(self.attribute.name) if b.records is None else b.records[:, 3]
+            shown = b.records is not None and name == self.attribute.name
+            values = b.records[:, 3] if shown else b.attributes.get(name)
             if values is not None:
                 seen[np.unique(np.minimum(values, 255))] = True
         return np.flatnonzero(seen).tolist()
@@ -183,6 +196,15 @@ class Scene:
         self.distribute.release()
         self.store.release()
         self.batches.clear()
+
+
+CLASSIFICATION = "classification"
+
+
+def class_codes(batch: Batch) -> np.ndarray:
+    """The classification codes of a batch's points (a fast-format file that has them
+    stores them as its one attribute word)."""
+    return batch.records[:, 3] if batch.records is not None else np.asarray(batch.attributes[CLASSIFICATION])
 
 
 def _hides_points(batch: Batch, attribute: AttributeInfo) -> bool:

@@ -29,9 +29,9 @@ from progressive.loaders import CloudLoader
 from progressive.loaders.lookup import read_record
 from progressive.loaders.types import AttributeKind
 from progressive.passes.visibility import EMPTY
-from progressive.pointstore import GPUMemoryError
+from progressive.pointstore import CLASS_BYTES, GPUMemoryError
 from progressive.renderer import Frame, Raster, Renderer, ids_for
-from progressive.scene import AttributeSwitch
+from progressive.scene import CLASSIFICATION, AttributeSwitch
 
 PICK_RADIUS = 7
 """Pixels around a picked pixel searched for the nearest point shown."""
@@ -85,6 +85,7 @@ class SessionOptions:
     gpu_memory_limit: int | None = None     # bytes; the free memory the driver reports also counts
     switchable: bool = False                # keep every attribute in host memory to switch without reloading
     value_range: tuple[float, float] | None = None   # the first attribute's values at the colormap's ends; None: percentiles
+    class_filter: bool = False              # keep classification on the GPU (where the cloud has it): any colouring filters
 
 
 class Session:
@@ -117,8 +118,9 @@ class Session:
             self.startup["context"] = t1 - t0
             programs_before = self.glc.programs.stats.seconds
             self._program_warnings = len(self.glc.programs.warnings)    # a shared context's earlier ones are not ours
+            class_filter = options.class_filter and any(a.name == CLASSIFICATION for a in self.info.attributes)
             self.memory = memory.plan(self.info.points, self.glc.caps, options.width * options.height,
-                                      options.gpu_memory_limit)
+                                      options.gpu_memory_limit, CLASS_BYTES if class_filter else 0)
             if self.memory.capacity == 0:
                 raise GPUMemoryError(f"no points fit in the GPU memory available ({self.memory.source})")
             capacity = self.memory.capacity
@@ -126,11 +128,12 @@ class Session:
                 self.renderer = Renderer(self.glc, self.info, self.attribute, raster=options.raster,
                                          width=options.width, height=options.height,
                                          chunk_points=options.chunk_points, capacity=capacity,
-                                         keep_batches=options.switchable)
+                                         keep_batches=options.switchable, class_filter=class_filter)
             else:
                 self.renderer = ProgressiveRenderer(self.glc, self.info, self.attribute, ProgressiveOptions(
                     options.width, options.height, options.raster, options.budget, options.batches_per_frame,
-                    options.reference, options.chunk_points, capacity=capacity, keep_batches=options.switchable))
+                    options.reference, options.chunk_points, capacity=capacity, keep_batches=options.switchable,
+                    class_filter=class_filter))
         except BaseException:
             self.loader.close()
             raise
@@ -309,6 +312,11 @@ class Session:
     def categories(self) -> list[int]:
         """Category codes present in the shown attribute (kept batches; for a legend)."""
         return self.renderer.scene.categories()
+
+    @property
+    def filters_classes(self) -> bool:
+        """Hidden classes apply whatever attribute is shown (the GPU keeps the classes)."""
+        return self.renderer.store.has_classes
 
     @property
     def history(self) -> list[FrameStats]:

@@ -1,10 +1,14 @@
 // Scatter a staged batch into its permuted slots (paper section 3.3). With
-// ATTRIBUTE_ONLY the stage holds one word per point and only word 3 is replaced.
+// ATTRIBUTE_ONLY the stage holds one word per point and only word 3 is replaced; with
+// CLASS_WORDS one class code per point goes to the store's class bytes.
 layout(local_size_x = 256) in;
 #include "common.glsl"
 #include "points.glsl"
 
-#if ATTRIBUTE_ONLY
+#if CLASS_WORDS
+layout(std430, binding = BINDING_DISTRIBUTE) readonly buffer Stage { uint staged[]; };
+layout(std430, binding = BINDING_CLASSES) buffer Classes { uint classes[]; };
+#elif ATTRIBUTE_ONLY
 layout(std430, binding = BINDING_DISTRIBUTE) readonly buffer Stage { uint staged[]; };
 #else
 layout(std430, binding = BINDING_DISTRIBUTE) readonly buffer Stage { uvec4 staged[]; };
@@ -22,7 +26,10 @@ void main() {
     if (!range_index(u_count, i)) return;
     uint slot = slot_of(u_start + i, u_prime, u_rotation, u_batches);
     if (slot >= u_capacity) return;
-#if ATTRIBUTE_ONLY
+#if CLASS_WORDS
+    // Each slot is written once (the buffer starts at zero), four slots share a word.
+    atomicOr(classes[slot >> 2u], min(staged[i], 255u) << ((slot & 3u) * 8u));
+#elif ATTRIBUTE_ONLY
     store_point(slot, uvec4(0u, 0u, 0u, staged[i]), 3);
 #else
     store_point(slot, staged[i], -1);

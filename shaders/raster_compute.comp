@@ -8,6 +8,7 @@ layout(local_size_x = 256) in;
 #include "points.glsl"
 #include "camera.glsl"
 #include "sources.glsl"
+#include "classes.glsl"
 
 #if ATOMIC64
 layout(std430, binding = BINDING_VISIBILITY) buffer Visibility { uint64_t visibility[]; };
@@ -28,7 +29,8 @@ void main() {
     if (!slot_in_view(slot)) return;
 #endif
     uvec4 record = source_record(i, slot);
-    if (!finite_position(record) || !category_shown(record.w) || !clip_keeps(uintBitsToFloat(record.xyz))) return;
+    if (!finite_position(record) || !category_shown(point_class(slot, record.w))
+        || !clip_keeps(uintBitsToFloat(record.xyz))) return;
     uint pixel;
     float depth;
     if (!project(uintBitsToFloat(record.xyz), pixel, depth)) return;

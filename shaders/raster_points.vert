@@ -15,6 +15,7 @@ in uint a_word;
 uniform uint u_chunk_base;   // slot of the chunk's first record
 #endif
 #include "camera.glsl"
+#include "classes.glsl"
 
 flat out uint v_slot;
 flat out uint v_depth_bits;
@@ -33,7 +34,7 @@ void main() {
 #endif
     uint pixel;
     float depth;
-    if (!finite_position(record) || !category_shown(record.w) || !clip_keeps(uintBitsToFloat(record.xyz))
+    if (!finite_position(record) || !category_shown(point_class(v_slot, record.w)) || !clip_keeps(uintBitsToFloat(record.xyz))
         || !project(uintBitsToFloat(record.xyz), pixel, depth)) return;
     v_depth_bits = floatBitsToUint(depth);
     uint row = pixel / u_size.x;

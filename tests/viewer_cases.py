@@ -417,3 +417,21 @@ def test_shift_clicks_measure_between_picked_points(viewer):
     assert m.length == pytest.approx(float(np.linalg.norm(np.diff(xyz, axis=0), axis=1).sum()), abs=0.05)
     viewer.step()
     no_gl_error(viewer)
+
+
+def test_class_toggles_apply_to_any_colouring(viewer):
+    """Colouring by elevation, the panel's Classes toggles still hide a class: the GPU
+    keeps every point's class beside the shown attribute."""
+    viewer.switch_attribute("elevation")
+    settle(viewer)
+    las = laspy.read(SAMPLE)
+    classes = np.asarray(las.classification)
+    assert viewer.categories() == sorted(set(classes.tolist()))
+    common = int(np.bincount(classes).argmax())
+    before = viewer.session.image()
+    viewer.toggle_class(common)
+    settle(viewer)
+    ids = viewer.session.ids()
+    assert not np.any(classes[ids[ids != EMPTY]] == common)
+    assert not np.array_equal(before, viewer.session.image())
+    no_gl_error(viewer)

@@ -23,10 +23,11 @@ class DistributePass:
         int64 = glc.caps.shader_int64
         defines = dict(store.defines, PERMUTE_INT64=1) if int64 else dict(store.defines)
         ext = ("GL_ARB_gpu_shader_int64",) if int64 else ()
-        self._build = lambda only, label: shaderlib.compute(glc.ctx, "distribute.comp", dict(defines, ATTRIBUTE_ONLY=only),
-                                                            ext, label)
+        self._build = lambda only, label, classes=0: shaderlib.compute(
+            glc.ctx, "distribute.comp", dict(defines, ATTRIBUTE_ONLY=only, CLASS_WORDS=classes), ext, label)
         self.records = self._build(0, "distribute")
         self.words = None       # built at the first attribute switch: no first image waits for it
+        self.classes = self._build(0, "distribute classes", 1) if store.has_classes else None
         self.points_distributed = 0
 
     def upload(self, records: np.ndarray, start: int) -> None:
@@ -37,6 +38,10 @@ class DistributePass:
         """Replace only the attribute word of n points (attribute switching, paper 3.5)."""
         self.words = self.words or self._build(1, "distribute words")
         self._scatter(self.words, np.ascontiguousarray(words, dtype=np.uint32), start)
+
+    def upload_classes(self, codes: np.ndarray, start: int) -> None:
+        """Set the class byte of n points (stores that keep classes)."""
+        self._scatter(self.classes, np.ascontiguousarray(codes, dtype=np.uint32), start)
 
     def _scatter(self, program, data: np.ndarray, start: int) -> None:
         n = data.shape[0]
@@ -60,6 +65,6 @@ class DistributePass:
         self.points_distributed += n
 
     def release(self) -> None:
-        for obj in (self.stage, self.records, self.words):
+        for obj in (self.stage, self.records, self.words, self.classes):
             if obj is not None:
                 obj.release()

@@ -27,8 +27,10 @@ class PointsRaster:
     def __init__(self, glc: GLContext, store: PointStore, vis: VisibilityBuffer):
         self.glc, self.store, self.vis = glc, store, vis
         ctx = glc.ctx
-        self.program = self._program({"VERTEX_PULLING": 0}, "raster points")
-        self.vaos = [ctx.vertex_array(self.program, [(buf, "3f4 u4", "a_position", "a_word")]) for buf in store.buffers]
+        self.program = self._program({"VERTEX_PULLING": 0, "CLASS_FILTER": int(store.has_classes)}, "raster points")
+        # With the classes kept, the shown word is not read (the linker drops a_word).
+        layout = ("3f4 u4", "a_position", "a_word") if "a_word" in self.program else ("3f4 4x", "a_position")
+        self.vaos = [ctx.vertex_array(self.program, [(buf, *layout)]) for buf in store.buffers]
         defines = dict(store.defines, **layout_defines(), **Meta.defines(), VERTEX_PULLING=1)
         self.pulling = {s: self._program(dict(defines, **Source.defines(s)), f"raster points {s.name.lower()}")
                         for s in (Source.PIECE, Source.LIST)}
@@ -95,6 +97,7 @@ class PointsRaster:
         """A whole frame of slots [first, first+count) from vertex buffers, chunk by chunk."""
         self.begin_frame(view)
         set_view(self.program, view)
+        self.store.bind()           # the class bytes, where the store keeps them
         for chunk, local_first, n in self.store.chunk_ranges(first, count):
             self.program["u_chunk_base"] = chunk * self.store.chunk_points
             self.vaos[chunk].render(moderngl.POINTS, vertices=n, first=local_first)

@@ -129,7 +129,7 @@ class Viewer:
             session = Session(paths, SessionOptions(
                 width=width, height=height, budget=self._budget(), color_by=self.options.color_by,
                 partial=self.options.partial, gpu_memory_limit=self.options.gpu_memory_limit, switchable=True,
-                value_range=self.options.value_range),
+                value_range=self.options.value_range, class_filter=True),
                 glc=self.glc)
         except (ProgressiveError, OSError) as exc:
             self.fail(str(exc))

@@ -76,6 +76,7 @@ class Panel:
         else:
             self._files(s)
             self._colouring(s)
+            self._classes(s)
             self._picked()
             self._measure()
             self._view()
@@ -157,6 +158,14 @@ class Panel:
             c2, radius = imgui.slider_float("radius", p.radius, 0.5, 8.0)
             if c1 or c2:
                 v.settings = replace(v.settings, eye_dome_params=EyeDome(strength, radius))
+
+    def _classes(self, s) -> None:
+        """Class toggles while another attribute is shown (the GPU keeps the classes);
+        colouring by classification shows them in its legend."""
+        if (not s.filters_classes or ColorMode.for_kind(s.attribute.kind) is ColorMode.CATEGORY
+                or not imgui.collapsing_header("Classes")):
+            return
+        self._legend()
 
     def _picked(self) -> None:
         """The last clicked point: a marker where it was found and all of it, as read

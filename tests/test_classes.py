@@ -1,0 +1,74 @@
+"""Class filters that do not depend on the colouring: with elevation (or any attribute)
+shown, hidden classes are left out of every rasterizer and both methods exactly as
+the float64 render contract of the remaining points says."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import laspy
+import numpy as np
+import pytest
+
+from conftest import SAMPLE, shared_file
+from progressive.camera import auto_camera
+from progressive.cli import main
+from progressive.reference import EMPTY, reference_ids
+
+W, H = 160, 120
+HERE = Path(__file__).resolve().parent
+
+
+def render_ids(tmp_path, path, *args) -> np.ndarray:
+    ids = tmp_path / "ids.npy"
+    assert main(["render", str(path), "--width", str(W), "--height", str(H), "--ids", str(ids), *args]) == 0
+    return np.load(ids)
+
+
+def reference(path, hidden: set[int], slots_of) -> np.ndarray:
+    las = laspy.read(path)
+    xyz = np.stack([las.x, las.y, las.z], axis=1)
+    keep = np.nonzero(~np.isin(np.asarray(las.classification), list(hidden)))[0]
+    lo, hi = xyz.min(axis=0), xyz.max(axis=0)
+    cam = auto_camera(lo, hi, W / H)
+    local = reference_ids(xyz[keep], cam, W, H, tie_key=slots_of(keep))
+    return np.where(local == EMPTY, EMPTY, keep[np.minimum(local, keep.size - 1)]).astype(np.uint32), cam
+
+
+@pytest.mark.parametrize("raster, method", [("compute", "brute"), ("compute32", "progressive"), ("points", "brute"),
+                                            ("points", "progressive")])
+@pytest.mark.parametrize("color_by", ["elevation", "intensity", "rgb"])
+def test_hidden_classes_with_any_colouring_equal_the_reference(tmp_path, raster, method, color_by):
+    from progressive.loaders import open_cloud
+    from progressive.permutation import LAYOUT, Permutation
+
+    las = laspy.read(SAMPLE)
+    common = int(np.bincount(np.asarray(las.classification)).argmax())
+    perm = Permutation.for_count(open_cloud([SAMPLE]).points, order=LAYOUT)
+    expected, _ = reference(SAMPLE, {common}, lambda k: perm.forward(k).astype(np.int64))
+    # GL_POINTS resolves depth to (far - near) / 2^24, so its progressive frames are held to
+    # the float64 reference like its brute ones, not to the compute render (--converge).
+    extra = ["--method", method, *(["--frames", "60"] if raster == "points" else ["--converge"])] \
+        if method == "progressive" else []
+    got = render_ids(tmp_path, SAMPLE, "--color-by", color_by, "--raster", raster, "--hide-classes", str(common), *extra)
+    shown = got[got != EMPTY]
+    assert shown.size > 500 and not np.isin(np.asarray(las.classification)[shown], [common]).any()
+    assert np.mean(got == expected) >= 0.999
+    unfiltered = render_ids(tmp_path, SAMPLE, "--color-by", color_by, "--raster", raster, *extra)
+    assert not np.array_equal(got, unfiltered)
+
+
+def test_real_file_with_several_classes(tmp_path):
+    path = shared_file("wires.laz")
+    las = laspy.read(path)
+    got = render_ids(tmp_path, path, "--color-by", "elevation", "--hide-classes", "2,5")
+    shown = np.asarray(las.classification)[got[got != EMPTY]]
+    assert shown.size > 500 and set(np.unique(shown).tolist()) <= {1, 9}
+
+
+def test_hiding_classes_of_a_cloud_without_them_is_one_line(tmp_path, capsys):
+    capsys.readouterr()
+    assert main(["render", str(HERE / "data" / "bunnyDouble.e57"), "--out", str(tmp_path / "x.png"),
+                 "--hide-classes", "2"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("progressive: error: ") and err.count("\n") == 1 and not (tmp_path / "x.png").exists()
