@@ -4,6 +4,7 @@ defines them (integer record times scale plus offset), not the float32 the GPU h
 from __future__ import annotations
 
 import math
+from decimal import Decimal
 
 import numpy as np
 
@@ -46,10 +47,24 @@ def read_point(info: CloudInfo, index: int) -> np.ndarray:
     return np.array([points.x[0], points.y[0], points.z[0]], dtype=np.float64)
 
 
+def decimals(value: float) -> int:
+    """Decimal places of a header's scale or offset as written (0.0025: 4, 0.005: 3)."""
+    exponent = Decimal(repr(float(value))).normalize().as_tuple().exponent
+    return max(0, -exponent) if isinstance(exponent, int) else 0
+
+
+def _plain(value):
+    """A JSON-safe attribute value: NaN and infinities become None."""
+    if isinstance(value, list):
+        return [_plain(v) for v in value]
+    return None if isinstance(value, float) and not math.isfinite(value) else value
+
+
 def read_record(info: CloudInfo, index: int) -> dict:
     """All of one point, read back from its file: the file, the index in it, x, y, z in
-    float64 (LAS: rounded to the decimals its scale carries) and, for LAS/LAZ, every
-    dimension of its point format with the extra bytes (scaled as laspy scales them)."""
+    float64 (LAS: rounded to the decimals its scale and offset carry) and, for LAS/LAZ,
+    every dimension of its point format with the extra bytes (scaled as laspy scales
+    them; NaN as None). Other formats give their coordinates only."""
     file, local = locate(info, index)
     xyz = read_point(info, index)
     out = {"file": file.path, "index": int(local), "cloud_index": int(index)}
@@ -57,7 +72,7 @@ def read_record(info: CloudInfo, index: int) -> dict:
     if file.format in ("LAS", "LAZ"):
         import laspy
 
-        digits = [max(0, math.ceil(-math.log10(s) - 1e-9)) if s > 0 else 9 for s in file.scale]
+        digits = [max(decimals(sc), decimals(of)) for sc, of in zip(file.scale, file.offset)]
         xyz = [round(float(v), d) for v, d in zip(xyz, digits)]
         with laspy.open(file.path) as reader:
             reader.seek(local)
@@ -66,6 +81,6 @@ def read_record(info: CloudInfo, index: int) -> dict:
             if name in ("X", "Y", "Z"):
                 continue
             value = np.asarray(points[name])[0]
-            attributes[name] = value.tolist() if isinstance(value, np.ndarray) else value.item()
+            attributes[name] = _plain(value.tolist() if isinstance(value, np.ndarray) else value.item())
     out.update(x=float(xyz[0]), y=float(xyz[1]), z=float(xyz[2]), attributes=attributes)
     return out

@@ -145,14 +145,14 @@ def clip_from(args):
     from progressive.camera import NO_CLIP, CameraError, Clip
 
     try:
-        clip = NO_CLIP
-        if args.clip_box:
-            clip = clip.intersect(Clip(args.clip_box[:3], args.clip_box[3:]))
-        if args.clip_z:
-            clip = clip.intersect(Clip((-np.inf, -np.inf, args.clip_z[0]), (np.inf, np.inf, args.clip_z[1])))
-        return clip
+        box = Clip(args.clip_box[:3], args.clip_box[3:]) if args.clip_box else NO_CLIP
+        slab = Clip((-np.inf, -np.inf, args.clip_z[0]), (np.inf, np.inf, args.clip_z[1])) if args.clip_z else NO_CLIP
     except CameraError as exc:
         raise UsageError(str(exc)) from None
+    try:
+        return box.intersect(slab)
+    except CameraError:
+        raise UsageError("--clip-box and --clip-z do not overlap: nothing would be drawn") from None
 
 
 def effects_from(args):
@@ -308,6 +308,7 @@ def cmd_render(args) -> int:
     if args.method is Method.BRUTE and (args.converge or args.reference or cameras):
         raise UsageError("--converge, --reference and --camera-path need --method progressive")
     effects_from(args)
+    clip_from(args)
     with Session(paths, session_options(args)) as session, Outputs() as outputs:
         check_classes(session, args)
         if cameras is None:
@@ -419,6 +420,7 @@ def cmd_view(args) -> int:
 
     paths = input_paths(args.files)
     effects = effects_from(args)
+    clip_from(args)          # a bad box is one line before any notice or window
     if has_display():
         from progressive.viewer.app import Viewer, ViewerOptions
 

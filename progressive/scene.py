@@ -74,6 +74,7 @@ class Scene:
         self._percentile: PercentilePass | None = None
         self._range: tuple[float, float] | None = None
         self._range_loaded = 0      # points loaded when the range was taken (0: not taken for this attribute)
+        self.finished = False       # no more batches will come (a partial load may end short of the count)
 
     @property
     def complete(self) -> bool:
@@ -105,7 +106,7 @@ class Scene:
         previous = (*old.previous, old.attribute) if old and not old.done else (self.attribute,)
         self.switch = AttributeSwitch(attribute, previous, len(self.batches), sum(b.count for b in self.batches))
         self.attribute = attribute
-        self._range, self._range_loaded = None, 0
+        self._range_loaded = 0          # taken anew once the words are rewritten; the last one stays till then
         self.skipped = 0
         return self.switch
 
@@ -164,12 +165,12 @@ class Scene:
         """The colour contract's range of a scalar: the 1st and 99th percentiles (numpy's
         linear method) of the stored values of every drawn point, exact. Taken after the
         first batch, whenever the loaded points have grown RANGE_GROWTH times since, and
-        when loading completes; during an attribute switch the last one stays until the
+        when loading completes (or ends short: `finished`); during an attribute switch the last one stays until the
         words are all rewritten. None for other kinds, or with no finite value loaded."""
         if self.attribute.kind is not AttributeKind.SCALAR:
             return None
         switching = self.switch is not None and not self.switch.done
-        grown = self.loaded >= RANGE_GROWTH * self._range_loaded or self.complete
+        grown = self.loaded >= RANGE_GROWTH * self._range_loaded or self.complete or self.finished
         if not switching and self.loaded > self._range_loaded and grown:
             self._percentile = self._percentile or PercentilePass(self.glc, self.store)
             self._range, self._range_loaded = self._percentile.run(), self.loaded

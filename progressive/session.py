@@ -261,6 +261,7 @@ class Session:
         """Keep what has loaded and read no more (a file failed while the viewer shows it)."""
         self.loading = False
         self.loader.close()
+        self.renderer.scene.finished = True
 
     def resize(self, width: int, height: int) -> None:
         """A new frame size; per-pixel buffers follow (the image starts again)."""
@@ -276,6 +277,7 @@ class Session:
             self.renderer.add_batch(b)
         if self.load_seconds is None and self.loader.done:
             self.load_seconds = time.perf_counter() - self.opened
+            self.renderer.scene.finished = True
 
     def frame(self, camera: Camera, style: ColorStyle | None = None, effects: Effects = Effects(),
               hidden: frozenset[int] = frozenset(), clip: Clip = NO_CLIP) -> tuple[str, ...]:

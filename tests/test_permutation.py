@@ -146,3 +146,11 @@ def test_gpu_batched_matches_numpy(gl, n, int64):
     gpu = gpu_permute(gl, perm, idx, int64=int64)
     gl.check()
     assert np.array_equal(gpu.astype(np.uint64), perm.forward(idx))
+
+
+@pytest.mark.parametrize("n", [1, 300, BATCH_POINTS, 3 * BATCH_POINTS + 17, 110_000])
+def test_kept_counts_the_points_below_a_capacity(n):
+    perm = Permutation.for_count(n, order=FillOrder.BATCHED)
+    slots = perm.forward(np.arange(n, dtype=np.uint64))
+    for capacity in sorted({0, 1, 255, 256, 257, n // 3, n - 1, n, perm.slots - 1, perm.slots, perm.slots + 5}):
+        assert perm.kept(max(0, capacity)) == int(np.count_nonzero(slots < max(0, capacity))), capacity

@@ -87,3 +87,23 @@ def test_pick_outside_the_image_and_bad_values(capsys, tmp_path):
         assert main(["render", "--pick", bad]) == 2
         err = capsys.readouterr().err
         assert err.startswith("progressive: error: ") and err.count("\n") == 1
+
+
+def test_pick_rounds_to_the_decimals_of_scale_and_offset(capsys, tmp_path):
+    """A scale of 0.0025 and an offset of 0.005 carry four decimals: nothing is cut."""
+    src = laspy.read(SAMPLE)
+    header = laspy.LasHeader(point_format=src.header.point_format, version=src.header.version)
+    header.scales = np.array([0.0025, 0.0025, 0.0025])
+    header.offsets = np.array([636000.005, 849000.005, 0.005])
+    out = laspy.LasData(header)
+    out.x, out.y, out.z = src.x, src.y, src.z
+    for dim in ("intensity", "classification", "red", "green", "blue"):
+        out[dim] = src[dim]
+    path = tmp_path / "odd.las"
+    out.write(path)
+    _, ids = pick(capsys, tmp_path, [path], 0, 0)
+    x, y = covered_pixel(ids)
+    got, _ = pick(capsys, tmp_path, [path], x, y)
+    las = laspy.read(path)
+    for axis in "xyz":
+        assert got[axis] == round(float(las[axis][got["index"]]), 4)

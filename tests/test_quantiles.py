@@ -98,3 +98,21 @@ def test_range_follows_loading_and_switches(gl, sample_batches):
         assert scene.resolved(style).value_range == scene.value_range()
     finally:
         scene.release()
+
+
+def test_range_is_taken_when_loading_ends_short(gl, sample_batches):
+    """A partial load ends below the header's count: the range is taken over what loaded
+    once the session says no more will come."""
+    info, batches = sample_batches
+    scene = Scene(gl, info, info.attribute("elevation"))
+    try:
+        part = batches[: len(batches) // 2 + 1]
+        for b in part:
+            scene.add_batch(b)
+        scene.value_range()
+        scene.add_batch(batches[len(part)])
+        assert not scene.complete
+        scene.finished = True
+        assert scene.value_range() == numpy_percentiles(stored_words(info, batches[: len(part) + 1], "elevation"))
+    finally:
+        scene.release()

@@ -22,7 +22,6 @@ class CullPass:
         self.flags.label = "batch flags"
 
     def run(self, view: ViewUniforms) -> None:
-        
         program = self.program
         set_view(program, view)
         program["u_batches"] = self.store.permutation.batches

@@ -104,8 +104,12 @@ class Navigator:
         return max(float(np.linalg.norm(np.subtract(self.bounds_max, self.bounds_min))), 1e-3)
 
     def camera(self, o: Orbit) -> Camera:
-        """Far reaches past the whole cloud from wherever the camera is."""
+        """Far reaches past the whole cloud from wherever the camera is. An orthographic
+        eye stands back beyond the cloud (its zoom is the height, not the distance), so
+        nothing between the target and the cloud's edge is cut by the near plane."""
         position = o.position
+        if o.orthographic:
+            position = np.asarray(o.target, dtype=np.float64) + o.backward * (o.distance + self.diagonal)
         far = 1.05 * (float(np.linalg.norm(position - self.centre)) + self.diagonal / 2.0)
         far = max(far, o.distance * 1.05)
         if o.orthographic:
@@ -139,8 +143,8 @@ class Navigator:
         w, h = size
         right, up = o.basis()
         half = o.view_height / 2.0
-        return (o.position + forward * depth + right * (2.0 * x / w - 1.0) * half * w / h
-                + up * (1.0 - 2.0 * y / h) * half)
+        eye = np.asarray(self.camera(o).position, dtype=np.float64)
+        return eye + forward * depth + right * (2.0 * x / w - 1.0) * half * w / h + up * (1.0 - 2.0 * y / h) * half
 
     def cursor_ray(self, o: Orbit, x: float, y: float, size: tuple[int, int]) -> np.ndarray:
         """Unit direction through window pixel (x, y), row 0 at the top (camera.project's inverse)."""

@@ -229,24 +229,27 @@ class Panel:
             v.act(Action.PROJECTION)
 
     def _clip(self, s) -> None:
-        """A clip box edited with numbers in the file's coordinates (an axis left at the
-        cloud's bounds is open on that side)."""
+        """A clip box edited with numbers in the file's coordinates (float64 fields: a
+        UTM northing keeps its millimetres), starting from the cloud's bounds."""
         v = self.viewer
         if not imgui.collapsing_header("Clip"):
             return
-        lo, hi = s.info.bounds_min, s.info.bounds_max
-        clip = v.settings.clip
-        changed, on = imgui.checkbox("clip box", clip != NO_CLIP)
+        changed, on = imgui.checkbox("clip box", v.settings.clip != NO_CLIP)
         if changed:
-            v.settings = replace(v.settings, clip=Clip(tuple(lo), tuple(hi)) if on else NO_CLIP)
-        if v.settings.clip == NO_CLIP:
+            bounds = Clip(tuple(s.info.bounds_min), tuple(s.info.bounds_max))
+            v.settings = replace(v.settings, clip=bounds if on else NO_CLIP)
+        clip = v.settings.clip
+        if clip == NO_CLIP:
             return
-        shown_lo = [float(a if np.isfinite(a) else b) for a, b in zip(v.settings.clip.lo, lo)]
-        shown_hi = [float(a if np.isfinite(a) else b) for a, b in zip(v.settings.clip.hi, hi)]
-        c1, new_lo = imgui.input_float3("min", shown_lo, "%.3f")
-        c2, new_hi = imgui.input_float3("max", shown_hi, "%.3f")
-        if (c1 or c2) and all(a <= b for a, b in zip(new_lo, new_hi)):
-            v.settings = replace(v.settings, clip=Clip(tuple(new_lo), tuple(new_hi)))
+        lo, hi = list(clip.lo), list(clip.hi)
+        edited = False
+        for label, corner in (("min", lo), ("max", hi)):
+            for axis, name in enumerate("xyz"):
+                if np.isfinite(corner[axis]):
+                    changed, corner[axis] = imgui.input_double(f"{label} {name}", corner[axis], 0.0, 0.0, "%.3f")
+                    edited |= changed
+        if edited and all(a <= b for a, b in zip(lo, hi)):
+            v.settings = replace(v.settings, clip=Clip(tuple(lo), tuple(hi)))
 
     def _budget(self) -> None:
         v = self.viewer
