@@ -9,10 +9,11 @@ paper's exact formula. Indices >= P stay where they are.
 
 The batched layout keeps the shuffle local: batch b holds file indices
 [b·BATCH_POINTS, (b+1)·BATCH_POINTS), consecutive and so spatially compact, shuffled
-inside the batch by the same formula (a rotation of its own per batch), and stored
-in slices of SLICE_POINTS: slice k of every batch comes before slice k+1 of any. A
-work group of SLICE_POINTS consecutive slots then sees one compact batch's random
-points, and any prefix of the slots holds the same share of every batch.
+inside the batch by the same formula (BATCH_POINTS is the prime; a rotation of its
+own per batch), and stored in slices of SLICE_POINTS within BATCH_SLOTS slots: slice
+k of every batch comes before slice k+1 of any. A work group of SLICE_POINTS
+consecutive slots then sees one compact batch's random points, and any prefix of the
+slots holds the same share of every batch.
 """
 
 from __future__ import annotations
@@ -24,11 +25,15 @@ from functools import lru_cache
 import numpy as np
 
 GOLDEN = 0.6180339887498949
-BATCH_POINTS = 10_240
-"""Points of a batch in the batched layout (compute_rasterizer's batch size)."""
+BATCH_SLOTS = 10_240
+"""Slots a batch takes in the batched layout (compute_rasterizer's batch size)."""
+BATCH_POINTS = 10_223
+"""Points of a batch: the largest prime <= BATCH_SLOTS with P ≡ 3 (mod 4), so the prime
+permutation shuffles every point of it (none is left in place); the other 17 slots of
+each batch stay empty."""
 SLICE_POINTS = 256
 """Consecutive slots of one batch: one raster work group (local_size_x)."""
-assert BATCH_POINTS % SLICE_POINTS == 0
+assert BATCH_SLOTS % SLICE_POINTS == 0 and BATCH_POINTS <= BATCH_SLOTS
 
 
 class FillOrder(enum.Enum):
@@ -92,13 +97,13 @@ class Permutation:
 
     @classmethod
     def for_count(cls, n: int, *, rotate: bool = True, order: FillOrder = FillOrder.SHUFFLED) -> Permutation:
-        limit = 2**32 - BATCH_POINTS if order is FillOrder.BATCHED else 2**32     # slots are uint32
+        limit = (2**32 // BATCH_SLOTS) * BATCH_POINTS if order is FillOrder.BATCHED else 2**32   # slots are uint32
         if not 0 <= n < limit:
             raise ValueError(f"point count {n} outside [0, {limit})")
         if order is FillOrder.FILE:
             return cls(n=n, prime=0, offset=0)
         if order is FillOrder.BATCHED:
-            p = prime_for(BATCH_POINTS)
+            p = BATCH_POINTS
             return cls(n=n, prime=p, offset=int(p * GOLDEN) if rotate else 0, batches=max(1, -(-n // BATCH_POINTS)))
         p = prime_for(n)
         return cls(n=n, prime=p, offset=int(p * GOLDEN) if rotate else 0)
@@ -106,18 +111,19 @@ class Permutation:
     @property
     def slots(self) -> int:
         """Slots of the layout: the batched one pads the last batch (empty slots never draw)."""
-        return self.batches * BATCH_POINTS if self.batches else self.n
+        return self.batches * BATCH_SLOTS if self.batches else self.n
 
     def kept(self, capacity: int) -> int:
         """File points whose slot is below `capacity` (what a store of that many slots
-        holds): each full batch keeps whole rounds of slices and part of the next, the
-        short last batch is counted."""
+        holds): each full batch keeps the shuffled positions of whole rounds of slices and
+        part of the next (its empty last slots aside), the short last batch is counted."""
         if not self.batches or capacity >= self.slots:
             return min(capacity, self.n)
         rounds, rest = divmod(capacity, self.batches * SLICE_POINTS)
-        slices, part = divmod(rest, SLICE_POINTS)
         full = self.n // BATCH_POINTS
-        total = full * rounds * SLICE_POINTS + min(slices, full) * SLICE_POINTS + (part if slices < full else 0)
+        part = np.clip(rest - np.arange(full, dtype=np.int64) * SLICE_POINTS, 0, SLICE_POINTS)
+        whole = min(rounds * SLICE_POINTS, BATCH_POINTS)
+        total = full * whole + int(np.minimum(part, max(0, BATCH_POINTS - rounds * SLICE_POINTS)).sum())
         last = np.arange(full * BATCH_POINTS, self.n, dtype=np.uint64)
         return total + int(np.count_nonzero(self.forward(last) < np.uint64(capacity)))
 

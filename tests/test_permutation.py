@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import sympy
 
-from progressive.permutation import BATCH_POINTS, SLICE_POINTS, FillOrder, Permutation, prime_for
+from progressive.permutation import BATCH_POINTS, BATCH_SLOTS, SLICE_POINTS, FillOrder, Permutation, prime_for
 
 
 def paper_permute(i: int, p: int) -> int:
@@ -109,7 +109,7 @@ def test_batched_layout_is_a_local_bijection(n):
     perm = Permutation.for_count(n, order=FillOrder.BATCHED)
     i = np.arange(n, dtype=np.uint64)
     slots = perm.forward(i)
-    assert slots.max() < perm.slots == perm.batches * BATCH_POINTS and np.unique(slots).size == n
+    assert slots.max() < perm.slots == perm.batches * BATCH_SLOTS and np.unique(slots).size == n
     assert np.array_equal(perm.inverse(slots), i)
     batch = i // BATCH_POINTS
     slot_batch = (slots % (perm.batches * SLICE_POINTS)) // SLICE_POINTS
@@ -118,7 +118,12 @@ def test_batched_layout_is_a_local_bijection(n):
     if full >= 2:
         prefix = slots < perm.slots // 4
         shares = np.bincount(batch[prefix].astype(np.int64), minlength=full)[:full]
-        assert shares.min() == shares.max() == BATCH_POINTS // 4
+        assert shares.min() == shares.max() == BATCH_SLOTS // 4
+
+
+def test_a_batch_is_the_largest_prime_that_fits_its_slots():
+    """Every point of a batch is shuffled: none sits at an index >= P."""
+    assert BATCH_POINTS == prime_for(BATCH_SLOTS) and Permutation.for_count(10**6, order=FillOrder.BATCHED).prime == BATCH_POINTS
 
 
 def test_batched_shuffle_inside_a_batch_is_the_paper_formula_rotated_per_batch():
@@ -134,7 +139,7 @@ def test_batched_shuffle_inside_a_batch_is_the_paper_formula_rotated_per_batch()
 
 
 @pytest.mark.parametrize("int64", [True, False], ids=["int64", "umulExtended"])
-@pytest.mark.parametrize("n", [*BATCHED_COUNTS, 2**32 - BATCH_POINTS - 1])
+@pytest.mark.parametrize("n", [*BATCHED_COUNTS, (2**32 // BATCH_SLOTS) * BATCH_POINTS - 1])
 def test_gpu_batched_matches_numpy(gl, n, int64):
     from progressive.passes.permute import gpu_permute
 
