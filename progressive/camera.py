@@ -293,6 +293,16 @@ class Clip:
 NO_CLIP = Clip()
 
 
+class Returns(enum.Enum):
+    """Which returns of each pulse are drawn (LAS return number and number of returns;
+    needs the store's kept point flags, like class filters)."""
+
+    ALL = 0
+    FIRST = 1       # return number 1
+    LAST = 2        # return number == number of returns
+    SINGLE = 3      # the only return of its pulse
+
+
 @dataclass(frozen=True)
 class ViewUniforms:
     """What the shaders get: float32, relative to the cloud origin."""
@@ -305,6 +315,7 @@ class ViewUniforms:
     clip_lo: np.ndarray = field(default_factory=lambda: np.full(3, -np.inf, dtype=np.float32))
     clip_hi: np.ndarray = field(default_factory=lambda: np.full(3, np.inf, dtype=np.float32))
     perspective: float = 1.0  # 0: orthographic (no division by depth)
+    returns: int = 0          # Returns value
 
 
 def hidden_mask(hidden: frozenset[int]) -> np.ndarray:
@@ -318,13 +329,14 @@ def hidden_mask(hidden: frozenset[int]) -> np.ndarray:
 
 
 def view_uniforms(camera: Camera, origin: np.ndarray, width: int, height: int,
-                  hidden: frozenset[int] = frozenset(), clip: Clip = NO_CLIP) -> ViewUniforms:
+                  hidden: frozenset[int] = frozenset(), clip: Clip = NO_CLIP,
+                  returns: Returns = Returns.ALL) -> ViewUniforms:
     r = camera.rotation()
     t = r @ (np.asarray(origin, dtype=np.float64) - np.asarray(camera.position, dtype=np.float64))
     proj = np.array([*camera.scales(width, height), camera.near, camera.far], dtype=np.float64)
     lo, hi = clip.relative(origin)
     return ViewUniforms(r.astype(np.float32), t.astype(np.float32), proj.astype(np.float32), (width, height),
-                        hidden_mask(hidden), lo, hi, 0.0 if camera.orthographic else 1.0)
+                        hidden_mask(hidden), lo, hi, 0.0 if camera.orthographic else 1.0, returns.value)
 
 
 def auto_camera(bounds_min: np.ndarray, bounds_max: np.ndarray, aspect: float, fov_y_deg: float = 60.0) -> Camera:

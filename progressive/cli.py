@@ -180,13 +180,17 @@ def add_cloud_args(parser) -> None:
 
 
 def add_look_args(parser) -> None:
-    """Options shared by render and view: effects and hidden classes."""
+    """Options shared by render and view: effects, filters and clip boxes."""
+    from progressive.camera import Returns
+
     parser.add_argument("--point-size", type=int_arg, default=1, help="pixels across a point (a screen-space pass)")
     parser.add_argument("--eye-dome", action="store_true", help="eye-dome lighting")
     parser.add_argument("--eye-dome-strength", type=float_arg, default=1.0)
     parser.add_argument("--eye-dome-radius", type=float_arg, default=1.4, help="pixels")
     parser.add_argument("--hide-classes", type=classes_arg, default=frozenset(),
                         help="classification codes left out, e.g. 7,18 (whatever the colouring)")
+    parser.add_argument("--returns", type=enum_arg(Returns), default=Returns.ALL,
+                        help="all, first (return 1), last (return = number of returns) or single returns")
     parser.add_argument("--clip-box", type=floats_arg(6, "xmin,ymin,zmin,xmax,ymax,zmax"),
                         help="draw only points inside this box (file coordinates, sides included)")
     parser.add_argument("--clip-z", type=floats_arg(2, "zmin,zmax"), help="draw only points between these heights")
@@ -290,7 +294,7 @@ def session_options(args):
                           budget=budget, reference=args.reference or args.converge, color_by=args.color_by,
                           colormap=args.colormap, background=args.background, partial=args.partial,
                           gpu_memory_limit=args.gpu_memory_limit, value_range=args.value_range,
-                          class_filter=bool(args.hide_classes))
+                          class_filter=filters(args))
 
 
 def cmd_render(args) -> int:
@@ -317,6 +321,7 @@ def cmd_render(args) -> int:
         for w in session.warnings:
             warn(w)
         stats = _stats(session, cameras[-1], frames, converged_at, clip_from(args))
+        stats["returns"] = args.returns.name.lower()
         image, ids = session.image(), session.ids()
         if args.out:
             outputs.write(args.out, png_writer(image))
@@ -338,22 +343,29 @@ def cmd_render(args) -> int:
     return 0
 
 
+def filters(args) -> bool:
+    """Whether the GPU must keep each point's class and return flags."""
+    from progressive.camera import Returns
+
+    return bool(args.hide_classes) or args.returns is not Returns.ALL
+
+
 def check_classes(session, args) -> None:
-    if args.hide_classes and not session.filters_classes:
-        raise UsageError("--hide-classes: this cloud has no classification")
+    if filters(args) and not session.filters_classes:
+        raise UsageError(f"--{'hide-classes' if args.hide_classes else 'returns'}: this cloud has no classification")
 
 
 def _run_frames(session, cameras, args) -> tuple[int | None, int]:
     """Frames as asked: a fixed count, the camera path, or until equal to brute force."""
-    effects, hidden, clip = effects_from(args), args.hide_classes, clip_from(args)
+    effects, hidden, clip, returns = effects_from(args), args.hide_classes, clip_from(args), args.returns
     if not session.progressive:
-        session.frame(cameras[0], None, effects, hidden, clip)
+        session.frame(cameras[0], None, effects, hidden, clip, returns)
         return None, 1
     limit = args.frames or (args.max_frames if args.converge else len(cameras))
     limit = max(limit, len(cameras)) if not args.frames else limit
     converged_at = None
     for k in range(limit):
-        session.frame(cameras[min(k, len(cameras) - 1)], None, effects, hidden, clip)
+        session.frame(cameras[min(k, len(cameras) - 1)], None, effects, hidden, clip, returns)
         if args.converge and k + 1 >= len(cameras):
             converged_at = _first_equal(session.history, len(cameras) - 1)
             if converged_at is not None:
@@ -429,7 +441,7 @@ def cmd_view(args) -> int:
                                                  value_range=args.value_range,
                                                  partial=args.partial, gpu_memory_limit=args.gpu_memory_limit,
                                                  ui=not args.no_ui, effects=effects, hidden_classes=args.hide_classes,
-                                                 clip=clip_from(args)))
+                                                 clip=clip_from(args), returns=args.returns))
         except GLCapabilityError as exc:
             print(f"progressive: cannot open a window ({one_line(exc)}); rendering headless instead", file=sys.stderr)
         else:
@@ -449,13 +461,13 @@ def _view_headless(paths: list[str], effects, args) -> int:
     check_outputs([args.out], paths)
     options = SessionOptions(width=args.width, height=args.height, color_by=args.color_by, partial=args.partial,
                              gpu_memory_limit=args.gpu_memory_limit, value_range=args.value_range,
-                             class_filter=bool(args.hide_classes))
+                             class_filter=filters(args))
     with Session(paths, options) as session, Outputs() as outputs:
         check_classes(session, args)
         camera = session.auto_camera()
         frames = 0
         while not session.converged and frames < MAX_HEADLESS_FRAMES:
-            session.frame(camera, None, effects, args.hide_classes, clip_from(args))
+            session.frame(camera, None, effects, args.hide_classes, clip_from(args), args.returns)
             session.stats()
             frames += 1
         for w in session.warnings:

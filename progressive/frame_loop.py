@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from progressive.budget import BudgetParams
-from progressive.camera import NO_CLIP, Camera, Clip, view_uniforms
+from progressive.camera import NO_CLIP, Camera, Clip, Returns, view_uniforms
 from progressive.colors import ColorStyle
 from progressive.context import GLContext
 from progressive.effects import Effects
@@ -97,7 +97,7 @@ class ProgressiveRenderer:
         self.change = 0
         self.converged_change = -1
         self.history: list[FrameStats] = []
-        self._camera: tuple[Camera, frozenset[int], Clip] | None = None
+        self._camera: tuple[Camera, frozenset[int], Clip, Returns] | None = None
         self._look: tuple[ColorStyle, Effects] | None = None
         self._regather = False
         self._has_visible = False
@@ -141,7 +141,8 @@ class ProgressiveRenderer:
         return self.scene.switch is not None and not self.scene.switch.done
 
     def frame(self, camera: Camera, style: ColorStyle, effects: Effects = Effects(),
-              hidden: frozenset[int] = frozenset(), clip: Clip = NO_CLIP) -> tuple[str, ...]:
+              hidden: frozenset[int] = frozenset(), clip: Clip = NO_CLIP,
+              returns: Returns = Returns.ALL) -> tuple[str, ...]:
         """Issue one frame's GPU work; returns the passes that ran. `hidden`: category
         codes left out (with a category attribute shown), and `clip`: the box points must
         lie in; each a change like a camera move."""
@@ -154,12 +155,12 @@ class ProgressiveRenderer:
             self.scene.add_batch(self.pending.popleft())
             passes.append("distribute")
         style = self.scene.resolved(style)
-        hidden = self.scene.drawable(hidden)
-        moved = (camera, hidden, clip) != self._camera
+        hidden, returns = self.scene.drawable(hidden), self.scene.drawable_returns(returns)
+        moved = (camera, hidden, clip, returns) != self._camera
         if passes or moved:
             self.change += 1
         restyled = (style, effects) != self._look
-        self._camera, self._look = (camera, hidden, clip), (style, effects)
+        self._camera, self._look = (camera, hidden, clip, returns), (style, effects)
         if self.scene.loaded == 0:
             self.vis.clear()
             passes += self.shading.run(style, effects, self.prepare.pixel_words)
@@ -171,7 +172,7 @@ class ProgressiveRenderer:
             if restyled or regather:
                 passes += self.shading.run(style, effects, self.prepare.pixel_words)
         else:
-            return self._render(camera, hidden, clip, style, effects, passes, reset=bool(passes) or moved)
+            return self._render(camera, hidden, clip, returns, style, effects, passes, reset=bool(passes) or moved)
         self.budget.end_frame(complete=False)
         self._idle_frame(tuple(passes))
         return tuple(passes)
@@ -192,9 +193,10 @@ class ProgressiveRenderer:
         self._idle_frame(("stream",))
         return ("stream",)
 
-    def _render(self, camera: Camera, hidden: frozenset[int], clip: Clip, style: ColorStyle, effects: Effects,
+    def _render(self, camera: Camera, hidden: frozenset[int], clip: Clip, returns: Returns, style: ColorStyle,
+                effects: Effects,
                 passes: list[str], reset: bool) -> tuple[str, ...]:
-        view = view_uniforms(camera, self.info.origin, self.vis.width, self.vis.height, hidden, clip)
+        view = view_uniforms(camera, self.info.origin, self.vis.width, self.vis.height, hidden, clip, returns)
         b, raster = self.budget, self.raster
         if self._has_visible:
             passes.append("reproject")

@@ -14,10 +14,10 @@ EMPTY_WORD = 0xFFFFFFFF
 """Every slot starts as NaN coordinates, which no pass draws: unloaded slots stay dark."""
 
 
-CLASS_LIMIT = 2**31 - 1
-"""Points whose class bytes fit one GL buffer."""
-CLASS_BYTES = 1
-"""GPU memory a point's class takes where the store keeps classes."""
+CLASS_BYTES = 2
+"""GPU memory a point's flags take where the store keeps them: class and return flags."""
+CLASS_LIMIT = (2**31 - 1) // CLASS_BYTES
+"""Points whose flags fit one GL buffer."""
 
 
 class GPUMemoryError(ProgressiveError):
@@ -35,8 +35,8 @@ class PointStore:
     def __init__(self, glc: GLContext, count: int, *, capacity: int | None = None,
                  chunk_points: int | None = None, rotate: bool = True,
                  order: FillOrder = LAYOUT, classes: bool = False):
-        """classes: keep each point's classification code (a byte a slot) for filters
-        that apply whatever attribute is shown."""
+        """classes: keep each point's class and return flags (CLASS_BYTES a slot) for
+        filters that apply whatever attribute is shown."""
         limit = chunk_capacity(glc.caps.max_ssbo_bytes)
         self.chunk_points = min(chunk_points or limit, limit)
         self.count = count
@@ -56,7 +56,8 @@ class PointStore:
         self.class_buffer = None
         if classes:
             if self.capacity > CLASS_LIMIT:
-                raise ProgressiveError(f"class filters keep a byte a point in one buffer: at most {CLASS_LIMIT:,} points")
+                raise ProgressiveError(f"class and return filters keep {CLASS_BYTES} bytes a point in one buffer: "
+                                       f"at most {CLASS_LIMIT:,} points")
             self.class_buffer = glc.ctx.buffer(reserve=max(4, -(-self.capacity * CLASS_BYTES // 4) * 4))
             self.class_buffer.label = "point classes"
             glc.gl.clear_u32(self.class_buffer.glo, 0, total=self.class_buffer.size)

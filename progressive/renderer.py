@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from progressive.camera import NO_CLIP, Camera, Clip, view_uniforms
+from progressive.camera import NO_CLIP, Camera, Clip, Returns, view_uniforms
 from progressive.colors import Colormap, ColorStyle
 from progressive.context import GLContext
 from progressive.effects import Effects
@@ -80,10 +80,12 @@ class Renderer:
             pass
 
     def render(self, camera: Camera, width: int, height: int, style: ColorStyle,
-               effects: Effects = Effects(), hidden: frozenset[int] = frozenset(), clip: Clip = NO_CLIP) -> Frame:
+               effects: Effects = Effects(), hidden: frozenset[int] = frozenset(), clip: Clip = NO_CLIP,
+               returns: Returns = Returns.ALL) -> Frame:
         self.vis.resize(width, height)
         style = self.scene.resolved(style)
-        view = view_uniforms(camera, self.info.origin, width, height, self.scene.drawable(hidden), clip)
+        view = view_uniforms(camera, self.info.origin, width, height, self.scene.drawable(hidden), clip,
+                             self.scene.drawable_returns(returns))
         t = self.timestamps
         t.reset()
         t.stamp("start")

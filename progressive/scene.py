@@ -10,6 +10,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from progressive.camera import Returns
 from progressive.colors import NO_RANGE, Colormap, ColorMode, ColorStyle
 from progressive.context import GLContext
 from progressive.errors import ProgressiveError
@@ -86,7 +87,7 @@ class Scene:
         self.skipped += nonfinite_records(records)[0]     # what shaders/common.glsl finite_position skips
         self.distribute.upload(records, batch.start)
         if self.store.has_classes:
-            self.distribute.upload_classes(class_codes(batch), batch.start)
+            self.distribute.upload_classes(point_flags(batch), batch.start)
         self.store.add_boxes(batch.positions, batch.start)
         if self.keep_batches:
             self.batches.append(batch)
@@ -141,6 +142,10 @@ class Scene:
         category attribute is shown (its word is the code)."""
         keeps = self.store.has_classes or self.attribute.kind is AttributeKind.CATEGORY
         return frozenset(hidden) if keeps else frozenset()
+
+    def drawable_returns(self, returns: Returns) -> Returns:
+        """Return filters need the kept point flags; without them every return draws."""
+        return returns if self.store.has_classes else Returns.ALL
 
     def categories(self) -> list[int]:
         """Codes present in the kept batches: of the classification where the classes are
@@ -202,10 +207,25 @@ class Scene:
 CLASSIFICATION = "classification"
 
 
-def class_codes(batch: Batch) -> np.ndarray:
-    """The classification codes of a batch's points (a fast-format file that has them
-    stores them as its one attribute word)."""
-    return batch.records[:, 3] if batch.records is not None else np.asarray(batch.attributes[CLASSIFICATION])
+FIRST_RETURN, LAST_RETURN = 0x100, 0x200
+"""Point flag bits beside the class byte (shaders/classes.glsl)."""
+
+
+def point_flags(batch: Batch) -> np.ndarray:
+    """Each point's 16 flag bits: its class (a fast-format file that has classification
+    stores it as its one attribute word), whether it is its pulse's first and last
+    return (a point without return numbers is both)."""
+    if batch.records is not None:
+        codes = batch.records[:, 3]
+    else:
+        codes = batch.attributes[CLASSIFICATION]
+    flags = np.minimum(np.asarray(codes, dtype=np.uint32), 255)
+    number, count = batch.attributes.get("return_number"), batch.attributes.get("number_of_returns")
+    if number is None or count is None:
+        return flags | np.uint32(FIRST_RETURN | LAST_RETURN)
+    number, count = np.asarray(number), np.asarray(count)
+    return (flags | np.where(number <= 1, FIRST_RETURN, 0).astype(np.uint32)
+            | np.where(number >= count, LAST_RETURN, 0).astype(np.uint32))
 
 
 def _hides_points(batch: Batch, attribute: AttributeInfo) -> bool:

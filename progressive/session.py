@@ -20,7 +20,7 @@ import numpy as np
 from progressive import batches, memory
 from progressive.attributes import default_choice, find_attribute
 from progressive.budget import BudgetParams
-from progressive.camera import NO_CLIP, Camera, Clip, auto_camera, view_uniforms
+from progressive.camera import NO_CLIP, Camera, Clip, Returns, auto_camera, view_uniforms
 from progressive.colors import Colormap, ColorStyle
 from progressive.context import GLContext, create_context
 from progressive.effects import Effects
@@ -280,19 +280,21 @@ class Session:
             self.renderer.scene.finished = True
 
     def frame(self, camera: Camera, style: ColorStyle | None = None, effects: Effects = Effects(),
-              hidden: frozenset[int] = frozenset(), clip: Clip = NO_CLIP) -> tuple[str, ...]:
+              hidden: frozenset[int] = frozenset(), clip: Clip = NO_CLIP,
+              returns: Returns = Returns.ALL) -> tuple[str, ...]:
         """Progressive: one frame with whatever has loaded. Brute: load all, render.
         `hidden`: category codes not drawn while a category attribute is shown; `clip`:
-        the box (file coordinates) points must lie in to be drawn."""
+        the box (file coordinates) points must lie in to be drawn; `returns`: which
+        returns of each pulse are drawn (with filters_classes)."""
         t0 = time.perf_counter()
         style = style or self.style()
         if not self.progressive:
             self._pump(block=True)
-            self._last = self.renderer.render(camera, *self.size, style, effects, hidden, clip)
+            self._last = self.renderer.render(camera, *self.size, style, effects, hidden, clip, returns)
             passes = ("distribute", "raster", "resolve")
         else:
             self._pump(block=False)
-            passes = self.renderer.frame(camera, style, effects, hidden, clip)
+            passes = self.renderer.frame(camera, style, effects, hidden, clip, returns)
         if self.first_image_seconds is None and self.renderer.scene.loaded > 0:
             now = time.perf_counter()
             self.first_image_seconds = now - self.opened

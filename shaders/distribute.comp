@@ -1,6 +1,6 @@
 // Scatter a staged batch into its permuted slots (paper section 3.3). With
 // ATTRIBUTE_ONLY the stage holds one word per point and only word 3 is replaced; with
-// CLASS_WORDS one class code per point goes to the store's class bytes.
+// CLASS_WORDS each point's 16 flag bits (class, first and last return) go to the store's flags.
 layout(local_size_x = 256) in;
 #include "common.glsl"
 #include "points.glsl"
@@ -27,8 +27,8 @@ void main() {
     uint slot = slot_of(u_start + i, u_prime, u_rotation, u_batches);
     if (slot >= u_capacity) return;
 #if CLASS_WORDS
-    // Each slot is written once (the buffer starts at zero), four slots share a word.
-    atomicOr(classes[slot >> 2u], min(staged[i], 255u) << ((slot & 3u) * 8u));
+    // Each slot is written once (the buffer starts at zero), two slots share a word.
+    atomicOr(classes[slot >> 1u], (staged[i] & 0xFFFFu) << ((slot & 1u) * 16u));
 #elif ATTRIBUTE_ONLY
     store_point(slot, uvec4(0u, 0u, 0u, staged[i]), 3);
 #else

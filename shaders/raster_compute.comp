@@ -29,7 +29,7 @@ void main() {
     if (!slot_in_view(slot)) return;
 #endif
     uvec4 record = source_record(i, slot);
-    if (!finite_position(record) || !category_shown(point_class(slot, record.w))
+    if (!finite_position(record) || !flags_shown(point_flags(slot, record.w))
         || !clip_keeps(uintBitsToFloat(record.xyz))) return;
     uint pixel;
     float depth;

@@ -34,7 +34,7 @@ void main() {
 #endif
     uint pixel;
     float depth;
-    if (!finite_position(record) || !category_shown(point_class(v_slot, record.w)) || !clip_keeps(uintBitsToFloat(record.xyz))
+    if (!finite_position(record) || !flags_shown(point_flags(v_slot, record.w)) || !clip_keeps(uintBitsToFloat(record.xyz))
         || !project(uintBitsToFloat(record.xyz), pixel, depth)) return;
     v_depth_bits = floatBitsToUint(depth);
     uint row = pixel / u_size.x;

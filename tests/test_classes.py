@@ -25,10 +25,13 @@ def render_ids(tmp_path, path, *args) -> np.ndarray:
     return np.load(ids)
 
 
-def reference(path, hidden: set[int], slots_of) -> np.ndarray:
+def reference(path, hidden: set[int], slots_of, returns: str = "all") -> np.ndarray:
     las = laspy.read(path)
     xyz = np.stack([las.x, las.y, las.z], axis=1)
-    keep = np.nonzero(~np.isin(np.asarray(las.classification), list(hidden)))[0]
+    number, count = np.asarray(las.return_number), np.asarray(las.number_of_returns)
+    wanted = {"all": np.ones(len(number), bool), "first": number <= 1, "last": number >= count,
+              "single": (number <= 1) & (number >= count)}[returns]
+    keep = np.nonzero(~np.isin(np.asarray(las.classification), list(hidden)) & wanted)[0]
     lo, hi = xyz.min(axis=0), xyz.max(axis=0)
     cam = auto_camera(lo, hi, W / H)
     local = reference_ids(xyz[keep], cam, W, H, tie_key=slots_of(keep))
@@ -72,3 +75,17 @@ def test_hiding_classes_of_a_cloud_without_them_is_one_line(tmp_path, capsys):
                  "--hide-classes", "2"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("progressive: error: ") and err.count("\n") == 1 and not (tmp_path / "x.png").exists()
+
+
+@pytest.mark.parametrize("raster", ["compute", "points"])
+@pytest.mark.parametrize("returns", ["first", "last", "single"])
+def test_return_filters_equal_the_reference(tmp_path, raster, returns):
+    from progressive.loaders import open_cloud
+    from progressive.permutation import LAYOUT, Permutation
+
+    perm = Permutation.for_count(open_cloud([SAMPLE]).points, order=LAYOUT)
+    expected, _ = reference(SAMPLE, set(), lambda k: perm.forward(k).astype(np.int64), returns)
+    got = render_ids(tmp_path, SAMPLE, "--color-by", "elevation", "--raster", raster, "--returns", returns)
+    assert np.mean(got == expected) >= 0.999
+    everything = render_ids(tmp_path, SAMPLE, "--color-by", "elevation", "--raster", raster)
+    assert not np.array_equal(got, everything) and np.count_nonzero(got != EMPTY) > 500

@@ -435,3 +435,18 @@ def test_class_toggles_apply_to_any_colouring(viewer):
     assert not np.any(classes[ids[ids != EMPTY]] == common)
     assert not np.array_equal(before, viewer.session.image())
     no_gl_error(viewer)
+
+
+def test_return_filter_in_the_window(viewer):
+    """Last returns only (the panel's radio buttons set this): every point shown is the
+    last return of its pulse."""
+    from progressive.camera import Returns
+
+    settle(viewer)
+    viewer.settings = replace(viewer.settings, returns=Returns.LAST)
+    settle(viewer)
+    las = laspy.read(SAMPLE)
+    ids = viewer.session.ids()
+    shown = ids[ids != EMPTY]
+    assert shown.size and np.all(np.asarray(las.return_number)[shown] == np.asarray(las.number_of_returns)[shown])
+    no_gl_error(viewer)

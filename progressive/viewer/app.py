@@ -13,7 +13,7 @@ import glfw
 import numpy as np
 
 from progressive.budget import BudgetParams
-from progressive.camera import NO_CLIP, Camera, CameraError, Clip
+from progressive.camera import NO_CLIP, Camera, CameraError, Clip, Returns
 from progressive.context import Backend, GLContext, create_context
 from progressive.effects import Effects, EyeDome
 from progressive.errors import ProgressiveError
@@ -56,6 +56,7 @@ class ViewerOptions:
     effects: Effects = Effects()        # the first point size and eye-dome lighting
     hidden_classes: frozenset[int] = frozenset()
     clip: Clip = NO_CLIP                # the first clip box (file coordinates)
+    returns: Returns = Returns.ALL      # the first return filter
     ui: bool = True                    # the Dear ImGui panel
     visible: bool = True               # tests run hidden windows too
     screenshot_dir: Path = Path(".")
@@ -141,7 +142,8 @@ class Viewer:
         self.orbit, self.pasted = self.navigator.home, None
         self.settings = replace(self.settings, attribute=session.attribute.name, value_range=None,
                                 hidden_classes=self.options.hidden_classes if not add else frozenset(),
-                                clip=self.options.clip if not add else self.settings.clip)
+                                clip=self.options.clip if not add else self.settings.clip,
+                                returns=self.options.returns if not add else self.settings.returns)
         self.messages = [*session.warnings]
         self._categories = None
         return True
@@ -224,7 +226,7 @@ class Viewer:
         try:
             style = s.style(self.settings.colormap, self.settings.value_range, self.settings.background)
             self.last_passes = s.frame(self.camera, style, self.settings.effects, self.settings.hidden_classes,
-                                       self.settings.clip)
+                                       self.settings.clip, self.settings.returns)
         except ProgressiveError as exc:
             self.fail(f"{exc} (showing the {s.status().loaded:,} points read before)")
             s.stop_loading()

@@ -6,7 +6,7 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass, field, replace
 
-from progressive.camera import NO_CLIP, Clip
+from progressive.camera import NO_CLIP, Clip, Returns
 from progressive.colors import Colormap
 from progressive.effects import MAX_POINT_SIZE, Effects, EyeDome
 from progressive.viewer.navigation import View
@@ -63,6 +63,7 @@ class ViewSettings:
     value_range: tuple[float, float] | None = None     # in the attribute's units; None: the 1st-99th percentiles
     hidden_classes: frozenset[int] = frozenset()
     clip: Clip = NO_CLIP                                # the box points must lie in (file coordinates)
+    returns: Returns = Returns.ALL                      # which returns of each pulse are drawn
     point_size: int = 1
     eye_dome: bool = False
     eye_dome_params: EyeDome = field(default_factory=EyeDome)

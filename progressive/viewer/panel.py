@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 from imgui_bundle import imgui
 
-from progressive.camera import NO_CLIP, Clip, project
+from progressive.camera import NO_CLIP, Clip, Returns, project
 from progressive.colors import ASPRS_CLASSES, NO_RANGE, UNKNOWN_CLASS, Colormap, ColorMode
 from progressive.effects import MAX_POINT_SIZE, EyeDome
 from progressive.loaders.types import AttributeKind
@@ -160,12 +160,19 @@ class Panel:
                 v.settings = replace(v.settings, eye_dome_params=EyeDome(strength, radius))
 
     def _classes(self, s) -> None:
-        """Class toggles while another attribute is shown (the GPU keeps the classes);
-        colouring by classification shows them in its legend."""
-        if (not s.filters_classes or ColorMode.for_kind(s.attribute.kind) is ColorMode.CATEGORY
-                or not imgui.collapsing_header("Classes")):
+        """Return filters and, while another attribute is shown, class toggles (the GPU
+        keeps every point's class and return flags); colouring by classification shows
+        the toggles in its legend."""
+        v = self.viewer
+        if not s.filters_classes or not imgui.collapsing_header("Classes and returns"):
             return
-        self._legend()
+        for i, returns in enumerate(Returns):
+            if i:
+                imgui.same_line()
+            if imgui.radio_button(f"{returns.name.lower()} returns", v.settings.returns is returns):
+                v.settings = replace(v.settings, returns=returns)
+        if ColorMode.for_kind(s.attribute.kind) is not ColorMode.CATEGORY:
+            self._legend()
 
     def _picked(self) -> None:
         """The last clicked point: a marker where it was found and all of it, as read
