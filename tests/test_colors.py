@@ -53,24 +53,24 @@ def method_args(method: str) -> list[str]:
     return ["--method", method, "--converge"] if method == "progressive" else ["--method", method]
 
 
-@pytest.mark.parametrize("raster, method", RASTER_METHODS)
-def test_elevation_every_rasterizer_and_method(tmp_path, raster, method):
-    las = laspy.read(SAMPLE)
-    image, ids, stats = render(tmp_path, [SAMPLE], "--color-by", "elevation", "--raster", raster, *method_args(method))
-    values = las_values(las, "elevation")
-    expected = reference_range(values)
-    assert_range(stats, expected)
-    assert_scalar_colours(image, ids, values, expected)
-
-
-@pytest.mark.parametrize("name", ["intensity", "gps_time", "return_number", "point_source_id"])
-def test_scalar_attributes(tmp_path, name):
-    las = laspy.read(SAMPLE)
-    image, ids, stats = render(tmp_path, [SAMPLE], "--color-by", name)
+def check_scalar(tmp_path, path, name: str, *args: str) -> None:
+    """Render `path` coloured by `name`: its range and its pixels against the reference."""
+    las = laspy.read(path)
+    image, ids, stats = render(tmp_path, [path], "--color-by", name, *args)
     values = las_values(las, name)
     expected = reference_range(values)
     assert_range(stats, expected)
     assert_scalar_colours(image, ids, values, expected)
+
+
+@pytest.mark.parametrize("raster, method", RASTER_METHODS)
+def test_elevation_every_rasterizer_and_method(tmp_path, raster, method):
+    check_scalar(tmp_path, SAMPLE, "elevation", "--raster", raster, *method_args(method))
+
+
+@pytest.mark.parametrize("name", ["intensity", "gps_time", "return_number", "point_source_id"])
+def test_scalar_attributes(tmp_path, name):
+    check_scalar(tmp_path, SAMPLE, name)
 
 
 @pytest.mark.parametrize("colormap", ["inferno", "plasma", "turbo", "gray"])
@@ -140,13 +140,7 @@ def test_sixteen_bit_rgb_file(tmp_path):
                                              ("extrabytes.las", "Colors[1]"),
                                              ("wires.laz", "elevation")])
 def test_real_files(tmp_path, name, attribute):
-    path = shared_file(name)
-    las = laspy.read(path)
-    image, ids, stats = render(tmp_path, [path], "--color-by", attribute)
-    values = las_values(las, attribute)
-    expected = reference_range(values)
-    assert_range(stats, expected)
-    assert_scalar_colours(image, ids, values, expected)
+    check_scalar(tmp_path, shared_file(name), attribute)
 
 
 def test_default_without_rgb_is_coloured_over_every_point(tmp_path):

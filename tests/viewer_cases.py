@@ -321,16 +321,11 @@ def test_viewer_objects_stay_flat_over_many_steps(viewer):
     no_gl_error(viewer)
 
 
-def test_class_toggles_in_the_window(viewer):
-    """Colour by classification, hide the commonest class from the legend: none of its
-    points stays visible, and the image changes."""
-    viewer.act(Action.PANEL)
-    viewer.switch_attribute("classification")
-    settle(viewer)
-    codes = viewer.categories()
-    las = laspy.read(SAMPLE)
-    classes = np.asarray(las.classification)
-    assert codes == sorted(set(classes.tolist()))
+def hide_the_commonest_class(viewer) -> tuple[int, np.ndarray]:
+    """Toggle the sample's commonest class off (the legend lists every class present):
+    none of its points stays visible and the image changes. (code, image before)."""
+    classes = np.asarray(laspy.read(SAMPLE).classification)
+    assert viewer.categories() == sorted(set(classes.tolist()))
     common = int(np.bincount(classes).argmax())
     before = viewer.session.image()
     viewer.toggle_class(common)
@@ -338,6 +333,16 @@ def test_class_toggles_in_the_window(viewer):
     ids = viewer.session.ids()
     assert not np.any(classes[ids[ids != EMPTY]] == common)
     assert not np.array_equal(before, viewer.session.image())
+    return common, before
+
+
+def test_class_toggles_in_the_window(viewer):
+    """Colour by classification, hide the commonest class from the legend: none of its
+    points stays visible, and the image changes."""
+    viewer.act(Action.PANEL)
+    viewer.switch_attribute("classification")
+    settle(viewer)
+    common, before = hide_the_commonest_class(viewer)
     viewer.toggle_class(common)
     settle(viewer)
     np.testing.assert_array_equal(viewer.session.image(), before)
@@ -424,16 +429,7 @@ def test_class_toggles_apply_to_any_colouring(viewer):
     keeps every point's class beside the shown attribute."""
     viewer.switch_attribute("elevation")
     settle(viewer)
-    las = laspy.read(SAMPLE)
-    classes = np.asarray(las.classification)
-    assert viewer.categories() == sorted(set(classes.tolist()))
-    common = int(np.bincount(classes).argmax())
-    before = viewer.session.image()
-    viewer.toggle_class(common)
-    settle(viewer)
-    ids = viewer.session.ids()
-    assert not np.any(classes[ids[ids != EMPTY]] == common)
-    assert not np.array_equal(before, viewer.session.image())
+    hide_the_commonest_class(viewer)
     no_gl_error(viewer)
 
 
