@@ -327,11 +327,18 @@ class Viewer:
         return np.frombuffer(data, dtype=np.uint8).reshape(h, w, 3)[::-1].copy()
 
     # ---- picking -------------------------------------------------------------------
+    def to_framebuffer(self, x: float, y: float) -> tuple[float, float]:
+        """Window (cursor) coordinates to image pixels: on a HiDPI display the
+        framebuffer has more pixels than the window has screen units."""
+        ww, wh = glfw.get_window_size(self.window)
+        fw, fh = self.framebuffer_size
+        return x * fw / max(1, ww), y * fh / max(1, wh)
+
     def pick(self, x: float, y: float) -> tuple[int, float] | None:
-        """(file-order index, depth) of the point shown nearest to window pixel (x, y)."""
+        """(file-order index, depth) of the point shown nearest to window position (x, y)."""
         if self.session is None:
             return None
-        hit = self.session.nearest_shown(x, y, CURSOR_SEARCH)
+        hit = self.session.nearest_shown(*self.to_framebuffer(x, y), CURSOR_SEARCH)
         return None if hit is None else hit[:2]
 
     def point_at(self, x: float, y: float) -> np.ndarray | None:
@@ -346,12 +353,12 @@ class Viewer:
             return None
 
     def pick_point(self, x: float, y: float, measure: bool = False) -> None:
-        """Remember all of the point shown nearest to window pixel (x, y) (or nothing);
+        """Remember all of the point shown nearest to window position (x, y) (or nothing);
         `measure`: add it to the measurement too."""
         if self.session is None:
             return
         try:
-            self.picked = self.session.pick(x, y, CURSOR_SEARCH)
+            self.picked = self.session.pick(*self.to_framebuffer(x, y), CURSOR_SEARCH)
         except (OSError, ValueError, ProgressiveError) as exc:
             self.fail(f"reading the picked point: {exc}")
             return
@@ -443,7 +450,7 @@ class Viewer:
         o = self.orbit
         hit = self.pick(x, y)
         depth = hit[1] if hit is not None else o.distance
-        anchor = self.navigator.cursor_point(o, x, y, self.framebuffer_size, depth)
+        anchor = self.navigator.cursor_point(o, *self.to_framebuffer(x, y), self.framebuffer_size, depth)
         self.orbit, self.pasted = self.navigator.zoom(o, notches, anchor), None
 
     def on_key(self, window, key: int, scancode: int, action: int, mods: int) -> None:
