@@ -49,9 +49,10 @@ def shoot(viewer, name: str, **settings) -> None:
 def main() -> int:
     proc = start_display()
     try:
+        from progressive.session import SessionOptions
         from progressive.viewer.app import Viewer, ViewerOptions
 
-        v = Viewer([str(SAMPLE)], ViewerOptions(width=SIZE[0], height=SIZE[1]))
+        v = Viewer([str(SAMPLE)], ViewerOptions(SessionOptions(width=SIZE[0], height=SIZE[1])))
         v.orbit = v.navigator.zoom(v.orbit, 1)
         shoot(v, "viewer-rgb.png")
         shoot(v, "viewer-rgb-edl.png", eye_dome=True, point_size=2)

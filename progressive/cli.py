@@ -437,9 +437,7 @@ def cmd_view(args) -> int:
         from progressive.viewer.app import Viewer, ViewerOptions
 
         try:
-            viewer = Viewer(paths, ViewerOptions(width=args.width, height=args.height, color_by=args.color_by,
-                                                 value_range=args.value_range,
-                                                 partial=args.partial, gpu_memory_limit=args.gpu_memory_limit,
+            viewer = Viewer(paths, ViewerOptions(session=view_session_options(args),
                                                  ui=not args.no_ui, effects=effects, hidden_classes=args.hide_classes,
                                                  clip=clip_from(args), returns=args.returns))
         except GLCapabilityError as exc:
@@ -454,15 +452,21 @@ def cmd_view(args) -> int:
     return _view_headless(paths, effects, args)
 
 
+def view_session_options(args):
+    """What `view` asks of its session, in a window or headless."""
+    from progressive.session import SessionOptions
+
+    return SessionOptions(width=args.width, height=args.height, color_by=args.color_by, partial=args.partial,
+                          gpu_memory_limit=args.gpu_memory_limit, value_range=args.value_range,
+                          class_filter=filters(args))
+
+
 def _view_headless(paths: list[str], effects, args) -> int:
     from progressive.output import Outputs, check_outputs, png_writer
-    from progressive.session import Session, SessionOptions
+    from progressive.session import Session
 
     check_outputs([args.out], paths)
-    options = SessionOptions(width=args.width, height=args.height, color_by=args.color_by, partial=args.partial,
-                             gpu_memory_limit=args.gpu_memory_limit, value_range=args.value_range,
-                             class_filter=filters(args))
-    with Session(paths, options) as session, Outputs() as outputs:
+    with Session(paths, view_session_options(args)) as session, Outputs() as outputs:
         check_classes(session, args)
         camera = session.auto_camera()
         frames = 0

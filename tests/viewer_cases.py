@@ -23,6 +23,7 @@ from colour_reference import assert_scalar_colours, las_values, reference_range
 from conftest import SAMPLE
 from progressive.camera import Camera
 from progressive.reference import EMPTY
+from progressive.session import SessionOptions
 from progressive.viewer.controls import Action
 
 W, H = 320, 240
@@ -55,7 +56,7 @@ def display():
 def viewer(display, tmp_path):
     from progressive.viewer.app import Viewer, ViewerOptions
 
-    v = Viewer([str(SAMPLE)], ViewerOptions(width=W, height=H, screenshot_dir=tmp_path))
+    v = Viewer([str(SAMPLE)], ViewerOptions(SessionOptions(width=W, height=H), screenshot_dir=tmp_path))
     yield v
     v.close()
 
@@ -276,7 +277,7 @@ def test_first_image_arrives_before_loading_finishes(display, tmp_path):
     """A cloud of several copies of the sample: the window shows points while loading."""
     from progressive.viewer.app import Viewer, ViewerOptions
 
-    v = Viewer([str(SAMPLE)] * 6, ViewerOptions(width=W, height=H))
+    v = Viewer([str(SAMPLE)] * 6, ViewerOptions(SessionOptions(width=W, height=H)))
     t0 = time.perf_counter()
     seen = False
     while not v.session.loader.done or v.session.renderer.pending:

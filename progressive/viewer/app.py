@@ -47,12 +47,7 @@ FLY_KEYS: dict[int, tuple[float, float, float]] = {
 
 @dataclass(frozen=True)
 class ViewerOptions:
-    width: int = 1280
-    height: int = 720
-    color_by: str | None = None
-    value_range: tuple[float, float] | None = None   # the first attribute's values at the colormap's ends
-    partial: bool = False
-    gpu_memory_limit: int | None = None
+    session: SessionOptions = SessionOptions()   # size, colouring, loading, memory (size: the window's first)
     effects: Effects = Effects()        # the first point size and eye-dome lighting
     hidden_classes: frozenset[int] = frozenset()
     clip: Clip = NO_CLIP                # the first clip box (file coordinates)
@@ -85,7 +80,7 @@ class Drag:
 class Viewer:
     def __init__(self, paths: list[str], options: ViewerOptions = ViewerOptions()):
         self.options = options
-        self.glc: GLContext = create_context(Backend.WINDOW, size=(options.width, options.height),
+        self.glc: GLContext = create_context(Backend.WINDOW, size=(options.session.width, options.session.height),
                                              title="progressive", visible=options.visible)
         self.window = self.glc.window
         glfw.swap_interval(1)
@@ -127,11 +122,8 @@ class Viewer:
         paths = [*self.paths, *paths] if add else list(paths)
         width, height = self.framebuffer_size
         try:
-            session = Session(paths, SessionOptions(
-                width=width, height=height, budget=self._budget(), color_by=self.options.color_by,
-                partial=self.options.partial, gpu_memory_limit=self.options.gpu_memory_limit, switchable=True,
-                value_range=self.options.value_range, class_filter=True),
-                glc=self.glc)
+            session = Session(paths, replace(self.options.session, width=width, height=height, budget=self._budget(),
+                                             switchable=True, class_filter=True), glc=self.glc)
         except (ProgressiveError, OSError) as exc:
             self.fail(str(exc))
             return False
