@@ -13,6 +13,7 @@ import functools
 import math
 import os
 import queue
+import re
 import threading
 from collections.abc import Callable, Iterable, Iterator
 
@@ -58,9 +59,34 @@ def open_sources(paths, *, partial: bool = False) -> tuple[CloudInfo, tuple[Sour
     else:
         origin = (lo + hi) / 2
         attributes = _common_attributes(sources, origin)
+    check_crs(files)
     info = CloudInfo(files=files, points=sum(f.points for f in files), origin=origin,
                      bounds_min=lo, bounds_max=hi, attributes=attributes)
     return info, sources
+
+
+EPSG = re.compile(r"EPSG:(\d+)")
+
+
+def check_crs(files) -> None:
+    """Files whose EPSG codes differ cannot be one cloud (their coordinates mean different
+    places): one line naming both. Labels without codes are compared by crs_warnings."""
+    coded = [(f, EPSG.search(f.crs)) for f in files if f.crs]
+    coded = [(f, m.group(1)) for f, m in coded if m]
+    for f, code in coded[1:]:
+        if code != coded[0][1]:
+            first = coded[0][0]
+            raise fail(f.path, f"is in {f.crs}, but {shown(first.path)} is in {first.crs}: files in different "
+                               f"coordinate systems cannot be one cloud")
+
+
+def crs_warnings(files) -> list[str]:
+    """Different CRS labels where no two EPSG codes disagree (one file may name the same
+    CRS differently, or have none): drawn as one cloud, with a warning."""
+    labels = {f.crs for f in files if f.crs}
+    if len(labels) < 2:
+        return []
+    return [f"the files name different coordinate systems ({'; '.join(sorted(labels))}); drawn as one cloud as they are"]
 
 
 def _open(path, partial: bool) -> Source:
@@ -135,7 +161,7 @@ class CloudLoader:
         self.batch_points = batch_points
         self.parser_threads = parser_threads
         self.partial = partial
-        self.warnings: list[str] = [w for s in self._sources for w in s.warnings]
+        self.warnings: list[str] = [w for s in self._sources for w in s.warnings] + crs_warnings(self.info.files)
         self.loaded = 0
         self.nonfinite_positions = 0
         self.nonfinite_values: dict[str, int] = {}

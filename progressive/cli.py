@@ -434,7 +434,13 @@ def cmd_view(args) -> int:
     effects = effects_from(args)
     clip_from(args)          # a bad box is one line before any notice or window
     if has_display():
+        from progressive.attributes import find_attribute
+        from progressive.loaders import open_cloud
         from progressive.viewer.app import Viewer, ViewerOptions
+
+        info = open_cloud(paths, partial=args.partial)       # a bad file or attribute is one line, before any window
+        if args.color_by:
+            find_attribute(info, args.color_by)
 
         try:
             viewer = Viewer(paths, ViewerOptions(session=view_session_options(args),

@@ -35,25 +35,25 @@ class Colormap(enum.Enum):
     GRAYSCALE = "gray"
 
 
-# Potree's de-facto palette for the ASPRS LAS 1.4 codes (ASPRS defines no colours).
+# ASPRS LAS 1.4 (R15) class names, with Potree's de-facto palette (ASPRS defines no colours).
 ASPRS_CLASSES: dict[int, tuple[str, tuple[int, int, int]]] = {
-    0: ("never classified", (128, 128, 128)),
-    1: ("unassigned", (180, 180, 180)),
+    0: ("created, never classified", (128, 128, 128)),
+    1: ("unclassified", (180, 180, 180)),
     2: ("ground", (166, 116, 66)),
     3: ("low vegetation", (0, 160, 60)),
     4: ("medium vegetation", (0, 200, 60)),
     5: ("high vegetation", (40, 255, 40)),
     6: ("building", (255, 140, 30)),
-    7: ("low noise", (255, 0, 255)),
-    8: ("model key point", (255, 255, 0)),
+    7: ("low point (noise)", (255, 0, 255)),
+    8: ("model key-point (reserved in 1.4)", (255, 255, 0)),
     9: ("water", (30, 110, 255)),
     10: ("rail", (150, 80, 40)),
     11: ("road surface", (90, 90, 90)),
-    12: ("overlap", (255, 255, 150)),
-    13: ("wire guard", (255, 220, 0)),
-    14: ("wire conductor", (255, 255, 0)),
+    12: ("overlap (reserved in 1.4)", (255, 255, 150)),
+    13: ("wire, guard (shield)", (255, 220, 0)),
+    14: ("wire, conductor (phase)", (255, 255, 0)),
     15: ("transmission tower", (200, 0, 0)),
-    16: ("wire connector", (255, 90, 90)),
+    16: ("wire-structure connector", (255, 90, 90)),
     17: ("bridge deck", (120, 120, 200)),
     18: ("high noise", (200, 0, 200)),
     19: ("overhead structure", (220, 160, 120)),

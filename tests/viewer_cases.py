@@ -447,3 +447,17 @@ def test_return_filter_in_the_window(viewer):
     shown = ids[ids != EMPTY]
     assert shown.size and np.all(np.asarray(las.return_number)[shown] == np.asarray(las.number_of_returns)[shown])
     no_gl_error(viewer)
+
+
+@pytest.mark.parametrize("argv", [["missing.las"], ["NOT_LAS"], [str(SAMPLE), "--color-by", "no_such_attribute"]])
+def test_view_with_a_display_checks_before_opening_a_window(display, tmp_path, argv):
+    """With a display, a bad path, a file that is not a point cloud or an unknown
+    attribute is one line and exit 2, and no window opens (the viewer is never built)."""
+    if argv == ["NOT_LAS"]:
+        bad = tmp_path / "notes.las"
+        bad.write_text("not a point cloud\n")
+        argv = [str(bad)]
+    proc = subprocess.run([sys.executable, "-m", "progressive", "view", *argv], capture_output=True, text=True,
+                          timeout=120, env={**os.environ, "DISPLAY": display})
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.startswith("progressive: error: ") and proc.stderr.count("\n") == 1

@@ -92,6 +92,7 @@ class Panel:
         if imgui.collapsing_header("Files", imgui.TreeNodeFlags_.default_open):
             for f in s.info.files:
                 imgui.text(f"{Path(f.path).name}: {f.points:,} points ({f.format} {f.version})")
+                imgui.text(f"    CRS: {f.crs or 'none given'}")
             status = s.status()
             loaded, total = status.loaded, status.points
             imgui.progress_bar(loaded / max(1, total), imgui.ImVec2(320, 0), f"{loaded:,} / {total:,} loaded")
