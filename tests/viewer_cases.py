@@ -461,3 +461,18 @@ def test_view_with_a_display_checks_before_opening_a_window(display, tmp_path, a
                           timeout=120, env={**os.environ, "DISPLAY": display})
     assert proc.returncode == 2, proc.stderr
     assert proc.stderr.startswith("progressive: error: ") and proc.stderr.count("\n") == 1
+
+
+def test_messages_expire(viewer, tmp_path):
+    """Notes (a saved screenshot) show for a while, then leave the panel."""
+    from progressive.viewer.app import MESSAGE_SECONDS
+
+    settle(viewer)
+    viewer.act(Action.SCREENSHOT)
+    assert any(m.startswith("saved ") for m in viewer.messages)
+    viewer.expire_messages(time.perf_counter() + MESSAGE_SECONDS / 2)
+    assert any(m.startswith("saved ") for m in viewer.messages)
+    viewer.expire_messages(time.perf_counter() + MESSAGE_SECONDS + 1)
+    assert not viewer.messages
+    viewer.step()
+    no_gl_error(viewer)

@@ -27,6 +27,7 @@ from progressive.viewer.navigation import Navigator, Orbit
 
 DOUBLE_CLICK_SECONDS = 0.35
 DOUBLE_CLICK_PIXELS = 4.0
+MESSAGE_SECONDS = 12.0         # how long a note stays in the panel
 CURSOR_SEARCH = 7              # pixels around the cursor searched for a point (zoom, focus)
 IDLE_WAIT_SECONDS = 0.05       # converged and no input: wait for events instead of spinning
 
@@ -94,6 +95,7 @@ class Viewer:
         self.orbit: Orbit | None = None
         self.pasted: Camera | None = None
         self.messages: list[str] = []
+        self._message_times: list[float] = []
         self.error: str | None = None
         self.running = True
         self.frames = 0
@@ -136,7 +138,9 @@ class Viewer:
                                 hidden_classes=self.options.hidden_classes if not add else frozenset(),
                                 clip=self.options.clip if not add else self.settings.clip,
                                 returns=self.options.returns if not add else self.settings.returns)
-        self.messages = [*session.warnings]
+        self.messages, self._message_times = [], []
+        for warning in session.warnings:
+            self.say(warning)
         self._categories = None
         return True
 
@@ -148,6 +152,18 @@ class Viewer:
 
     def toggle_class(self, code: int) -> None:
         self.settings = replace(self.settings, hidden_classes=self.settings.hidden_classes ^ {code})
+
+    def say(self, message: str) -> None:
+        """A note in the panel for MESSAGE_SECONDS (warnings, saves, focus)."""
+        self.messages.append(message)
+        self._message_times.append(time.perf_counter())
+
+    def expire_messages(self, now: float | None = None) -> None:
+        """Drop the notes older than MESSAGE_SECONDS (errors stay until dismissed)."""
+        now = time.perf_counter() if now is None else now
+        keep = [i for i, t in enumerate(self._message_times) if now - t < MESSAGE_SECONDS]
+        self.messages = [self.messages[i] for i in keep]
+        self._message_times = [self._message_times[i] for i in keep]
 
     def fail(self, message: str) -> None:
         self.error = message
@@ -303,7 +319,7 @@ class Viewer:
             self.fail(f"screenshot: {exc}")
             return None
         self.last_screenshot = path
-        self.messages.append(f"saved {path}")
+        self.say(f"saved {path}")
         return path
 
     def capture_window(self) -> np.ndarray:
@@ -362,7 +378,7 @@ class Viewer:
         if point is not None:
             self.last_focus = point
             self.orbit, self.pasted = self.navigator.focus(self.orbit, point), None
-            self.messages.append("focus " + ", ".join(f"{v:.6f}" for v in point))
+            self.say("focus " + ", ".join(f"{v:.6f}" for v in point))
 
     # ---- input ---------------------------------------------------------------------
     def _install_callbacks(self) -> None:

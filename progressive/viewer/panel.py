@@ -296,6 +296,7 @@ class Panel:
         imgui.text("last frame: " + (" ".join(self.viewer.last_passes) or "idle"))
 
     def _messages(self) -> None:
+        self.viewer.expire_messages()
         for m in self.viewer.messages[-6:]:
             imgui.text_colored(NOTE_COLOUR, m)
 
