@@ -476,3 +476,14 @@ def test_messages_expire(viewer, tmp_path):
     assert not viewer.messages
     viewer.step()
     no_gl_error(viewer)
+
+
+def test_colour_bar_for_scalars_only(viewer):
+    """A scalar colouring draws the colour bar over its range; RGB draws none."""
+    settle(viewer)
+    assert viewer.settings.attribute == "rgb" and viewer.panel.colour_bar is None
+    viewer.switch_attribute("elevation")
+    settle(viewer)
+    name, lo, hi = viewer.panel.colour_bar
+    assert name == "elevation" and (lo, hi) == pytest.approx(viewer.session.color_range())
+    no_gl_error(viewer)

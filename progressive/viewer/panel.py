@@ -40,6 +40,7 @@ class Panel:
         imgui.get_io().set_ini_filename("")
         self.renderer = GlfwRenderer(viewer.window, attach_callbacks=False)
         self.frame_times: deque[float] = deque(maxlen=60)
+        self.colour_bar: tuple[str, float, float] | None = None   # what the last frame's colour bar showed
         self._last = time.perf_counter()
 
     def wants_mouse(self) -> bool:
@@ -49,6 +50,7 @@ class Panel:
         return bool(imgui.get_io().want_capture_keyboard)
 
     def draw(self) -> None:
+        self.colour_bar = None
         now = time.perf_counter()
         self.frame_times.append(now - self._last)
         self._last = now
@@ -125,11 +127,31 @@ class Panel:
             imgui.same_line()
             if imgui.small_button("auto"):
                 v.settings = replace(v.settings, value_range=None)
+            self._colour_bar(s, attribute.name, lo, hi)
         elif ColorMode.for_kind(attribute.kind) is ColorMode.CATEGORY:
             self._legend()
         changed, colour = imgui.color_edit3("background", [c / 255.0 for c in v.settings.background])
         if changed:
             v.settings = replace(v.settings, background=tuple(int(round(c * 255)) for c in colour))
+
+    def _colour_bar(self, s, name: str, lo: float, hi: float) -> None:
+        """The colormap as a bar from the range's low end to its high end, labelled with
+        the values (the attribute's units: the file's for elevation)."""
+        palette = s.style(self.viewer.settings.colormap).palette
+        draw = imgui.get_window_draw_list()
+        start = imgui.get_cursor_screen_pos()
+        width, height, steps = 320.0, 14.0, 64
+        for k in range(steps):
+            word = palette[round(k * 255 / (steps - 1))]
+            colour = imgui.ImVec4((word & 0xFF) / 255, (word >> 8 & 0xFF) / 255, (word >> 16 & 0xFF) / 255, 1.0)
+            x0 = start.x + width * k / steps
+            draw.add_rect_filled(imgui.ImVec2(x0, start.y), imgui.ImVec2(x0 + width / steps + 1, start.y + height),
+                                 imgui.get_color_u32(colour))
+        imgui.dummy(imgui.ImVec2(width, height))
+        imgui.text(f"{lo:.6g}")
+        imgui.same_line(width - 60.0)
+        imgui.text(f"{hi:.6g}  {name}")
+        self.colour_bar = (name, lo, hi)
 
     def _legend(self) -> None:
         """The classes present, each with its colour and a visibility toggle."""
