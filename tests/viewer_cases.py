@@ -487,3 +487,17 @@ def test_colour_bar_for_scalars_only(viewer):
     name, lo, hi = viewer.panel.colour_bar
     assert name == "elevation" and (lo, hi) == pytest.approx(viewer.session.color_range())
     no_gl_error(viewer)
+
+
+def test_escape_closes_an_open_popup_before_quitting(viewer, monkeypatch):
+    """Esc with a panel popup open (a dropdown, the colour picker) leaves the viewer
+    running; with none open it quits."""
+    settle(viewer)
+    monkeypatch.undo()
+    assert viewer.panel.popup_open() is False          # the real query, with nothing open
+    monkeypatch.setattr(viewer.panel, "popup_open", lambda: True)
+    viewer.on_key(viewer.window, glfw.KEY_ESCAPE, 0, glfw.PRESS, 0)
+    assert viewer.running
+    monkeypatch.setattr(viewer.panel, "popup_open", lambda: False)
+    viewer.on_key(viewer.window, glfw.KEY_ESCAPE, 0, glfw.PRESS, 0)
+    assert not viewer.running

@@ -468,6 +468,8 @@ class Viewer:
                 return
         if action != glfw.PRESS:
             return
+        if key == glfw.KEY_ESCAPE and self.panel is not None and self.settings.panel and self.panel.popup_open():
+            return          # imgui closes the popup; only an Esc with none open quits
         table = CTRL_KEYS if mods & glfw.MOD_CONTROL else GLFW_KEYS
         if key in table:
             self.act(table[key])

@@ -49,6 +49,11 @@ class Panel:
     def wants_keyboard(self) -> bool:
         return bool(imgui.get_io().want_capture_keyboard)
 
+    def popup_open(self) -> bool:
+        """A dropdown, colour picker or other popup of the panel is open (Esc closes it)."""
+        imgui.set_current_context(self.context)
+        return bool(imgui.is_popup_open("", imgui.PopupFlags_.any_popup))
+
     def draw(self) -> None:
         self.colour_bar = None
         now = time.perf_counter()
