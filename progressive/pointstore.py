@@ -59,7 +59,7 @@ class PointStore:
                 raise ProgressiveError(f"class and return filters keep {CLASS_BYTES} bytes a point in one buffer: "
                                        f"at most {CLASS_LIMIT:,} points")
             self.class_buffer = glc.ctx.buffer(reserve=max(4, -(-self.capacity * CLASS_BYTES // 4) * 4))
-            self.class_buffer.label = "point classes"
+            self.class_buffer.label = "point flags"
             glc.gl.clear_u32(self.class_buffer.glo, 0, total=self.class_buffer.size)
         self.boxes = batches.empty_boxes(max(1, self.permutation.batches))
         self.box_buffer = glc.ctx.buffer(self.boxes.tobytes())

@@ -58,8 +58,9 @@ class Scene:
         """capacity: points kept on the GPU (default all; see progressive/memory.py).
         keep_batches: keep the loaded attributes in host memory to switch attributes.
         order: FILE stores points in file order (the unshuffled baseline, for benchmarks).
-        class_filter: keep every point's classification code on the GPU, so hidden classes
-        apply whatever attribute is shown (the cloud must have classification)."""
+        class_filter: keep every point's class and return flags on the GPU, so hidden classes
+        and return filters apply whatever attribute is shown (the cloud must have
+        classification)."""
         self.glc, self.info, self.attribute = glc, info, attribute
         if class_filter and CLASSIFICATION not in {a.name for a in info.attributes}:
             raise ProgressiveError("this cloud has no classification to filter by")
