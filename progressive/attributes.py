@@ -34,18 +34,20 @@ def find_attribute(info: CloudInfo, name: str) -> AttributeInfo:
     raise ProgressiveError(f"unknown attribute '{name}'; this cloud has: {', '.join(names)}")
 
 
-DEFAULT_ORDER = ("rgb", "intensity", "elevation")
+DEFAULT_ORDER = ("rgb", "elevation")
+"""RGB where it is real, else elevation: intensity of forest and terrestrial lidar reads
+as noise at a first look, elevation reads as the terrain (issue 13)."""
 
 
 def default_attribute(info: CloudInfo, sample: Batch | None = None) -> AttributeInfo:
-    """RGB where the files have it, else intensity, else elevation; with a sample
-    batch, an attribute that is all zero there is passed over (see default_choice)."""
+    """RGB where the files have it, else elevation; with a sample batch, RGB that is
+    all zero there is passed over (see default_choice)."""
     return default_choice(info, sample)[0]
 
 
 def default_choice(info: CloudInfo, sample: Batch | None = None) -> tuple[AttributeInfo, str | None]:
-    """The default attribute and, when one was passed over for being all zero in the
-    sample (scanners that write empty RGB or intensity), a sentence saying so."""
+    """The default attribute and, when RGB was passed over for being all zero in the
+    sample (scanners that write empty RGB), a sentence saying so."""
     by_name = {a.name: a for a in info.attributes}
     skipped = []
     for name in DEFAULT_ORDER:

@@ -171,7 +171,7 @@ def add_cloud_args(parser) -> None:
     parser.add_argument("files", nargs="*", type=path_arg, help="LAS/LAZ/fast-format files, one cloud (default: the bundled sample)")
     parser.add_argument("--width", type=size_arg, default=1280)
     parser.add_argument("--height", type=size_arg, default=720)
-    parser.add_argument("--color-by", help="attribute to colour by (default: rgb, else intensity, else elevation)")
+    parser.add_argument("--color-by", help="attribute to colour by (default: rgb where it is real, else elevation)")
     parser.add_argument("--range", type=range_arg, dest="value_range", metavar="LO,HI",
                         help="scalar values at the colormap's ends (default: the 1st-99th percentile of the loaded points)")
     parser.add_argument("--partial", action="store_true", help="show what a truncated file holds, with a warning")

@@ -247,16 +247,19 @@ def test_laz_without_backend(tmp_path, capsys, monkeypatch):
     assert not (tmp_path / "x.png").exists()
 
 
-@pytest.mark.parametrize("name,fallback", [("TLSSparseCloud_xyzOnly.laz", "elevation"), ("wires.laz", "elevation")])
-def test_all_zero_default_colour_falls_back_and_says_so(tmp_path, capsys, name, fallback):
-    """TLSSparseCloud has RGB fields that are all zero, wires.laz all-zero intensity (MANIFEST)."""
-    from conftest import shared_file
+@pytest.mark.parametrize("name, warned", [("TLSSparseCloud_xyzOnly.laz", True), ("wires.laz", False),
+                                         ("autzen_trim.las", False)])
+def test_default_colour_is_real_rgb_else_elevation(tmp_path, capsys, name, warned):
+    """TLSSparseCloud has RGB fields that are all zero (passed over, with a warning),
+    wires.laz no RGB (elevation, not its all-zero intensity), autzen real RGB (MANIFEST)."""
+    from conftest import SAMPLE, shared_file
 
     stats = tmp_path / "s.json"
-    code, _, err = run(capsys, "render", *SMALL, shared_file(name), "--stats", stats)
+    path = SAMPLE if name == "autzen_trim.las" else shared_file(name)
+    code, _, err = run(capsys, "render", *SMALL, path, "--stats", stats)
     assert code == 0, err
-    assert json.loads(stats.read_text())["attribute"] == fallback
-    assert "all zero" in err and f"colouring by {fallback}" in err and err.startswith("progressive: warning:")
+    assert json.loads(stats.read_text())["attribute"] == ("rgb" if name == "autzen_trim.las" else "elevation")
+    assert ("all zero" in err and "colouring by elevation" in err and err.startswith("progressive: warning:")) == warned
 
 
 def test_render_effects_and_hidden_classes(tmp_path, capsys):
