@@ -88,7 +88,8 @@ def first_image(glc: GLContext, path: Path, width: int, height: int, cold: bool,
         drop_cache(path)
     else:
         raw_read(path)
-    opts = progressive.SessionOptions(width=width, height=height, budget=BudgetParams(target_ns=16_600_000))
+    opts = progressive.SessionOptions(width=width, height=height,
+                                      progressive=progressive.ProgressiveOptions(budget=BudgetParams(target_ns=16_600_000)))
     t0 = time.perf_counter()
     first = full = converged = None
     with progressive.open([path], opts, glc=glc) as s:

@@ -4,8 +4,9 @@ from progressive.budget import BudgetParams
 from progressive.camera import Camera
 from progressive.colors import Colormap
 from progressive.effects import Effects, EyeDome
+from progressive.frame_loop import ProgressiveOptions
 from progressive.renderer import Raster
 from progressive.session import Method, Session, SessionOptions, open
 
-__all__ = ["BudgetParams", "Camera", "Colormap", "Effects", "EyeDome", "Method", "Raster", "Session", "SessionOptions",
-           "open"]
+__all__ = ["BudgetParams", "Camera", "Colormap", "Effects", "EyeDome", "Method", "ProgressiveOptions", "Raster", "Session",
+           "SessionOptions", "open"]

@@ -287,11 +287,13 @@ def load_camera_path(path: str):
 
 def session_options(args):
     from progressive.budget import BudgetParams
+    from progressive.frame_loop import ProgressiveOptions
     from progressive.session import SessionOptions
 
     budget = BudgetParams(target_ns=int(args.target_ms * 1e6), fixed=args.budget)
+    progressive = ProgressiveOptions(budget=budget, reference=args.reference or args.converge)
     return SessionOptions(width=args.width, height=args.height, method=args.method, raster=args.raster,
-                          budget=budget, reference=args.reference or args.converge, color_by=args.color_by,
+                          progressive=progressive, color_by=args.color_by,
                           colormap=args.colormap, background=args.background, partial=args.partial,
                           gpu_memory_limit=args.gpu_memory_limit, value_range=args.value_range,
                           class_filter=filters(args))

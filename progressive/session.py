@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import enum
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -74,9 +74,9 @@ class SessionOptions:
     height: int = 720
     method: Method = Method.PROGRESSIVE
     raster: Raster = Raster.COMPUTE
-    budget: BudgetParams = field(default_factory=BudgetParams)
-    batches_per_frame: int = 2
-    reference: bool = False
+    progressive: ProgressiveOptions = field(default_factory=ProgressiveOptions)
+    """The progressive renderer's own options (budget, batches a frame, reference); its
+    size, rasterizer, capacity and kept data come from the fields here."""
     color_by: str | None = None
     colormap: Colormap = Colormap.VIRIDIS
     background: tuple[int, int, int] = (0, 0, 0)
@@ -130,9 +130,9 @@ class Session:
                                          chunk_points=options.chunk_points, capacity=capacity,
                                          keep_batches=options.switchable, class_filter=class_filter)
             else:
-                self.renderer = ProgressiveRenderer(self.glc, self.info, self.attribute, ProgressiveOptions(
-                    options.width, options.height, options.raster, options.budget, options.batches_per_frame,
-                    options.reference, options.chunk_points, capacity=capacity, keep_batches=options.switchable,
+                self.renderer = ProgressiveRenderer(self.glc, self.info, self.attribute, replace(
+                    options.progressive, width=options.width, height=options.height, raster=options.raster,
+                    chunk_points=options.chunk_points, capacity=capacity, keep_batches=options.switchable,
                     class_filter=class_filter))
         except BaseException:
             self.loader.close()

@@ -124,8 +124,10 @@ class Viewer:
         paths = [*self.paths, *paths] if add else list(paths)
         width, height = self.framebuffer_size
         try:
-            session = Session(paths, replace(self.options.session, width=width, height=height, budget=self._budget(),
-                                             switchable=True, class_filter=True), glc=self.glc)
+            options = self.options.session
+            session = Session(paths, replace(options, width=width, height=height, switchable=True, class_filter=True,
+                                             progressive=replace(options.progressive, budget=self._budget())),
+                              glc=self.glc)
         except (ProgressiveError, OSError) as exc:
             self.fail(str(exc))
             return False
