@@ -80,9 +80,9 @@ def rasters(glc: GLContext) -> list[Raster]:
 def variants(glc: GLContext) -> list[tuple[Raster, bool]]:
     """Each rasterizer, the compute ones also with the (opt-in) subgroup reduction where
     the GPU has it, so its gain is measured side by side."""
-    from progressive.passes.raster_compute import SUBGROUP_EXTENSIONS
+    from progressive.passes.raster_compute import subgroup_reduction_available
 
-    reduce = all(e in glc.ctx.extensions for e in SUBGROUP_EXTENSIONS)
+    reduce = subgroup_reduction_available(glc)
     return [(r, p) for r in rasters(glc) for p in ((False, True) if reduce and r is not Raster.POINTS else (False,))]
 
 

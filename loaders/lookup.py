@@ -39,12 +39,17 @@ def read_point(info: CloudInfo, index: int) -> np.ndarray:
         return read_ply_point(file.path, index)
     if file.format == "E57":
         return read_e57_point(file.path, index)
+    points = _las_point(file.path, index)
+    return np.array([points.x[0], points.y[0], points.z[0]], dtype=np.float64)
+
+
+def _las_point(path: str, index: int):
+    """The one point record at `index` of a LAS/LAZ file, as laspy reads it."""
     import laspy
 
-    with laspy.open(file.path) as reader:
+    with laspy.open(path) as reader:
         reader.seek(index)
-        points = reader.read_points(1)
-    return np.array([points.x[0], points.y[0], points.z[0]], dtype=np.float64)
+        return reader.read_points(1)
 
 
 def decimals(value: float) -> int:
@@ -66,17 +71,14 @@ def read_record(info: CloudInfo, index: int) -> dict:
     every dimension of its point format with the extra bytes (scaled as laspy scales
     them; NaN as None). Other formats give their coordinates only."""
     file, local = locate(info, index)
-    xyz = read_point(info, index)
     out = {"file": file.path, "index": int(local), "cloud_index": int(index)}
     attributes: dict = {}
-    if file.format in ("LAS", "LAZ"):
-        import laspy
-
+    if file.format not in ("LAS", "LAZ"):
+        xyz = read_point(info, index)
+    else:
+        points = _las_point(file.path, local)
         digits = [max(decimals(sc), decimals(of)) for sc, of in zip(file.scale, file.offset)]
-        xyz = [round(float(v), d) for v, d in zip(xyz, digits)]
-        with laspy.open(file.path) as reader:
-            reader.seek(local)
-            points = reader.read_points(1)
+        xyz = [round(float(points[axis][0]), d) for axis, d in zip("xyz", digits)]
         for name in points.point_format.dimension_names:
             if name in ("X", "Y", "Z"):
                 continue

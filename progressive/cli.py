@@ -313,16 +313,15 @@ def cmd_render(args) -> int:
     camera = None if args.camera == "auto" or cameras else load_camera(args.camera)
     if args.method is Method.BRUTE and (args.converge or args.reference or cameras):
         raise UsageError("--converge, --reference and --camera-path need --method progressive")
-    effects_from(args)
-    clip_from(args)
+    effects, clip = effects_from(args), clip_from(args)       # bad values are one line before any work
     with Session(paths, session_options(args)) as session, Outputs() as outputs:
         check_classes(session, args)
         if cameras is None:
             cameras = [camera or session.auto_camera()]
-        converged_at, frames = _run_frames(session, cameras, args)
+        converged_at, frames = _run_frames(session, cameras, args, effects, clip)
         for w in session.warnings:
             warn(w)
-        stats = _stats(session, cameras[-1], frames, converged_at, clip_from(args))
+        stats = _stats(session, cameras[-1], frames, converged_at, clip)
         stats["returns"] = args.returns.name.lower()
         image, ids = session.image(), session.ids()
         if args.out:
@@ -357,9 +356,9 @@ def check_classes(session, args) -> None:
         raise UsageError(f"--{'hide-classes' if args.hide_classes else 'returns'}: this cloud has no classification")
 
 
-def _run_frames(session, cameras, args) -> tuple[int | None, int]:
+def _run_frames(session, cameras, args, effects, clip) -> tuple[int | None, int]:
     """Frames as asked: a fixed count, the camera path, or until equal to brute force."""
-    effects, hidden, clip, returns = effects_from(args), args.hide_classes, clip_from(args), args.returns
+    hidden, returns = args.hide_classes, args.returns
     if not session.progressive:
         session.frame(cameras[0], None, effects, hidden, clip, returns)
         return None, 1
@@ -433,8 +432,7 @@ def cmd_view(args) -> int:
     from progressive.output import check_outputs
 
     paths = input_paths(args.files)
-    effects = effects_from(args)
-    clip_from(args)          # a bad box is one line before any notice or window
+    effects, clip = effects_from(args), clip_from(args)       # bad values are one line before any notice or window
     if has_display():
         from progressive.attributes import find_attribute
         from progressive.loaders import open_cloud
@@ -447,7 +445,7 @@ def cmd_view(args) -> int:
         try:
             viewer = Viewer(paths, ViewerOptions(session=view_session_options(args),
                                                  ui=not args.no_ui, effects=effects, hidden_classes=args.hide_classes,
-                                                 clip=clip_from(args), returns=args.returns))
+                                                 clip=clip, returns=args.returns))
         except GLCapabilityError as exc:
             print(f"progressive: cannot open a window ({one_line(exc)}); rendering headless instead", file=sys.stderr)
         else:
@@ -457,7 +455,7 @@ def cmd_view(args) -> int:
         check_outputs([args.out], paths)
         print(f"progressive: no display (DISPLAY and WAYLAND_DISPLAY are unset); rendering headless to "
               f"{one_line(args.out)}", file=sys.stderr)
-    return _view_headless(paths, effects, args)
+    return _view_headless(paths, effects, clip, args)
 
 
 def view_session_options(args):
@@ -469,7 +467,7 @@ def view_session_options(args):
                           class_filter=filters(args))
 
 
-def _view_headless(paths: list[str], effects, args) -> int:
+def _view_headless(paths: list[str], effects, clip, args) -> int:
     from progressive.output import Outputs, check_outputs, png_writer
     from progressive.session import Session
 
@@ -479,7 +477,7 @@ def _view_headless(paths: list[str], effects, args) -> int:
         camera = session.auto_camera()
         frames = 0
         while not session.converged and frames < MAX_HEADLESS_FRAMES:
-            session.frame(camera, None, effects, args.hide_classes, clip_from(args), args.returns)
+            session.frame(camera, None, effects, args.hide_classes, clip, args.returns)
             session.stats()
             frames += 1
         for w in session.warnings:

@@ -3,6 +3,8 @@ chunks so no GL buffer exceeds the driver's storage-block limit or 2^31 bytes.""
 
 from __future__ import annotations
 
+import functools
+
 from progressive import batches
 from progressive.bindings import MAX_POINT_CHUNKS, Binding
 from progressive.context import GLContext
@@ -92,9 +94,10 @@ class PointStore:
     def bind_boxes(self) -> None:
         self.box_buffer.bind_to_storage_buffer(Binding.BATCH_BOXES)
 
-    @property
+    @functools.cached_property
     def kept(self) -> int:
-        """File points the GPU holds."""
+        """File points the GPU holds (the capacity and layout are fixed: counted once; a
+        memory-limited batched store counts its last batch's points)."""
         return self.permutation.kept(self.capacity)
 
     @property

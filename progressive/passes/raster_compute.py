@@ -18,6 +18,11 @@ SUBGROUP_EXTENSIONS = ("GL_KHR_shader_subgroup", "GL_NV_shader_subgroup_partitio
 SUBGROUP_PARTITIONED = ("GL_KHR_shader_subgroup_basic", "GL_NV_shader_subgroup_partitioned")   # as GLSL enables them
 
 
+def subgroup_reduction_available(glc: GLContext) -> bool:
+    """The driver has what the subgroup reduction needs (GL_NV_shader_subgroup_partitioned)."""
+    return all(e in glc.ctx.extensions for e in SUBGROUP_EXTENSIONS)
+
+
 class ComputeRaster:
     """`passes` is 1 (64-bit) or 2 (depth, then index): a frame runs pass 0 over all
     its sources before pass 1, so the index pass sees the final depths."""
@@ -33,7 +38,7 @@ class ComputeRaster:
             raise ValueError("64-bit atomics requested but GL_NV_shader_atomic_int64 is missing")
         self.glc, self.store, self.vis = glc, store, vis
         self.atomic64 = atomic64
-        self.partitioned = partitioned and all(e in glc.ctx.extensions for e in SUBGROUP_EXTENSIONS)
+        self.partitioned = partitioned and subgroup_reduction_available(glc)
         self.culling = CullPass(glc, store) if cull and store.batched else None
         self.passes = 1 if atomic64 else 2
         self._programs: dict[tuple[Source, int], object] = {}
