@@ -27,6 +27,18 @@ def reference_ids(xyz: np.ndarray, camera: Camera, width: int, height: int,
     return ids.reshape(height, width)
 
 
+def subset_reference_ids(xyz: np.ndarray, keep: np.ndarray, camera: Camera, width: int, height: int,
+                         tie_key: np.ndarray) -> np.ndarray:
+    """reference_ids over the points `keep` (indices into xyz) only, as indices into xyz:
+    what a clip box, hidden classes or a memory limit leaves drawn. `tie_key` is of
+    every point (the GPU's slots)."""
+    keep = np.asarray(keep, dtype=np.int64)
+    if keep.size == 0:
+        return np.full((height, width), EMPTY, dtype=np.uint32)
+    local = reference_ids(np.asarray(xyz)[keep], camera, width, height, tie_key=np.asarray(tie_key)[keep])
+    return np.where(local == EMPTY, EMPTY, keep[np.minimum(local, keep.size - 1)]).astype(np.uint32)
+
+
 def agreement(a: np.ndarray, b: np.ndarray) -> float:
     """Fraction of pixels whose ids are equal (empty counts as a value)."""
     return float(np.mean(a == b))

@@ -13,7 +13,7 @@ import pytest
 from conftest import SAMPLE, shared_file
 from progressive.camera import auto_camera
 from progressive.cli import main
-from progressive.reference import EMPTY, reference_ids
+from progressive.reference import EMPTY, subset_reference_ids
 
 W, H = 160, 120
 HERE = Path(__file__).resolve().parent
@@ -32,10 +32,8 @@ def reference(path, hidden: set[int], slots_of, returns: str = "all") -> np.ndar
     wanted = {"all": np.ones(len(number), bool), "first": number <= 1, "last": number >= count,
               "single": (number <= 1) & (number >= count)}[returns]
     keep = np.nonzero(~np.isin(np.asarray(las.classification), list(hidden)) & wanted)[0]
-    lo, hi = xyz.min(axis=0), xyz.max(axis=0)
-    cam = auto_camera(lo, hi, W / H)
-    local = reference_ids(xyz[keep], cam, W, H, tie_key=slots_of(keep))
-    return np.where(local == EMPTY, EMPTY, keep[np.minimum(local, keep.size - 1)]).astype(np.uint32), cam
+    cam = auto_camera(xyz.min(axis=0), xyz.max(axis=0), W / H)
+    return subset_reference_ids(xyz, keep, cam, W, H, slots_of(np.arange(len(xyz)))), cam
 
 
 @pytest.mark.parametrize("raster, method", [("compute", "brute"), ("compute32", "progressive"), ("points", "brute"),

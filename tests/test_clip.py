@@ -17,7 +17,7 @@ from progressive.camera import NO_CLIP, CameraError, Clip, auto_camera, view_uni
 from progressive.cli import main
 from progressive.frame_loop import ProgressiveOptions, ProgressiveRenderer
 from progressive.permutation import BATCH_POINTS
-from progressive.reference import EMPTY, reference_ids
+from progressive.reference import EMPTY, subset_reference_ids
 from progressive.renderer import Raster, Renderer
 from progressive.scene import Scene
 
@@ -44,11 +44,8 @@ def clips(info) -> dict[str, Clip]:
 def expected_ids(info, positions, cam, clip: Clip, perm) -> np.ndarray:
     """The contract's ids over the points the clip keeps (ties by slot, as the GPU)."""
     kept = np.nonzero(clip.keeps(positions, info.origin))[0]
-    if kept.size == 0:
-        return np.full((H, W), EMPTY, dtype=np.uint32)
-    xyz = positions[kept].astype(np.float64) + info.origin
-    local = reference_ids(xyz, cam, W, H, tie_key=perm.forward(kept).astype(np.int64))
-    return np.where(local == EMPTY, EMPTY, kept[np.minimum(local, kept.size - 1)]).astype(np.uint32)
+    slots = perm.forward(np.arange(positions.shape[0])).astype(np.int64)
+    return subset_reference_ids(positions.astype(np.float64) + info.origin, kept, cam, W, H, slots)
 
 
 @pytest.mark.parametrize("raster", [Raster.COMPUTE, Raster.COMPUTE32, Raster.POINTS])

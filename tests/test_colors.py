@@ -53,10 +53,14 @@ def method_args(method: str) -> list[str]:
     return ["--method", method, "--converge"] if method == "progressive" else ["--method", method]
 
 
-def check_scalar(tmp_path, path, name: str, *args: str) -> None:
-    """Render `path` coloured by `name`: its range and its pixels against the reference."""
-    las = laspy.read(path)
-    image, ids, stats = render(tmp_path, [path], "--color-by", name, *args)
+def check_scalar(tmp_path, path, name: str, *args: str, default: bool = False, source=None) -> None:
+    """Render `path` coloured by `name` (with `default`, by its default colouring, which
+    must be `name`): its range and its pixels against the reference of `source` (the LAS
+    file a fast-format `path` was made from; default `path`)."""
+    las = laspy.read(source or path)
+    image, ids, stats = render(tmp_path, [path], *args) if default else \
+        render(tmp_path, [path], "--color-by", name, *args)
+    assert stats["attribute"] == name
     values = las_values(las, name)
     expected = reference_range(values)
     assert_range(stats, expected)
@@ -105,12 +109,7 @@ def test_given_range(tmp_path):
 
 
 def test_fast_format_colours_its_stored_attribute(tmp_path, fast_sample):
-    las = laspy.read(SAMPLE)
-    image, ids, stats = render(tmp_path, [fast_sample])
-    assert stats["attribute"] == "intensity"
-    values = las_values(las, "intensity")
-    assert_range(stats, reference_range(values))
-    assert_scalar_colours(image, ids, values, reference_range(values))
+    check_scalar(tmp_path, fast_sample, "intensity", default=True, source=SAMPLE)
 
 
 def test_several_files_are_one_range_and_one_rgb_rule_each(tmp_path):
@@ -146,10 +145,4 @@ def test_real_files(tmp_path, name, attribute):
 def test_default_without_rgb_is_coloured_over_every_point(tmp_path):
     """pine_plot has no RGB and all-zero intensity: the default moves on to elevation,
     coloured over the whole cloud's percentiles, not the first batch's."""
-    path = shared_file("pine_plot.laz")
-    las = laspy.read(path)
-    image, ids, stats = render(tmp_path, [path])
-    assert stats["attribute"] == "elevation"
-    values = las_values(las, "elevation")
-    assert_range(stats, reference_range(values))
-    assert_scalar_colours(image, ids, values, reference_range(values))
+    check_scalar(tmp_path, shared_file("pine_plot.laz"), "elevation", default=True)
