@@ -62,14 +62,33 @@ def corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     return np.where(pick[None], hi[:, None, :], lo[:, None, :])
 
 
+def section_meets(boxes: np.ndarray, view: ViewUniforms) -> np.ndarray:
+    """Whether each box's XY rectangle can meet the view's section (shaders/cull.comp
+    section_meets): the projections on the section's axis and on its normal overlap,
+    with BOX_MARGIN of slack (the other two axes of a separating-axis test are left
+    out: culling stays conservative). No section: infinite ranges, always true."""
+    lo, hi = boxes[:, 0:2].astype(np.float64), boxes[:, 4:6].astype(np.float64)
+    line, (start, end, half) = view.section_line.astype(np.float64), view.section_range.astype(np.float64)
+    u = line[2:4]
+    with np.errstate(invalid="ignore", over="ignore"):
+        c, e = 0.5 * (lo + hi) - line[0:2], 0.5 * (hi - lo)
+        t, rt = c @ u, e @ np.abs(u)
+        d, rd = c[:, 1] * u[0] - c[:, 0] * u[1], e @ np.abs(u[::-1])
+        m = (np.maximum(np.abs(lo), np.abs(hi)) + np.abs(line[0:2])).sum(axis=1)   # the magnitudes c was rounded at
+        st = BOX_MARGIN * (np.abs(t) + rt + abs(start) + abs(end) + m) + 1e-30
+        sd = BOX_MARGIN * (np.abs(d) + rd + half + m) + 1e-30
+        return (t + rt >= start - st) & (t - rt <= end + st) & (np.abs(d) - rd <= half + sd)
+
+
 def in_view(boxes: np.ndarray, view: ViewUniforms) -> np.ndarray:
     """Which boxes the GPU's test keeps: no frustum plane (near, far, the four sides)
     has all eight corners of the box, padded by BOX_MARGIN, outside it by more than
-    BOX_MARGIN of the terms it compares. Empty boxes, and boxes that miss the clip box
-    (compared exactly, in float32), are culled."""
+    BOX_MARGIN of the terms it compares. Empty boxes, boxes that miss the clip box
+    (compared exactly, in float32) and boxes that cannot meet its section are culled."""
     lo, hi = boxes[:, 0:3].astype(np.float64), boxes[:, 4:7].astype(np.float64)
     empty = ~(lo <= hi).all(axis=1)
     empty |= ~((boxes[:, 0:3] <= view.clip_hi).all(axis=1) & (boxes[:, 4:7] >= view.clip_lo).all(axis=1))
+    empty |= ~section_meets(boxes, view)
     with np.errstate(invalid="ignore", over="ignore"):
         pad = BOX_MARGIN * ((hi - lo) + np.maximum(np.abs(lo), np.abs(hi))) + 1e-30
         v = corners(lo - pad, hi + pad) @ view.rotation.astype(np.float64).T + view.translation.astype(np.float64)

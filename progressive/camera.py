@@ -260,22 +260,99 @@ def read_json_file(path: str | os.PathLike, what: str) -> object:
 
 
 @dataclass(frozen=True)
+class Section:
+    """A thin vertical slab along a horizontal segment, for profiles: a point is kept
+    iff its XY lies within width/2 of the segment's line and between the segment's two
+    ends (a rectangle in XY, unbounded in Z), so the slab ends where the picked line
+    does. Limited to the segment rather than the infinite plane: a profile between
+    two picked points shows that stretch, not every feature the line's extension
+    crosses across the cloud."""
+
+    start: tuple[float, float]
+    end: tuple[float, float]
+    width: float
+
+    def __post_init__(self):
+        a, b = np.asarray(self.start, dtype=np.float64), np.asarray(self.end, dtype=np.float64)
+        if a.shape != (2,) or b.shape != (2,) or not (np.isfinite(a).all() and np.isfinite(b).all()):
+            raise CameraError("a section needs two finite XY points")
+        if max(np.abs(a).max(), np.abs(b).max()) > MAX_COORDINATE:
+            raise CameraError(f"section ends are beyond +-{MAX_COORDINATE:g}")
+        if not (_finite(self.width) and MIN_EXTENT <= self.width <= MAX_DEPTH):
+            raise CameraError(f"section width must be in [{MIN_EXTENT:g}, {MAX_DEPTH:g}], got {self.width}")
+        if np.hypot(*(b - a)) < MIN_EXTENT:
+            raise CameraError("a section's two points coincide in XY (a vertical line has no profile)")
+
+    @property
+    def length(self) -> float:
+        return float(np.hypot(*np.subtract(self.end, self.start, dtype=np.float64)))
+
+    @property
+    def axis(self) -> np.ndarray:
+        """Unit XY direction from start to end (float64); the normal is (-y, x)."""
+        return _unit(np.subtract(self.end, self.start, dtype=np.float64))
+
+    def uniforms(self, origin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """What the shaders compare (camera.glsl section_keeps): (start - origin, axis)
+        and (0, length, width/2), each rounded to float32 once."""
+        o = np.asarray(origin, dtype=np.float64)[:2]
+        line = np.concatenate([np.asarray(self.start, dtype=np.float64) - o, self.axis]).astype(np.float32)
+        return line, np.array([0.0, self.length, self.width / 2.0], dtype=np.float32)
+
+    def contains(self, xy: np.ndarray) -> np.ndarray:
+        """The float64 test on file coordinates (the reference)."""
+        q = np.asarray(xy, dtype=np.float64)[:, :2] - np.asarray(self.start, dtype=np.float64)
+        u = self.axis
+        t = q @ u
+        d = q[:, 1] * u[0] - q[:, 0] * u[1]
+        return (t >= 0.0) & (t <= self.length) & (np.abs(d) <= self.width / 2.0)
+
+
+NO_SECTION_LINE = np.array([0.0, 0.0, 1.0, 0.0], dtype=np.float32)
+"""No section: along +x from the origin, every finite point within an infinite range."""
+NO_SECTION_RANGE = np.array([-np.inf, np.inf, np.inf], dtype=np.float32)
+
+
+def section_keeps(positions: np.ndarray, line: np.ndarray, extent: np.ndarray) -> np.ndarray:
+    """The shaders' section test in float32, operation for operation (numpy twin of
+    camera.glsl section_keeps, whose products are `precise`: no fused multiply-add)."""
+    p = np.asarray(positions, dtype=np.float32)
+    qx, qy = p[:, 0] - line[0], p[:, 1] - line[1]
+    t = qx * line[2] + qy * line[3]
+    d = qy * line[2] - qx * line[3]
+    return (t >= extent[0]) & (t <= extent[1]) & (np.abs(d) <= extent[2])
+
+
+@dataclass(frozen=True)
 class Clip:
     """An axis-aligned box in file coordinates that a point must lie in to be drawn
     (sides inclusive); infinite sides make a slab (between two heights) or nothing.
+    An optional `section` (a vertical slab along a segment) is intersected with it.
     The test is on the stored positions: float32 relative to the origin, against the
-    box's corners rounded to float32 in that frame (`relative`)."""
+    box's corners rounded to float32 in that frame (`relative`) and the section's
+    float32 line (Section.uniforms)."""
 
     lo: tuple[float, float, float] = (-math.inf, -math.inf, -math.inf)
     hi: tuple[float, float, float] = (math.inf, math.inf, math.inf)
+    section: Section | None = None
 
     def __post_init__(self):
         lo, hi = np.asarray(self.lo, dtype=np.float64), np.asarray(self.hi, dtype=np.float64)
         if lo.shape != (3,) or hi.shape != (3,) or np.isnan(lo).any() or np.isnan(hi).any() or (lo > hi).any():
             raise CameraError(f"clip box {_show(lo)} to {_show(hi)} is not a box (min <= max, no NaN)")
+        if self.section is not None and not isinstance(self.section, Section):
+            raise CameraError("a clip's section must be a Section")
+
+    @property
+    def has_box(self) -> bool:
+        """Some side of the box is finite (a box or a slab, not only a section)."""
+        return bool(np.isfinite(self.lo).any() or np.isfinite(self.hi).any())
 
     def intersect(self, other: Clip) -> Clip:
-        return Clip(tuple(np.maximum(self.lo, other.lo).tolist()), tuple(np.minimum(self.hi, other.hi).tolist()))
+        if self.section is not None and other.section is not None and self.section != other.section:
+            raise CameraError("two different sections cannot be combined into one clip")
+        return Clip(tuple(np.maximum(self.lo, other.lo).tolist()), tuple(np.minimum(self.hi, other.hi).tolist()),
+                    self.section or other.section)
 
     def relative(self, origin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The corners as the shaders compare them: float32 of corner - origin (float64 first)."""
@@ -283,11 +360,28 @@ class Clip:
         with np.errstate(over="ignore"):
             return ((np.asarray(self.lo) - o).astype(np.float32), (np.asarray(self.hi) - o).astype(np.float32))
 
+    def section_uniforms(self, origin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The section's line and range as the shaders take them (none: keeps every finite point)."""
+        if self.section is None:
+            return NO_SECTION_LINE.copy(), NO_SECTION_RANGE.copy()
+        return self.section.uniforms(origin)
+
     def keeps(self, positions: np.ndarray, origin: np.ndarray) -> np.ndarray:
         """Which float32 positions (relative to origin) the shaders keep (numpy twin of clip_keeps)."""
         lo, hi = self.relative(origin)
         p = np.asarray(positions, dtype=np.float32)
-        return ((p >= lo) & (p <= hi)).all(axis=1)
+        inside = ((p >= lo) & (p <= hi)).all(axis=1)
+        if self.section is not None:
+            inside &= section_keeps(p, *self.section.uniforms(origin))
+        return inside
+
+    def contains(self, xyz: np.ndarray) -> np.ndarray:
+        """The float64 test on file coordinates: the reference the float32 test approximates."""
+        p = np.asarray(xyz, dtype=np.float64)
+        inside = ((p >= np.asarray(self.lo)) & (p <= np.asarray(self.hi))).all(axis=1)
+        if self.section is not None:
+            inside &= self.section.contains(p)
+        return inside
 
 
 NO_CLIP = Clip()
@@ -314,6 +408,8 @@ class ViewUniforms:
     hidden: np.ndarray        # (8,) uint32: bit c set = category code c not drawn
     clip_lo: np.ndarray = field(default_factory=lambda: np.full(3, -np.inf, dtype=np.float32))
     clip_hi: np.ndarray = field(default_factory=lambda: np.full(3, np.inf, dtype=np.float32))
+    section_line: np.ndarray = field(default_factory=NO_SECTION_LINE.copy)    # (4,) Section.uniforms
+    section_range: np.ndarray = field(default_factory=NO_SECTION_RANGE.copy)  # (3,)
     perspective: float = 1.0  # 0: orthographic (no division by depth)
     returns: int = 0          # Returns value
 
@@ -335,8 +431,9 @@ def view_uniforms(camera: Camera, origin: np.ndarray, width: int, height: int,
     t = r @ (np.asarray(origin, dtype=np.float64) - np.asarray(camera.position, dtype=np.float64))
     proj = np.array([*camera.scales(width, height), camera.near, camera.far], dtype=np.float64)
     lo, hi = clip.relative(origin)
+    line, extent = clip.section_uniforms(origin)
     return ViewUniforms(r.astype(np.float32), t.astype(np.float32), proj.astype(np.float32), (width, height),
-                        hidden_mask(hidden), lo, hi, 0.0 if camera.orthographic else 1.0, returns.value)
+                        hidden_mask(hidden), lo, hi, line, extent, 0.0 if camera.orthographic else 1.0, returns.value)
 
 
 def auto_camera(bounds_min: np.ndarray, bounds_max: np.ndarray, aspect: float, fov_y_deg: float = 60.0) -> Camera:

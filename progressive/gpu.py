@@ -38,3 +38,6 @@ def set_view(program, view: ViewUniforms) -> None:
     if "u_clip_lo" in program:
         program["u_clip_lo"].write(view.clip_lo.tobytes())
         program["u_clip_hi"].write(view.clip_hi.tobytes())
+    if "u_section_line" in program:
+        program["u_section_line"].write(view.section_line.tobytes())
+        program["u_section_range"].write(view.section_range.tobytes())

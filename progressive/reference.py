@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from progressive.camera import Camera, project
+from progressive.camera import Camera, Clip, project
 
 EMPTY = 0xFFFFFFFF
 
@@ -37,6 +37,13 @@ def subset_reference_ids(xyz: np.ndarray, keep: np.ndarray, camera: Camera, widt
         return np.full((height, width), EMPTY, dtype=np.uint32)
     local = reference_ids(np.asarray(xyz)[keep], camera, width, height, tie_key=np.asarray(tie_key)[keep])
     return np.where(local == EMPTY, EMPTY, keep[np.minimum(local, keep.size - 1)]).astype(np.uint32)
+
+
+def clipped_reference_ids(xyz: np.ndarray, clip: Clip, camera: Camera, width: int, height: int,
+                          tie_key: np.ndarray) -> np.ndarray:
+    """reference_ids over the points inside `clip` by its float64 test on file
+    coordinates (Clip.contains: box and section), as indices into xyz."""
+    return subset_reference_ids(xyz, np.nonzero(clip.contains(xyz))[0], camera, width, height, tie_key)
 
 
 def agreement(a: np.ndarray, b: np.ndarray) -> float:

@@ -12,6 +12,8 @@ uniform uvec2 u_size;        // width, height
 uniform uint u_hidden[8];    // category codes not drawn, a bit each (classification toggles)
 uniform vec3 u_clip_lo;      // the clip box relative to the origin (progressive/camera.py Clip),
 uniform vec3 u_clip_hi;      // infinite sides where it has none
+uniform vec4 u_section_line;  // a section (Clip.section): its start relative to the origin, unit XY axis;
+uniform vec3 u_section_range; // along the axis from, to; half width across (none: -inf, inf, inf)
 
 // Hidden categories are left out of the raster, so points behind them show. All bits
 // are zero unless the shown attribute is a category (its code is the record's word).
@@ -20,9 +22,19 @@ bool category_shown(uint word) {
     return (u_hidden[c >> 5u] & (1u << (c & 31u))) == 0u;
 }
 
-// Points outside the clip box are left out of the raster, like hidden categories.
+// The section's rectangle in XY, in float32 exactly as progressive/camera.py
+// section_keeps: `precise` forbids fusing the products, so both sides round alike.
+bool section_keeps(vec3 p) {
+    precise float qx = p.x - u_section_line.x;
+    precise float qy = p.y - u_section_line.y;
+    precise float t = qx * u_section_line.z + qy * u_section_line.w;
+    precise float d = qy * u_section_line.z - qx * u_section_line.w;
+    return t >= u_section_range.x && t <= u_section_range.y && abs(d) <= u_section_range.z;
+}
+
+// Points outside the clip box or its section are left out of the raster, like hidden categories.
 bool clip_keeps(vec3 p) {
-    return all(greaterThanEqual(p, u_clip_lo)) && all(lessThanEqual(p, u_clip_hi));
+    return all(greaterThanEqual(p, u_clip_lo)) && all(lessThanEqual(p, u_clip_hi)) && section_keeps(p);
 }
 
 vec3 to_view(vec3 p) {

@@ -8,6 +8,21 @@ layout(std430, binding = BINDING_BATCH_BOXES) readonly buffer Boxes { vec4 boxes
 layout(std430, binding = BINDING_BATCH_FLAGS) writeonly buffer Flags { uint batch_flags[]; };
 uniform uint u_batches;
 
+// Whether the box's XY rectangle can meet the section's (progressive/batches.py
+// section_meets): their projections on the section's axis and on its normal overlap,
+// with BOX_MARGIN of slack. Without a section the ranges are infinite: always true.
+bool section_meets(vec3 lo, vec3 hi) {
+    vec2 u = u_section_line.zw;
+    vec2 c = 0.5 * (lo.xy + hi.xy) - u_section_line.xy, e = 0.5 * (hi.xy - lo.xy);
+    float t = dot(c, u), rt = dot(e, abs(u));
+    float d = c.y * u.x - c.x * u.y, rd = dot(e, abs(vec2(u.y, u.x)));
+    float t_from = u_section_range.x, t_to = u_section_range.y, half_width = u_section_range.z;
+    vec2 m = max(abs(lo.xy), abs(hi.xy)) + abs(u_section_line.xy);   // the magnitudes c was rounded at
+    float st = BOX_MARGIN * (abs(t) + rt + abs(t_from) + abs(t_to) + m.x + m.y) + 1e-30;
+    float sd = BOX_MARGIN * (abs(d) + rd + half_width + m.x + m.y) + 1e-30;
+    return t + rt >= t_from - st && t - rt <= t_to + st && abs(d) - rd <= half_width + sd;
+}
+
 // The frustum test of progressive/batches.py in_view: false iff the box is empty or
 // some plane has all eight corners (padded by BOX_MARGIN) outside it by more than
 // BOX_MARGIN of the terms it compares. Never false for a box holding a drawn point.
@@ -16,6 +31,7 @@ bool batch_in_view(uint b) {
     if (!all(lessThanEqual(lo, hi))) return false;
     // The box and the clip box compare in the same float32 frame as clip_keeps: exact.
     if (!all(lessThanEqual(lo, u_clip_hi)) || !all(greaterThanEqual(hi, u_clip_lo))) return false;
+    if (!section_meets(lo, hi)) return false;
     vec3 pad = BOX_MARGIN * ((hi - lo) + max(abs(lo), abs(hi))) + 1e-30;
     lo -= pad;
     hi += pad;

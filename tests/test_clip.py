@@ -1,23 +1,27 @@
-"""Clip boxes and slabs: every rasterizer draws exactly the float64 render contract of
-the points inside (the test on stored float32 positions, progressive/camera.py Clip),
-progressive frames converge to the clipped brute-force render, batches outside the box
-are culled, and bad boxes are one line."""
+"""Clip boxes, slabs and sections: every rasterizer draws exactly the float64 render
+contract of the points inside (the test on stored float32 positions, progressive/camera.py
+Clip; a section against laspy's coordinates in float64), progressive frames converge to
+the clipped brute-force render, batches outside the clip are culled and batches holding
+a kept point never are, and bad boxes and sections are one line."""
 
 from __future__ import annotations
 
 import json
 import math
 
+import laspy
 import numpy as np
 import pytest
 
+from conftest import SAMPLE
 from progressive.attributes import find_attribute
 from progressive.budget import BudgetParams
-from progressive.camera import NO_CLIP, CameraError, Clip, auto_camera, view_uniforms
+from progressive.camera import NO_CLIP, CameraError, Clip, Section, auto_camera, section_keeps, view_uniforms
 from progressive.cli import main
 from progressive.frame_loop import ProgressiveOptions, ProgressiveRenderer
+from progressive.passes.cull import CullPass
 from progressive.permutation import BATCH_POINTS
-from progressive.reference import EMPTY, subset_reference_ids
+from progressive.reference import EMPTY, clipped_reference_ids, subset_reference_ids
 from progressive.renderer import Raster, Renderer
 from progressive.scene import Scene
 
@@ -38,7 +42,26 @@ def clips(info) -> dict[str, Clip]:
         "box": Clip(tuple(lo + size * [0.2, 0.3, 0.0]), tuple(lo + size * [0.6, 0.7, 0.4])),
         "slab": Clip((-math.inf, -math.inf, lo[2] + 0.1 * size[2]), (math.inf, math.inf, lo[2] + 0.3 * size[2])),
         "outside": Clip(tuple(hi + 1), tuple(hi + 2)),
+        "section": Clip(section=sections(info)["diagonal"]),
     }
+
+
+def sections(info) -> dict[str, Section]:
+    """A diagonal section across the sample, one along y, and a thin one."""
+    lo, size = info.bounds_min, info.bounds_max - info.bounds_min
+    at = lambda fx, fy: (float(lo[0] + fx * size[0]), float(lo[1] + fy * size[1]))  # noqa: E731
+    diagonal = float(np.hypot(size[0], size[1]))
+    return {
+        "diagonal": Section(at(0.15, 0.25), at(0.85, 0.7), 0.04 * diagonal),
+        "along y": Section(at(0.5, 0.9), at(0.5, 0.1), 0.02 * diagonal),
+        "thin": Section(at(0.3, 0.3), at(0.7, 0.55), 0.002 * diagonal),
+    }
+
+
+@pytest.fixture(scope="module")
+def las_xyz():
+    las = laspy.read(SAMPLE)
+    return np.stack([las.x, las.y, las.z], axis=1).astype(np.float64)
 
 
 def expected_ids(info, positions, cam, clip: Clip, perm) -> np.ndarray:
@@ -81,7 +104,9 @@ def test_progressive_converges_to_the_clipped_brute_force_render(gl, sample):
             scene.add_batch(b)
         cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
         style = scene.style()
-        for clip in (clips(info)["box"], NO_CLIP, clips(info)["slab"]):     # a clip change starts the image again
+        section = clips(info)["section"]
+        for clip in (clips(info)["box"], NO_CLIP, clips(info)["slab"], section,
+                     section.intersect(clips(info)["slab"])):     # a clip change starts the image again
             expected = brute.render(cam, W, H, style, clip=clip).ids
             for _ in range(scene.store.capacity // 20_000 + 3):
                 pr.frame(cam, style, clip=clip)
@@ -107,6 +132,121 @@ def test_batches_outside_the_clip_are_culled(sample):
     keeps = clips(info)["box"].keeps(positions, info.origin)
     with_points = np.unique(np.nonzero(keeps)[0] // BATCH_POINTS)
     assert box[with_points].all() and box.sum() < everything.sum()
+
+
+@pytest.mark.parametrize("raster", [Raster.COMPUTE, Raster.COMPUTE32, Raster.POINTS])
+@pytest.mark.parametrize("name", ["diagonal", "along y", "thin", "diagonal and slab"])
+def test_section_ids_equal_the_float64_reference(gl, sample, las_xyz, raster, name):
+    """The float64 render contract over the points inside the section by its float64
+    test on laspy's coordinates; every point shown passes the float32 twin."""
+    info, parts, positions = sample
+    section = sections(info)[name.removesuffix(" and slab")]
+    clip = Clip(section=section).intersect(clips(info)["slab"]) if name.endswith("slab") else Clip(section=section)
+    cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
+    r = Renderer(gl, info, find_attribute(info, "elevation"), raster=raster, width=W, height=H)
+    try:
+        for b in parts:
+            r.add_batch(b)
+        ids = r.render(cam, W, H, r.style(), clip=clip).ids
+        slots = r.store.permutation.forward(np.arange(positions.shape[0])).astype(np.int64)
+        expected = clipped_reference_ids(las_xyz, clip, cam, W, H, slots)
+        assert np.mean(ids == expected) >= 0.999
+        shown = ids[ids != EMPTY]
+        assert shown.size > 0 and clip.keeps(positions[shown], info.origin).all()
+        assert shown.size < np.count_nonzero(r.render(cam, W, H, r.style()).ids != EMPTY)
+        assert gl.ctx.error == "GL_NO_ERROR"
+    finally:
+        r.release()
+
+
+def test_section_twin_agrees_with_float64(sample, las_xyz):
+    """The float32 test (the shaders' twin) differs from the float64 one only within
+    float32 rounding of the boundary: a handful of points at most."""
+    info, _, positions = sample
+    for section in sections(info).values():
+        clip = Clip(section=section)
+        f32, f64 = clip.keeps(positions, info.origin), clip.contains(las_xyz)
+        assert f64.sum() > 0 and np.count_nonzero(f32 != f64) <= max(2, f64.sum() // 10_000)
+        # the float64 test against numpy's own distance to the segment's line
+        a, b = np.asarray(section.start), np.asarray(section.end)
+        q = las_xyz[:, :2] - a
+        along = q @ (b - a) / np.sum((b - a) ** 2)
+        across = np.abs(np.cross(np.c_[np.broadcast_to(b - a, q.shape), np.zeros(len(q))],
+                                 np.c_[q, np.zeros(len(q))])[:, 2]) / np.linalg.norm(b - a)
+        inside = (along >= 0) & (along <= 1) & (across <= section.width / 2)
+        margin = np.abs(across - section.width / 2) > 1e-6
+        np.testing.assert_array_equal(f64[margin], inside[margin])
+
+
+@pytest.mark.parametrize("name", ["along y", "thin"])
+def test_culling_never_drops_a_point_inside_the_section(gl, sample, name):
+    """The GPU's flags (cull.comp) equal the numpy twin's, keep every batch holding a
+    point the section keeps, and drop some of the others."""
+    from progressive import batches
+
+    info, parts, positions = sample
+    clip = Clip(section=sections(info)[name])
+    cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
+    scene = Scene(gl, info, find_attribute(info, "elevation"))
+    cull = CullPass(gl, scene.store)
+    try:
+        for b in parts:
+            scene.add_batch(b)
+        view = view_uniforms(cam, info.origin, W, H, clip=clip)
+        cull.run(view)
+        n = scene.store.permutation.batches
+        flags = np.frombuffer(cull.flags.read(), dtype=np.uint32)[:n] != 0
+        twin = batches.in_view(scene.store.boxes, view)
+        np.testing.assert_array_equal(flags, twin)
+        held = np.unique(np.nonzero(clip.keeps(positions, info.origin))[0] // BATCH_POINTS)
+        assert flags[held].all() and flags.sum() < np.count_nonzero(batches.in_view(scene.store.boxes, view_uniforms(
+            cam, info.origin, W, H)))
+        assert gl.ctx.error == "GL_NO_ERROR"
+    finally:
+        cull.release()
+        scene.release()
+
+
+def test_section_culling_is_conservative_at_the_edges():
+    """Boxes just touching the section's rectangle (a side, an end, a corner) are kept;
+    boxes a clear gap away are culled; without a section nothing is."""
+    from progressive import batches
+
+    section = Section((1000.0, 2000.0), (1300.0, 2400.0), 10.0)       # axis (0.6, 0.8), normal (-0.8, 0.6)
+    origin = np.array([900.0, 1900.0, 0.0])
+    cam = auto_camera(np.array([900.0, 1900.0, -10.0]), np.array([1500.0, 2600.0, 10.0]), W / H)
+    view = view_uniforms(cam, origin, W, H, clip=Clip(section=section))
+    u, nrm = np.array([0.6, 0.8]), np.array([-0.8, 0.6])
+    a = np.array([1000.0, 2000.0]) - origin[:2]
+
+    def box(centre, half):
+        b = batches.empty_boxes(1)
+        b[0, 0:2], b[0, 4:6] = centre - half, centre + half
+        b[0, 2], b[0, 6] = -1.0, 1.0
+        return b
+
+    touching = [a + nrm * (5.0 + 1.0), a + u * 500.0 + u * 1.0, a - u * 1.0 + nrm * 5.0]
+    away = [a + nrm * (5.0 + 3.0), a + u * (500.0 + 3.0), a - u * 3.0 - nrm * 8.0]
+    half = 1.0 / np.sqrt(2.0) * np.ones(2)          # corner distance along u or n: at most |half|·(|ux|+|uy|) = 0.99
+    for c in touching:
+        assert batches.section_meets(box(c, half * 1.02), view).all(), c
+    for c in away:
+        assert not batches.section_meets(box(c, half), view).any(), c
+    assert batches.section_meets(box(a + nrm * 1e6, half), view_uniforms(cam, origin, W, H)).all()
+    # points on the rectangle's edge are kept by the twin (sides inclusive)
+    line, extent = section.uniforms(origin)
+    assert section_keeps(np.array([[*(a + u * 100.0), 0.0]], dtype=np.float32), line, extent).all()
+
+
+def test_section_must_be_a_segment_with_a_width():
+    for bad in (((0, 0), (0, 0), 1.0), ((0, 0), (1, 0), 0.0), ((0, 0), (1, 0), -1.0), ((0, math.nan), (1, 0), 1.0),
+                ((0, 0), (1, 0), math.inf), ((0, 0), (1e16, 0), 1.0)):
+        with pytest.raises(CameraError):
+            Section(*bad)
+    s = Section((0, 0), (3, 4), 2.0)
+    assert Clip(section=s).intersect(NO_CLIP).section == s
+    with pytest.raises(CameraError):
+        Clip(section=s).intersect(Clip(section=Section((0, 0), (4, 3), 2.0)))
 
 
 def test_clip_must_be_a_box():
