@@ -476,3 +476,31 @@ def project(camera: Camera, xyz: np.ndarray, width: int, height: int) -> tuple[n
     pixel = np.full(depth.shape, -1, dtype=np.int64)
     pixel[ok] = np.floor(fy[ok]).astype(np.int64) * width + np.floor(fx[ok]).astype(np.int64)
     return pixel, depth
+
+
+def screen_points(camera: Camera, xyz: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """(n, 2) continuous image positions (column, row; row 0 at the top; pixel k spans
+    [k, k+1)) and depths of file coordinates, in float64 (project() before the floor).
+    Points at or behind the eye plane give non-finite positions."""
+    v = (np.asarray(xyz, dtype=np.float64).reshape(-1, 3) - np.asarray(camera.position)) @ camera.rotation().T
+    depth = -v[:, 2]
+    sx, sy = camera.scales(width, height)
+    w = np.ones_like(depth) if camera.orthographic else depth
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xy = np.stack([(sx * v[:, 0] / w * 0.5 + 0.5) * width, (0.5 - sy * v[:, 1] / w * 0.5) * height], axis=1)
+    return xy, depth
+
+
+def pixel_ray(camera: Camera, x: float, y: float, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """(origin, unit direction) in file coordinates of the ray through image position
+    (x, y) (screen_points' inverse): from the eye, or for orthographic cameras from the
+    eye plane along the view."""
+    r = camera.rotation()
+    sx, sy = camera.scales(width, height)
+    ndc = np.array([2.0 * x / width - 1.0, 1.0 - 2.0 * y / height])
+    across = ndc / np.array([sx, sy])
+    eye = np.asarray(camera.position, dtype=np.float64)
+    if camera.orthographic:
+        return eye + r[0] * across[0] + r[1] * across[1], -r[2]
+    d = r[0] * across[0] + r[1] * across[1] - r[2]
+    return eye, d / np.linalg.norm(d)

@@ -271,3 +271,64 @@ def test_cli_clip_options(tmp_path, capsys):
         err = capsys.readouterr().err
         assert err.startswith("progressive: error: ") and err.count("\n") == 1
     assert not (tmp_path / "x.png").exists()
+
+
+@pytest.mark.parametrize("orthographic", [False, True])
+def test_pixel_ray_inverts_screen_points(orthographic):
+    """Points along the ray through an image position project back onto it (both
+    projections), and screen_points floors to camera.project's pixels."""
+    from progressive.camera import Camera, Projection, pixel_ray, project, screen_points
+
+    extra = {"projection": Projection.ORTHOGRAPHIC, "height": 40.0} if orthographic else {}
+    cam = Camera((100.0, -50.0, 30.0), (5.0, 7.0, 1.0), near=0.5, far=1e4, **extra)
+    rng = np.random.default_rng(3)
+    for x, y in rng.uniform([0, 0], [W, H], size=(20, 2)):
+        origin, d = pixel_ray(cam, x, y, W, H)
+        assert np.linalg.norm(d) == pytest.approx(1.0)
+        points = origin + np.outer([5.0, 50.0, 500.0], d)
+        xy, depth = screen_points(cam, points, W, H)
+        np.testing.assert_allclose(xy, np.broadcast_to([x, y], xy.shape), atol=1e-7)
+        pixel, _ = project(cam, points, W, H)
+        assert (pixel == int(y) * W + int(x)).all() and np.all(np.diff(depth) > 0)
+
+
+def test_clip_box_on_screen_and_its_drag():
+    """The box's 12 edges end at its corners' screen positions; an edge crossing the near
+    plane is cut there; a face whose normal points along the view cannot be grabbed; a
+    drag moves the face by the cursor's travel along its axis, never past the opposite
+    face, and keeps the section."""
+    from progressive.camera import Camera, Projection, screen_points
+    from progressive.viewer import clipbox
+
+    lo, hi = np.array([0.0, 0.0, 0.0]), np.array([10.0, 20.0, 5.0])
+    cam = Camera((40.0, -30.0, 25.0), (5.0, 10.0, 2.5), near=1.0, far=1e3)
+    edges = clipbox.box_edges(cam, lo, hi, (W, H))
+    corners = np.array([[(hi if c >> k & 1 else lo)[k] for k in range(3)] for c in range(8)])
+    xy, _ = screen_points(cam, corners, W, H)
+    ends = {tuple(np.round(p, 9)) for e in edges for p in e}
+    assert len(edges) == 12 and ends == {tuple(np.round(p, 9)) for p in xy}
+    inside = Camera((5.0, 10.0, 2.5), (5.0, 30.0, 2.5), near=1.0, far=1e3)          # the eye in the box
+    cut = clipbox.box_edges(inside, lo, hi, (W, H))
+    assert 0 < len(cut) < 12
+    for a, b in cut:
+        assert np.isfinite(a).all() and np.isfinite(b).all()
+    top = Camera((5.0, 10.0, 100.0), (5.0, 10.0, 2.5), near=1.0, far=1e3, projection=Projection.ORTHOGRAPHIC,
+                 height=30.0)
+    handles = clipbox.face_handles(top, lo, hi, (W, H))
+    zmax = handles[clipbox.Face(2, 1)]
+    assert clipbox.handle_at(top, lo, hi, (W, H), *zmax) is None       # the top face is seen face on
+    xmax = handles[clipbox.Face(0, 1)]
+    assert clipbox.handle_at(top, lo, hi, (W, H), *(xmax + 2.0)) == clipbox.Face(0, 1)
+    centre = clipbox.face_centre(lo, hi, clipbox.Face(0, 1))
+    start = clipbox.along_axis(top, centre, 0, (W, H), *xmax)
+    per_pixel = top.height / H                                          # the orthographic image's scale
+    moved = clipbox.along_axis(top, centre, 0, (W, H), xmax[0] - 10.0, xmax[1] + 3.0)
+    assert start == pytest.approx(0.0, abs=1e-9) and moved == pytest.approx(-10.0 * per_pixel)
+    clip = Clip(tuple(lo), tuple(hi), Section((0.0, 0.0), (10.0, 20.0), 1.0))
+    dragged = clipbox.dragged(clip, clipbox.Face(0, 1), 10.0, start, moved)
+    assert dragged.hi == (10.0 - 10.0 * per_pixel, 20.0, 5.0) and dragged.lo == clip.lo
+    assert dragged.section == clip.section
+    assert clipbox.dragged(clip, clipbox.Face(0, 1), 10.0, 0.0, -50.0).hi[0] == 0.0      # stops at min x
+    slab = Clip((-math.inf, -math.inf, 1.0), (math.inf, math.inf, 2.0))
+    shown_lo, shown_hi = clipbox.shown_box(slab, lo, hi)
+    assert tuple(shown_lo) == (0.0, 0.0, 1.0) and tuple(shown_hi) == (10.0, 20.0, 2.0)

@@ -501,3 +501,121 @@ def test_escape_closes_an_open_popup_before_quitting(viewer, monkeypatch):
     monkeypatch.setattr(viewer.panel, "popup_open", lambda: False)
     viewer.on_key(viewer.window, glfw.KEY_ESCAPE, 0, glfw.PRESS, 0)
     assert not viewer.running
+
+
+def brute_ids(viewer) -> np.ndarray:
+    """The brute-force render of the viewer's view, settings and clip over the same
+    points on the GPU (a renderer sharing the session's scene)."""
+    from progressive.renderer import Renderer
+
+    s = viewer.session
+    scene = s.renderer.scene
+    w, h = s.size
+    brute = Renderer(viewer.glc, s.info, scene.attribute, width=w, height=h, scene=scene)
+    try:
+        return brute.render(viewer.camera, w, h, brute.style(), hidden=viewer.settings.hidden_classes,
+                            clip=viewer.settings.clip, returns=viewer.settings.returns).ids
+    finally:
+        brute.release()
+
+
+def clipped_reference(viewer, clip) -> np.ndarray:
+    """The float64 contract over laspy's coordinates inside `clip` (its float64 test)."""
+    from progressive.reference import clipped_reference_ids
+
+    las = laspy.read(SAMPLE)
+    xyz = np.stack([las.x, las.y, las.z], axis=1).astype(np.float64)
+    slots = viewer.session.renderer.store.permutation.forward(np.arange(len(xyz))).astype(np.int64)
+    return clipped_reference_ids(xyz, clip, viewer.camera, *viewer.session.size, slots)
+
+
+def test_dragging_a_clip_face_moves_it_and_the_image_is_the_clipped_render(viewer):
+    """With the clip box on (the cloud's bounds), the window shows its 12 edges and 6
+    handles; a press on the max-x face's handle dragged along that face's normal on
+    screen moves the face so it stays under the cursor (float64 bound, panel fields
+    follow), the other sides stay, and the still view converges to the brute-force
+    render of the clipped cloud, which is the float64 reference of the points inside."""
+    from progressive.camera import Clip, screen_points
+    from progressive.viewer import clipbox
+
+    viewer.act(Action.RESET)
+    s = viewer.session
+    viewer.settings = replace(viewer.settings, clip=Clip(tuple(s.info.bounds_min), tuple(s.info.bounds_max)))
+    settle(viewer)
+    assert viewer.panel.clip_overlay == (12, 6)
+    lo, hi = viewer.shown_clip_box()
+    size = viewer.framebuffer_size
+    face = clipbox.Face(0, 1)
+    handles = clipbox.face_handles(viewer.camera, lo, hi, size)
+    start = handles[face]
+    centre_xy = screen_points(viewer.camera, ((lo + hi) / 2)[None], *size)[0][0]
+    end = start + 0.4 * (centre_xy - start)          # along the face's normal on screen, towards the middle
+    ww, wh = glfw.get_window_size(viewer.window)
+    to_window = lambda p: (float(p[0]) * ww / size[0], float(p[1]) * wh / size[1])  # noqa: E731
+    viewer.mouse_button(glfw.MOUSE_BUTTON_LEFT, True, *to_window(start))
+    assert viewer.dragged_face() == face
+    for k in range(1, 6):
+        viewer.cursor(*to_window(start + (end - start) * k / 5))
+        viewer.step()
+    viewer.mouse_button(glfw.MOUSE_BUTTON_LEFT, False, *to_window(end))
+    clip = viewer.settings.clip
+    assert viewer.picked is None and viewer.dragged_face() is None
+    assert lo[0] < clip.hi[0] < hi[0]
+    assert clip.lo == tuple(lo.tolist()) and clip.hi[1:] == tuple(hi[1:].tolist())
+    moved = clipbox.face_centre(*viewer.shown_clip_box(), face)
+    np.testing.assert_allclose(screen_points(viewer.camera, moved[None], *size)[0][0], end, atol=0.05)
+    settle(viewer)
+    ids = viewer.session.ids()
+    np.testing.assert_array_equal(ids, brute_ids(viewer))
+    assert np.mean(ids == clipped_reference(viewer, clip)) >= 0.999
+    las = laspy.read(SAMPLE)
+    shown = ids[ids != EMPTY]
+    assert shown.size and np.asarray(las.x)[shown].max() <= clip.hi[0] + 0.01
+    no_gl_error(viewer)
+
+
+def test_section_along_the_measured_line_and_its_profile_view(viewer):
+    """Two Shift+clicked points and "Section along line" clip to a slab of the panel's
+    width along them: the still view converges to the brute-force render, the float64
+    reference of the points within the segment's rectangle; the profile view looks
+    along the section's normal, orthographic, and shows the section."""
+    from progressive.camera import Clip
+
+    viewer.act(Action.RESET)
+    settle(viewer)
+    assert not viewer.section_along_line() and "two measured points" in viewer.error
+    viewer.error = None
+    ids = viewer.session.ids()
+    rows, cols = np.nonzero(ids != EMPTY)
+    order = np.argsort(cols)
+    for k in (order[len(order) // 5], order[4 * len(order) // 5]):
+        x, y = float(cols[k]) + 0.5, float(rows[k]) + 0.5
+        viewer.mouse_button(glfw.MOUSE_BUTTON_LEFT, True, x, y, shift=True)
+        viewer.mouse_button(glfw.MOUSE_BUTTON_LEFT, False, x, y, shift=True)
+    a, b = viewer.measurement.points[-2:]
+    width = 0.02 * float(np.hypot(b[0] - a[0], b[1] - a[1]))
+    viewer.set_section_width(width)
+    assert viewer.section_along_line()
+    section = viewer.settings.clip.section
+    assert section.start == (a[0], a[1]) and section.end == (b[0], b[1]) and section.width == width
+    settle(viewer)
+    ids = viewer.session.ids()
+    np.testing.assert_array_equal(ids, brute_ids(viewer))
+    assert np.mean(ids == clipped_reference(viewer, viewer.settings.clip)) >= 0.999
+    las = laspy.read(SAMPLE)
+    xy = np.stack([las.x, las.y], axis=1)[ids[ids != EMPTY]] - np.asarray(a[:2])
+    axis = np.subtract(b[:2], a[:2]) / section.length
+    assert xy.shape[0] and np.abs(xy[:, 1] * axis[0] - xy[:, 0] * axis[1]).max() <= width / 2 + 0.01
+    viewer.profile_view()
+    settle(viewer)
+    cam = viewer.camera
+    forward = np.subtract(cam.target, cam.position)
+    forward /= np.linalg.norm(forward)
+    assert cam.orthographic
+    np.testing.assert_allclose(forward, [-axis[1], axis[0], 0.0], atol=1e-9)
+    profile = viewer.session.ids()
+    assert np.array_equal(profile, brute_ids(viewer)) and (profile != EMPTY).mean() > 0.01
+    assert np.mean(profile == clipped_reference(viewer, viewer.settings.clip)) >= 0.999
+    viewer.clear_section()
+    assert viewer.settings.clip == Clip()
+    no_gl_error(viewer)

@@ -13,7 +13,7 @@ import glfw
 import numpy as np
 
 from progressive.budget import BudgetParams
-from progressive.camera import NO_CLIP, Camera, CameraError, Clip, Returns
+from progressive.camera import NO_CLIP, Camera, CameraError, Clip, Returns, Section
 from progressive.context import Backend, GLContext, create_context
 from progressive.effects import Effects, EyeDome
 from progressive.errors import ProgressiveError
@@ -22,7 +22,8 @@ from progressive.measure import Measurement
 from progressive.output import write_png
 from progressive.passes.present import PresentPass
 from progressive.session import Session, SessionOptions
-from progressive.viewer.controls import VIEW_ACTIONS, Action, BudgetMode, ViewSettings, cycle
+from progressive.viewer import clipbox
+from progressive.viewer.controls import SECTION_WIDTH_SHARE, VIEW_ACTIONS, Action, BudgetMode, ViewSettings, cycle
 from progressive.viewer.navigation import Navigator, Orbit
 
 DOUBLE_CLICK_SECONDS = 0.35
@@ -69,6 +70,18 @@ class DragKind(enum.Enum):
     ORBIT = "orbit"
     PAN = "pan"
     LOOK = "look"      # fly mode: turn about the camera
+    CLIP_FACE = "clip face"   # move a face of the clip box along its normal
+
+
+@dataclass(frozen=True)
+class FaceDrag:
+    """What a clip face drag started from: the face, its centre and bound, and where
+    the pressed cursor's ray met the face's axis (clipbox.along_axis)."""
+
+    face: clipbox.Face
+    centre: tuple[float, float, float]
+    bound: float
+    along: float
 
 
 @dataclass(frozen=True)
@@ -76,6 +89,7 @@ class Drag:
     kind: DragKind
     x: float
     y: float
+    face: FaceDrag | None = None
 
 
 class Viewer:
@@ -151,6 +165,71 @@ class Viewer:
         if self._categories is None and self.session is not None and not self.session.status().loading:
             self._categories = self.session.categories()
         return self._categories or []
+
+    def shown_clip_box(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The clip box as drawn and dragged (infinite sides at the cloud's bounds), or
+        None without a box (no clip, or only a section)."""
+        clip = self.settings.clip
+        if self.session is None or not clip.has_box:
+            return None
+        return clipbox.shown_box(clip, self.session.info.bounds_min, self.session.info.bounds_max)
+
+    def dragged_face(self) -> clipbox.Face | None:
+        d = self._drag
+        return d.face.face if d is not None and d.face is not None else None
+
+    @property
+    def section_width(self) -> float:
+        """The width a new section gets: the panel's, else SECTION_WIDTH_SHARE of the
+        cloud's horizontal diagonal."""
+        if self.settings.section_width is not None:
+            return self.settings.section_width
+        size = np.subtract(self.session.info.bounds_max, self.session.info.bounds_min)[:2]
+        return max(float(np.hypot(*size)) * SECTION_WIDTH_SHARE, 1e-6)
+
+    def section_along_line(self) -> bool:
+        """Clip to a vertical slab of `section_width` along the segment between the last
+        two measured points (Shift+click), kept with the box."""
+        points = self.measurement.points
+        if self.session is None or len(points) < 2:
+            self.fail("a section needs two measured points (Shift+click them)")
+            return False
+        a, b = points[-2], points[-1]
+        try:
+            section = Section((a[0], a[1]), (b[0], b[1]), self.section_width)
+        except CameraError as exc:
+            self.fail(f"section: {exc}")
+            return False
+        clip = self.settings.clip
+        self.settings = replace(self.settings, clip=Clip(clip.lo, clip.hi, section))
+        return True
+
+    def set_section_width(self, width: float) -> None:
+        """The width for sections, applied to the current one too."""
+        try:
+            section = self.settings.clip.section
+            clip = self.settings.clip
+            if section is not None:
+                clip = Clip(clip.lo, clip.hi, Section(section.start, section.end, width))
+            elif not width > 0:
+                raise CameraError("section width must be positive")
+        except CameraError as exc:
+            self.fail(f"section: {exc}")
+            return
+        self.settings = replace(self.settings, section_width=width, clip=clip)
+
+    def clear_section(self) -> None:
+        clip = self.settings.clip
+        self.settings = replace(self.settings, clip=Clip(clip.lo, clip.hi))
+
+    def profile_view(self) -> None:
+        """Look at the section from the side, orthographic: along its normal, its start
+        on the left, the whole segment and the cloud's height in view."""
+        section = self.settings.clip.section
+        if section is None or self.navigator is None:
+            return
+        w, h = self.framebuffer_size
+        self.orbit, self.pasted = self.navigator.profile(self.orbit, section, w / h), None
 
     def toggle_class(self, code: int) -> None:
         self.settings = replace(self.settings, hidden_classes=self.settings.hidden_classes ^ {code})
@@ -407,10 +486,12 @@ class Viewer:
         if not pressed:
             d, self._drag = self._drag, None
             if (d is not None and button == glfw.MOUSE_BUTTON_LEFT and abs(x - d.x) + abs(y - d.y) < DOUBLE_CLICK_PIXELS
-                    and (d.kind is not DragKind.PAN or shift)):
+                    and d.kind is not DragKind.CLIP_FACE and (d.kind is not DragKind.PAN or shift)):
                 self.pick_point(x, y, measure=shift)
             return
         if self._ui_wants_mouse() or self.navigator is None:
+            return
+        if button == glfw.MOUSE_BUTTON_LEFT and not shift and self._grab_face(x, y):
             return
         if button == glfw.MOUSE_BUTTON_LEFT:
             t, lx, ly = self._last_click
@@ -427,6 +508,21 @@ class Viewer:
             return
         self._drag = Drag(kind, x, y)
 
+    def _grab_face(self, x: float, y: float) -> bool:
+        """A press on a clip face's handle starts dragging that face."""
+        box = self.shown_clip_box()
+        if box is None:
+            return False
+        camera, size, (fx, fy) = self.camera, self.framebuffer_size, self.to_framebuffer(x, y)
+        face = clipbox.handle_at(camera, *box, size, fx, fy)
+        if face is None:
+            return False
+        centre = clipbox.face_centre(*box, face)
+        along = clipbox.along_axis(camera, centre, face.axis, size, fx, fy)
+        bound = float(box[face.side][face.axis])
+        self._drag = Drag(DragKind.CLIP_FACE, x, y, FaceDrag(face, tuple(centre.tolist()), bound, along))
+        return True
+
     def on_cursor(self, window, x: float, y: float) -> None:
         if self.panel is not None:
             self.panel.renderer.mouse_callback(window, x, y)
@@ -435,6 +531,9 @@ class Viewer:
     def cursor(self, x: float, y: float) -> None:
         d = self._drag
         if d is None or self.navigator is None:
+            return
+        if d.kind is DragKind.CLIP_FACE:
+            self._drag_face(d.face, x, y)
             return
         dx, dy = x - d.x, y - d.y
         nav, o = self.navigator, self.orbit
@@ -446,6 +545,15 @@ class Viewer:
             o = nav.pan(o, dx, dy, self.framebuffer_size[1])
         self.orbit, self.pasted = o, None
         self._drag = Drag(d.kind, x, y)
+
+    def _drag_face(self, f: FaceDrag, x: float, y: float) -> None:
+        """The face moves to where the cursor's ray meets its axis (the camera stands
+        still while dragging); the new bound is float64 file units."""
+        along = clipbox.along_axis(self.camera, np.asarray(f.centre), f.face.axis, self.framebuffer_size,
+                                   *self.to_framebuffer(x, y))
+        if along is None:
+            return
+        self.settings = replace(self.settings, clip=clipbox.dragged(self.settings.clip, f.face, f.bound, f.along, along))
 
     def on_scroll(self, window, dx: float, dy: float) -> None:
         if self.panel is not None:

@@ -48,7 +48,12 @@ VIEW_ACTIONS: dict[Action, View] = {Action.VIEW_TOP: View.TOP, Action.VIEW_FRONT
 MOUSE_HELP = (
     ("Left drag", "orbit"), ("Right drag / Shift+left drag", "pan"), ("Wheel", "zoom to the cursor"),
     ("Double-click", "focus the point under the cursor"), ("Drop files", "open (Shift: add to the cloud)"),
+    ("Left drag a clip handle", "move that face of the clip box"),
+    ("Shift+click", "add the point to the measurement (two: a section along them)"),
 )
+SECTION_WIDTH_SHARE = 0.01
+"""A new section's width before the panel sets one: this share of the cloud's
+horizontal diagonal (file units differ: metres, feet)."""
 
 
 class BudgetMode(enum.Enum):
@@ -62,7 +67,8 @@ class ViewSettings:
     colormap: Colormap = Colormap.VIRIDIS
     value_range: tuple[float, float] | None = None     # in the attribute's units; None: the 1st-99th percentiles
     hidden_classes: frozenset[int] = frozenset()
-    clip: Clip = NO_CLIP                                # the box points must lie in (file coordinates)
+    clip: Clip = NO_CLIP                                # the box (and section) points must lie in (file coordinates)
+    section_width: float | None = None                  # for sections along a line; None: SECTION_WIDTH_SHARE
     returns: Returns = Returns.ALL                      # which returns of each pulse are drawn
     point_size: int = 1
     eye_dome: bool = False

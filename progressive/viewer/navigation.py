@@ -13,13 +13,14 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from progressive.camera import Camera, Projection, auto_camera
+from progressive.camera import Camera, Projection, Section, auto_camera
 
 MAX_PITCH = math.radians(89.5)
 ZOOM_STEP = 0.85               # distance factor per wheel notch
 ORBIT_RADIANS_PER_PIXEL = 0.005
 FLY_EXTENTS_PER_SECOND = 0.25  # share of the cloud's diagonal flown per second
 NEAR_OVER_FAR = 1e-6           # depth is linear float32: near costs no precision
+PROFILE_MARGIN = 1.1           # a profile view spans this much more than the segment and the cloud's height
 
 
 class View(enum.Enum):
@@ -121,6 +122,19 @@ class Navigator:
         """A standard view of the target from the same distance and projection."""
         yaw, pitch = PRESETS[view]
         return replace(o, yaw=yaw, pitch=pitch)
+
+    def profile(self, o: Orbit, section: Section, aspect: float) -> Orbit:
+        """An orthographic view of a section from the side: looking along its normal
+        (its start on the left, its end on the right), level, centred on the segment's
+        middle at the cloud's mid-height, spanning the segment and the cloud's height."""
+        u = section.axis
+        normal = np.array([-u[1], u[0]])           # the viewing direction: right = forward x Z = the axis
+        middle = (np.asarray(section.start) + np.asarray(section.end)) / 2.0
+        z = (self.bounds_min[2] + self.bounds_max[2]) / 2.0
+        height = PROFILE_MARGIN * max(self.bounds_max[2] - self.bounds_min[2], section.length / aspect, 1e-3)
+        distance = height / (2.0 * math.tan(math.radians(o.fov_y_deg) / 2.0))
+        return Orbit((float(middle[0]), float(middle[1]), float(z)), distance,
+                     math.atan2(-normal[1], -normal[0]), 0.0, o.fov_y_deg, True)
 
     def orbit(self, o: Orbit, dx: float, dy: float) -> Orbit:
         """Drag right turns the cloud right; drag down tilts the view down onto it."""

@@ -18,10 +18,13 @@ from progressive.colors import ASPRS_CLASSES, NO_RANGE, UNKNOWN_CLASS, Colormap,
 from progressive.effects import MAX_POINT_SIZE, EyeDome
 from progressive.loaders.types import AttributeKind
 from progressive.measure import Measurement
+from progressive.viewer import clipbox
 from progressive.viewer.controls import KEYS, MOUSE_HELP, VIEW_ACTIONS, Action, BudgetMode
 
 ERROR_COLOUR = imgui.ImVec4(1.0, 0.35, 0.3, 1.0)
 NOTE_COLOUR = imgui.ImVec4(0.95, 0.8, 0.4, 1.0)
+CLIP_COLOUR = imgui.ImVec4(0.3, 0.85, 1.0, 0.9)
+HANDLE_COLOUR = imgui.ImVec4(1.0, 1.0, 1.0, 0.95)
 COLORMAPS = list(Colormap)
 PASSES = ("reproject", "fill", "prepare", "resolve", "frame")
 
@@ -41,6 +44,7 @@ class Panel:
         self.renderer = GlfwRenderer(viewer.window, attach_callbacks=False)
         self.frame_times: deque[float] = deque(maxlen=60)
         self.colour_bar: tuple[str, float, float] | None = None   # what the last frame's colour bar showed
+        self.clip_overlay: tuple[int, int] = (0, 0)               # edges and handles the last frame drew
         self._last = time.perf_counter()
 
     def wants_mouse(self) -> bool:
@@ -63,6 +67,7 @@ class Panel:
         self.renderer.process_inputs()
         imgui.new_frame()
         v = self.viewer
+        self._clip_overlay()
         if v.settings.panel:
             self._panel()
         if v.error:
@@ -265,26 +270,71 @@ class Panel:
 
     def _clip(self, s) -> None:
         """A clip box edited with numbers in the file's coordinates (float64 fields: a
-        UTM northing keeps its millimetres), starting from the cloud's bounds."""
+        UTM northing keeps its millimetres), starting from the cloud's bounds, or by
+        dragging its faces' handles in the window; and a section along the last two
+        measured points, with its width."""
         v = self.viewer
         if not imgui.collapsing_header("Clip"):
             return
-        changed, on = imgui.checkbox("clip box", v.settings.clip != NO_CLIP)
-        if changed:
-            bounds = Clip(tuple(s.info.bounds_min), tuple(s.info.bounds_max))
-            v.settings = replace(v.settings, clip=bounds if on else NO_CLIP)
         clip = v.settings.clip
-        if clip == NO_CLIP:
+        changed, on = imgui.checkbox("clip box (drag its handles in the window)", clip.has_box)
+        if changed:
+            box = (tuple(s.info.bounds_min), tuple(s.info.bounds_max)) if on else (NO_CLIP.lo, NO_CLIP.hi)
+            v.settings = replace(v.settings, clip=Clip(*box, clip.section))
+        clip = v.settings.clip
+        if clip.has_box:
+            lo, hi = list(clip.lo), list(clip.hi)
+            edited = False
+            for label, corner in (("min", lo), ("max", hi)):
+                for axis, name in enumerate("xyz"):
+                    if np.isfinite(corner[axis]):
+                        changed, corner[axis] = imgui.input_double(f"{label} {name}", corner[axis], 0.0, 0.0, "%.3f")
+                        edited |= changed
+            if edited and all(a <= b for a, b in zip(lo, hi)):
+                v.settings = replace(v.settings, clip=Clip(tuple(lo), tuple(hi), clip.section))
+        changed, width = imgui.input_double("section width", v.section_width, 0.0, 0.0, "%.3f")
+        if changed and width > 0:
+            v.set_section_width(width)
+        imgui.begin_disabled(len(v.measurement.points) < 2)
+        if imgui.small_button("Section along line"):
+            v.section_along_line()
+        imgui.end_disabled()
+        section = v.settings.clip.section
+        if section is None:
+            imgui.text_disabled("(Shift+click two points first)" if len(v.measurement.points) < 2 else "")
             return
-        lo, hi = list(clip.lo), list(clip.hi)
-        edited = False
-        for label, corner in (("min", lo), ("max", hi)):
-            for axis, name in enumerate("xyz"):
-                if np.isfinite(corner[axis]):
-                    changed, corner[axis] = imgui.input_double(f"{label} {name}", corner[axis], 0.0, 0.0, "%.3f")
-                    edited |= changed
-        if edited and all(a <= b for a, b in zip(lo, hi)):
-            v.settings = replace(v.settings, clip=Clip(tuple(lo), tuple(hi)))
+        imgui.same_line()
+        if imgui.small_button("profile view"):
+            v.profile_view()
+        imgui.same_line()
+        if imgui.small_button("clear section"):
+            v.clear_section()
+        imgui.text(f"from {section.start[0]:.3f}, {section.start[1]:.3f} to {section.end[0]:.3f}, "
+                   f"{section.end[1]:.3f}: length {section.length:.3f}")
+
+    def _clip_overlay(self) -> None:
+        """The clip box's edges over the image and a handle at each face's centre (the
+        one dragged, or under the cursor, larger)."""
+        v = self.viewer
+        box = v.shown_clip_box()
+        if box is None or v.navigator is None:
+            self.clip_overlay = (0, 0)
+            return
+        camera, size = v.camera, v.framebuffer_size
+        scale = imgui.get_io().display_framebuffer_scale
+        at = lambda xy: imgui.ImVec2(float(xy[0]) / scale.x, float(xy[1]) / scale.y)  # noqa: E731
+        draw = imgui.get_background_draw_list()
+        colour, handle = imgui.get_color_u32(CLIP_COLOUR), imgui.get_color_u32(HANDLE_COLOUR)
+        edges = clipbox.box_edges(camera, *box, size)
+        for a, b in edges:
+            draw.add_line(at(a), at(b), colour, 1.5)
+        mouse = imgui.get_io().mouse_pos
+        hover = clipbox.handle_at(camera, *box, size, mouse.x * scale.x, mouse.y * scale.y)
+        handles = clipbox.face_handles(camera, *box, size)
+        for face, xy in handles.items():
+            big = face == v.dragged_face() or face == hover
+            draw.add_circle_filled(at(xy), 6.0 if big else 4.0, colour if big else handle)
+        self.clip_overlay = (len(edges), len(handles))
 
     def _budget(self) -> None:
         v = self.viewer
