@@ -1,8 +1,14 @@
 """LAS/LAZ input: header facts, raw point chunks, and chunk -> Batch parsing.
 
-laspy decodes; this module adds the checks laspy does not make (size against the header
-count, LAS version, empty files) so that every bad file fails with one clear line, and a
-way to read what is left of a damaged LAZ when the caller asks for partial input.
+laspy reads the header and decodes damaged or unusual files; this module adds the checks
+laspy does not make (size against the header count, LAS version, empty files) so that
+every bad file fails with one clear line, and a way to read what is left of a damaged LAZ
+when the caller asks for partial input.
+
+Points are numpy structured arrays of the point format's dtype. An uncompressed file's
+records are read by the parser threads themselves, a batch in one read that releases the
+GIL; a LAZ with a sound chunk table is decoded by lazrs several chunks at a time on every
+core (loaders/laz.py). Parsing is whole-array numpy, no per-point Python.
 """
 
 from __future__ import annotations
@@ -20,7 +26,7 @@ import lazrs
 import numpy as np
 
 from progressive.errors import InputError
-from progressive.loaders.laz import LazLayout, Patch, laz_layout, open_patched
+from progressive.loaders.laz import LazLayout, Patch, decode_chunks, laz_layout, open_patched
 from progressive.loaders.types import (
     BATCH_POINTS,
     RGB8_MAX,
@@ -28,6 +34,7 @@ from progressive.loaders.types import (
     AttributeKind,
     Batch,
     FileInfo,
+    available_cores,
     channel8,
     nonfinite_count,
     nonfinite_rows,
@@ -155,6 +162,39 @@ class Column:
 
 
 @dataclass(frozen=True)
+class Records:
+    """Where a file's point records start and how to read them as numpy rows (laspy's
+    header refuses a record length other than its point format's size)."""
+
+    point_format: laspy.PointFormat
+    point_data: int
+    scales: np.ndarray          # (3,) float64, the header's
+    offsets: np.ndarray         # (3,) float64, the header's
+
+    @property
+    def dtype(self) -> np.dtype:
+        return self.point_format.dtype()
+
+    def coordinates(self, array: np.ndarray, axis: int) -> np.ndarray:
+        """Scaled float64 coordinates of one axis, computed as laspy computes them."""
+        coords = array["XYZ"[axis]] * self.scales[axis]
+        coords += self.offsets[axis]
+        return coords
+
+
+@dataclass(frozen=True)
+class Span:
+    """Records of an uncompressed file not read yet: the parser thread that gets a span
+    reads it (one read, without the GIL), so reads run on every parser thread at once."""
+
+    first: int
+    count: int
+
+    def __len__(self) -> int:
+        return self.count
+
+
+@dataclass(frozen=True)
 class LasSource:
     """One checked LAS/LAZ file: its facts and how to read and parse its points."""
 
@@ -163,35 +203,40 @@ class LasSource:
     columns: dict[str, Column]
     first_gps_time: float | None
     laz: LazLayout | None
+    records: Records
     warnings: tuple[str, ...] = ()
-    patches: tuple[Patch, ...] = ()
-    """Text patches (text_patches) for an uncompressed file; a LAZ layout holds its own."""
 
-    def chunks(self, batch_points: int, *, salvage: bool = False) -> Iterator[laspy.ScaleAwarePointRecord]:
-        """Raw laspy chunks of at most batch_points, info.points in total, else TruncatedInput;
-        with salvage, a damaged LAZ first yields what still decodes."""
-        return decode(self.info.path, self.laz, self.info.points, batch_points, salvage=salvage,
-                      patches=self.patches)
+    def chunks(self, batch_points: int, *, salvage: bool = False) -> Iterator[np.ndarray | Span]:
+        """Record arrays of at most batch_points, info.points in total, else TruncatedInput;
+        with salvage, a damaged LAZ first yields what still decodes. An uncompressed file
+        yields Spans, which parse() reads."""
+        if self.laz is None:
+            count = self.info.points
+            return (Span(first, min(batch_points, count - first)) for first in range(0, count, batch_points))
+        return decode(self.info.path, self.laz, self.records, self.info.points, batch_points, salvage=salvage)
 
-    def parse(self, chunk: laspy.ScaleAwarePointRecord, start: int, origin: np.ndarray,
-              names: tuple[str, ...]) -> Batch:
-        """A Batch of the named attributes; positions are computed in float64 from laspy's
-        scaled coordinates so that float32 rounding happens only once."""
+    def parse(self, chunk: np.ndarray | Span, start: int, origin: np.ndarray, names: tuple[str, ...]) -> Batch:
+        """A Batch of the named attributes; positions are computed in float64 as laspy
+        scales them, so that float32 rounding happens only once."""
+        if isinstance(chunk, Span):
+            chunk = read_span(self.info.path, self.records, chunk, self.info.points)
         positions = np.empty((len(chunk), 3), dtype=np.float32)
         lo, hi = np.empty(3), np.empty(3)
         with np.errstate(over="ignore", invalid="ignore"):     # overflow is counted, not warned
-            for axis, dim in enumerate("xyz"):
-                coords = np.asarray(getattr(chunk, dim))
+            for axis in range(3):
+                coords = self.records.coordinates(chunk, axis)
                 lo[axis], hi[axis] = coords.min(), coords.max()
-                positions[:, axis] = coords - origin[axis]
-        attributes = {name: self._values(chunk, name) for name in names if name != "elevation"}
+                coords -= origin[axis]
+                positions[:, axis] = coords
+        record = laspy.PackedPointRecord(chunk, self.records.point_format)
+        attributes = {name: self._values(record, name) for name in names if name != "elevation"}
         counts = {name: n for name, v in attributes.items() if (n := nonfinite_count(v))}
         for name in counts:
             quiet_nans(attributes[name])
         return Batch(start=start, positions=positions, attributes=attributes, bounds=(lo, hi),
                      nonfinite_positions=nonfinite_rows(positions), nonfinite_values=counts)
 
-    def _values(self, chunk: laspy.ScaleAwarePointRecord, name: str) -> np.ndarray:
+    def _values(self, chunk: laspy.PackedPointRecord, name: str) -> np.ndarray:
         if name == "rgb":
             # The depth is decided once per file (FileInfo.rgb_16bit); 8-bit files clip.
             rgb = np.empty((len(chunk), 3), dtype=np.uint8)
@@ -209,14 +254,47 @@ class LasSource:
         return np.ascontiguousarray(values)
 
 
-def decode(path: str, laz: LazLayout | None, count: int, piece: int, *, salvage: bool = False,
-           patches: tuple[Patch, ...] = ()) -> Iterator[laspy.ScaleAwarePointRecord]:
-    """Chunks of at most `piece` points, `count` in total, else TruncatedInput."""
+def read_span(path: str, records: Records, span: Span, count: int) -> np.ndarray:
+    """The records of `span` of an uncompressed file, in one read; TruncatedInput where the
+    file ends first (it was cut after it was opened: its size was checked then)."""
+    with open_binary(path) as stream:
+        return _read_records(stream, path, records, span, count)
+
+
+def _read_records(stream, path: str, records: Records, span: Span, count: int) -> np.ndarray:
+    array = np.empty(span.count, records.dtype)
+    stream.seek(records.point_data + span.first * records.dtype.itemsize)
+    got = stream.readinto(memoryview(array).cast("B"))
+    if got != array.nbytes:
+        read = span.first + got // records.dtype.itemsize
+        raise TruncatedInput(f"{shown(path)}: header says {count} points but only {read} could be read", read)
+    return array
+
+
+def _pieces(path: str, laz: LazLayout | None, records: Records, count: int, piece: int) -> Iterator[np.ndarray]:
+    """The first `count` records in file order, in arrays of any size: read straight into
+    numpy (the text patches of an uncompressed file lie before its points), decoded by
+    lazrs over several chunks at once, or else through laspy."""
+    if laz is None:
+        with open_binary(path) as stream:
+            for first in range(0, count, piece):
+                yield _read_records(stream, path, records, Span(first, min(piece, count - first)), count)
+    elif laz.chunks:
+        yield from decode_chunks(path, laz, count, piece, records.dtype, available_cores())
+    else:
+        with _reader(laz.open(path), path, laz.backend, count) as reader:
+            for chunk in reader.chunk_iterator(piece):
+                yield chunk.array
+
+
+def decode(path: str, laz: LazLayout | None, records: Records, count: int, piece: int, *,
+           salvage: bool = False) -> Iterator[np.ndarray]:
+    """Record arrays of at most `piece` points, `count` in total, else TruncatedInput."""
     read = 0
     try:
-        with _reader(laz.open(path) if laz else open_patched(path, patches), path, laz.backend if laz else None,
-                     count) as reader:
-            for chunk in reader.chunk_iterator(piece):
+        for part in _pieces(path, laz, records, count, piece):
+            for at in range(0, len(part), piece):
+                chunk = part[at:at + piece]
                 read += len(chunk)
                 yield chunk
     except BaseException as exc:
@@ -232,8 +310,7 @@ def decode(path: str, laz: LazLayout | None, count: int, piece: int, *, salvage:
         raise TruncatedInput(f"{shown(path)}: header says {count} points but only {read} could be read", read)
 
 
-def _salvage(path: str, laz: LazLayout, count: int, start: int,
-             piece: int) -> Iterator[laspy.ScaleAwarePointRecord]:
+def _salvage(path: str, laz: LazLayout, count: int, start: int, piece: int) -> Iterator[np.ndarray]:
     """Decode again with lazrs's sequential decoder and yield, in chunks of `piece`, every
     point from `start` on that decodes before its first failure. The decoder cannot go on
     (or back) after a failed read, and a failed read of n points tells nothing of how many
@@ -281,7 +358,7 @@ class _Sequential:
 
     def __init__(self, stream, laz: LazLayout, at: int, piece: int):
         header = laspy.LasHeader.read_from(stream, read_evlrs=False)
-        self._format, self._scales, self._offsets = header.point_format, header.scales, header.offsets
+        self._dtype = header.point_format.dtype()
         self.size = header.point_format.size
         stream.seek(laz.point_data)
         self._decoder = lazrs.LasZipDecompressor(stream, laz.vlr_data)
@@ -296,10 +373,9 @@ class _Sequential:
         with memoryview(buffer) as view:
             self._decoder.decompress_many(view[first * self.size:(first + n) * self.size])
 
-    def records(self, buffer: bytearray, n: int) -> laspy.ScaleAwarePointRecord:
+    def records(self, buffer: bytearray, n: int) -> np.ndarray:
         """The first n points of buffer, copied."""
-        array = np.frombuffer(buffer[:n * self.size], dtype=self._format.dtype())
-        return laspy.ScaleAwarePointRecord(array, self._format, self._scales, self._offsets)
+        return np.frombuffer(buffer[:n * self.size], dtype=self._dtype).copy()
 
 
 def _reader(stream, path: str, backend: laspy.LazBackend | None, count: int) -> laspy.LasReader:
@@ -343,8 +419,10 @@ def open_las(path: str | os.PathLike, *, partial: bool = False) -> LasSource:
             count = _checked_count(path, raw, size, partial, warnings)
     check_addressable(path, count)
     pf = header.point_format
+    records = Records(pf, header.offset_to_point_data, np.asarray(header.scales, np.float64),
+                      np.asarray(header.offsets, np.float64))
     has_rgb = "red" in pf.dimension_names
-    max_rgb, first, seen = _probe(path, laz, count, has_rgb, partial, patches)
+    max_rgb, first, seen = _probe(path, laz, records, count, has_rgb, partial)
     columns = _columns(pf)
     info = FileInfo(
         path=path,
@@ -364,10 +442,10 @@ def open_las(path: str | os.PathLike, *, partial: bool = False) -> LasSource:
     first_gps = float(first["gps_time"][0]) if "gps_time" in columns else None
     if wrong := _unreachable_bounds(header) or contradicted_bounds(header.mins, header.maxs, seen,
                                                                   np.abs(header.scales)):
-        lo, hi = _data_bounds(path, laz, count, partial, patches)
+        lo, hi = _data_bounds(path, laz, records, count, partial)
         info = dataclasses.replace(info, bounds_min=lo, bounds_max=hi)
         warnings.append(f"{shown(path)}: header bounds {wrong}; ignored them and used the bounds of the points")
-    source = LasSource(info, (), columns, first_gps, laz, tuple(warnings), patches)
+    source = LasSource(info, (), columns, first_gps, laz, records, tuple(warnings))
     sample = source.parse(first, 0, np.zeros(3), names).attributes
     attributes = tuple(
         AttributeInfo(n, attribute_kind(n), np.dtype(np.float64) if n == "elevation" else sample[n].dtype)
@@ -440,15 +518,15 @@ def _unreachable_bounds(header: laspy.LasHeader) -> str | None:
     return f"cannot be reached with its scale and offset ({'; '.join(bad)})" if bad else None
 
 
-def _data_bounds(path: str, laz: LazLayout | None, count: int, partial: bool,
-                 patches: tuple[Patch, ...]) -> tuple[tuple[float, ...], tuple[float, ...]]:
+def _data_bounds(path: str, laz: LazLayout | None, records: Records, count: int,
+                 partial: bool) -> tuple[tuple[float, ...], tuple[float, ...]]:
     """Exact min and max of the file coordinates, computed as LasSource.parse computes them;
     with partial, of the points that can be read. One extra pass over the file."""
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
     try:
-        for chunk in decode(path, laz, count, BATCH_POINTS, salvage=partial, patches=patches):
-            for axis, dim in enumerate("xyz"):
-                coords = np.asarray(getattr(chunk, dim))
+        for chunk in decode(path, laz, records, count, BATCH_POINTS, salvage=partial):
+            for axis in range(3):
+                coords = records.coordinates(chunk, axis)
                 lo[axis], hi[axis] = min(lo[axis], coords.min()), max(hi[axis], coords.max())
     except TruncatedInput as exc:
         if not (partial and exc.read):
@@ -501,8 +579,8 @@ def _checked_count(path: str, raw: RawHeader, size: int, partial: bool, warnings
     raise fail(path, problem)
 
 
-def _probe(path: str, laz: LazLayout | None, count: int, has_rgb: bool, partial: bool,
-           patches: tuple[Patch, ...]) -> tuple[int, laspy.ScaleAwarePointRecord, np.ndarray]:
+def _probe(path: str, laz: LazLayout | None, records: Records, count: int, has_rgb: bool,
+           partial: bool) -> tuple[int, np.ndarray, np.ndarray]:
     """Max of R, G, B over the first BATCH_POINTS points (the rule of FileInfo.rgb_16bit),
     read in pieces that stop once it exceeds 255; the first point; and the (2, 3) min
     and max of the first piece's coordinates (at least BOUNDS_SAMPLE points), to check
@@ -510,11 +588,11 @@ def _probe(path: str, laz: LazLayout | None, count: int, has_rgb: bool, partial:
     wanted = min(count, BATCH_POINTS if has_rgb else BOUNDS_SAMPLE)
     max_rgb, first, seen = 0, None, None
     try:
-        for chunk in decode(path, laz, wanted, min(wanted, PROBE_PIECE), salvage=partial, patches=patches):
+        for chunk in decode(path, laz, records, wanted, min(wanted, PROBE_PIECE), salvage=partial):
             if first is None:
-                first = chunk[:1]
+                first = chunk[:1].copy()
                 with np.errstate(over="ignore", invalid="ignore"):
-                    coords = np.stack([np.asarray(getattr(chunk, dim)) for dim in "xyz"], axis=1)
+                    coords = np.stack([records.coordinates(chunk, axis) for axis in range(3)], axis=1)
                     seen = np.stack([coords.min(axis=0), coords.max(axis=0)])
             if has_rgb:
                 max_rgb = max(max_rgb, *(int(np.max(chunk[c])) for c in ("red", "green", "blue")))

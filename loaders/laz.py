@@ -1,6 +1,11 @@
 """How a LAZ file is handed to lazrs: its LASzip VLR and chunk table checked first, and
 views of the file (patched bytes, a stand-in chunk table) where its own cannot be trusted.
 
+A sound chunk table lets decode_chunks read several chunks' bytes at once and have lazrs
+decode them on every core (`decompress_points_with_chunk_table`). lazrs holds the GIL
+while it decodes, so a read is kept to a few rounds of chunks per core: short enough
+that the render loop and the parser threads get the GIL back soon.
+
 lazrs trusts the chunk table: it allocates for every chunk declared (aborting the process
 when it cannot), panics on byte counts that make no sense ("capacity overflow"), and with
 no table may take garbage for a chunk header. A table is therefore used only when its
@@ -15,15 +20,19 @@ import io
 import math
 import os
 import struct
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import laspy
 import lazrs
+import numpy as np
 
 from progressive.loaders.validate import check_laszip, fail, open_binary, shown
 
 Patch = tuple[int, bytes]
 """Bytes read in place of the file's own at an offset."""
+Chunk = tuple[int, int]
+"""A LAZ chunk: its points, its compressed bytes."""
 LAZ_POINTWISE = 1                       # LASzip compressor without chunks or chunk table
 MIN_CHUNK_BYTES = 20                    # a LAZ chunk starts with one raw point record
 TAIL_GAP = 1                            # bytes of end of file before a stand-in chunk table
@@ -33,6 +42,11 @@ PARALLEL_CHUNK_BYTES = 1 << 26
 """Largest decoded chunk handed to the parallel decoder, which allocates a whole chunk
 per chunk (a chunk size of 4e9 points in a damaged VLR aborted the process); larger
 chunks are decoded in sequence, which does not."""
+ROUNDS_PER_READ = 2
+"""Chunks per core in one read: two rounds keep every core busy until a read's last
+chunks, and a read short (lazrs holds the GIL for all of it)."""
+READ_BYTES = 1 << 27
+"""Most decoded bytes in one read, however many cores there are."""
 
 
 @dataclass(frozen=True)
@@ -52,6 +66,10 @@ class LazLayout:
     problem: str | None = None
     patches: tuple[Patch, ...] = ()
     """The file's text patches (text_patches), applied wherever laspy reads the header."""
+    chunks: tuple[Chunk, ...] = ()
+    """Where the chunks can be decoded in parallel (a sound table, chunks that fit
+    PARALLEL_CHUNK_BYTES): each chunk's points and bytes, up to `points` (the last chunk
+    holds what is left of them), in file order; else empty."""
 
     def open(self, path: str):
         """The file as lazrs may see it."""
@@ -79,6 +97,45 @@ class LazLayout:
         end = self.table_at or os.path.getsize(path)
         return open_patched(path, (*self.patches, (self.point_data, struct.pack("<q", end + TAIL_GAP))),
                             table.getvalue(), end=end)
+
+
+def decode_chunks(path: str, laz: LazLayout, points: int, first_read: int, dtype: np.dtype, cores: int,
+                  selection: lazrs.DecompressionSelection | None = None) -> Iterator[np.ndarray]:
+    """The first `points` points of laz.chunks in file order, as structured arrays of
+    `dtype`, one per read of up to ROUNDS_PER_READ chunks per core, decoded by lazrs on
+    every core; the compressed bytes are read without the GIL. The first read holds
+    only the chunks of the first `first_read` points (a first batch, or a probe of the
+    file's first points, comes sooner). Fields that `selection` leaves out are zero."""
+    chunks = clipped(list(laz.chunks), points, None)
+    largest = max((n for n, _ in chunks), default=0) * dtype.itemsize
+    per_read = max(1, min(cores * ROUNDS_PER_READ, READ_BYTES // max(largest, 1)))
+    head = len(clipped(chunks, first_read, None))
+    starts = [0, *range(min(head, per_read), len(chunks), per_read)]
+    with open_binary(path) as stream:
+        stream.seek(laz.point_data + TABLE_OFFSET_BYTES)
+        for first, end in zip(starts, [*starts[1:], len(chunks)], strict=True):
+            group = chunks[first:end]
+            compressed = bytearray(sum(n for _, n in group))
+            if stream.readinto(compressed) != len(compressed):
+                raise EOFError("the file ends inside its LAZ chunk data")
+            points = np.empty(sum(n for n, _ in group), dtype)
+            lazrs.decompress_points_with_chunk_table(compressed, laz.vlr_data, memoryview(points).cast("B"),
+                                                     list(group), selection)
+            yield points
+
+
+def clipped(table: list[Chunk], points: int, chunk_size: int | None) -> tuple[Chunk, ...]:
+    """The chunks that hold the first `points` points, the last one cut to what is left
+    (lazrs decodes exactly the points an entry gives; a fixed-size table gives every
+    chunk chunk_size, the last one's too)."""
+    out, left = [], points
+    for held, n in table:
+        if left <= 0:
+            break
+        take = min(left, held if chunk_size is None else chunk_size)
+        out.append((take, n))
+        left -= take
+    return tuple(out)
 
 
 def open_patched(path: str, patches: tuple[Patch, ...] = (), tail: bytes = b"", end: int | None = None):
@@ -225,4 +282,5 @@ def laz_layout(path: str, stream, header: laspy.LasHeader, record_length: int, c
     parallel = laspy.LazBackend.LazrsParallel
     fits = parallel.is_available() and largest * record_length <= PARALLEL_CHUNK_BYTES
     return dataclasses.replace(layout, points=count, table_ok=True, table_at=table_at,
-                               backend=parallel if fits else layout.backend)
+                               backend=parallel if fits else layout.backend,
+                               chunks=clipped(table, count, None if variable else vlr.chunk_size()) if fits else ())

@@ -1,9 +1,11 @@
 """Several files as one cloud, loaded by background threads while the renderer draws.
 
-One reader thread does the I/O (and LAZ decoding, which lazrs parallelises itself) and
-hands raw chunks to parser threads through a one-slot queue; parsed batches wait in a
-queue of parser_threads slots. So at most about 2 x parser_threads + 2 batches are in
-memory at once, however large the cloud is.
+One reader thread hands work to parser threads through a one-slot queue, in file order:
+the spans of an uncompressed file (each parser reads its own, without the GIL), LAZ
+points decoded by lazrs several chunks at a time on every core, the chunks of the other
+formats. Parsed batches wait in a queue of parser_threads slots. So at most about
+2 x parser_threads + 2 batches (and one LAZ read) are in memory at once, however large
+the cloud is. Parser threads default to the cores this process may use.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from progressive.loaders.e57 import E57Source, is_e57, open_e57
 from progressive.loaders.fastformat import FastSource, is_fast, open_fast
 from progressive.loaders.las import LasSource, TruncatedInput, open_las
 from progressive.loaders.ply import PlySource, is_ply, open_ply
-from progressive.loaders.types import BATCH_POINTS, AttributeInfo, Batch, CloudInfo
+from progressive.loaders.types import BATCH_POINTS, AttributeInfo, Batch, CloudInfo, available_cores
 from progressive.loaders.validate import check_addressable, fail, shown
 
 Source = LasSource | FastSource | E57Source | PlySource
@@ -153,7 +155,7 @@ class CloudLoader:
 
     def __init__(self, paths, *, batch_points: int = BATCH_POINTS,
                  parser_threads: int | None = None, partial: bool = False):
-        parser_threads = min(4, os.cpu_count() or 1) if parser_threads is None else parser_threads
+        parser_threads = available_cores() if parser_threads is None else parser_threads
         if batch_points < 1 or parser_threads < 1:
             raise ValueError("batch_points and parser_threads must be at least 1")
         self.info, self._sources = open_sources(paths, partial=partial)

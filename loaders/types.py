@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import enum
+import os
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -13,6 +14,15 @@ BATCH_POINTS = 500_000
 
 RGB8_MAX = 255
 """A file is 16-bit colour iff a channel among its first BATCH_POINTS points exceeds this."""
+
+
+def available_cores() -> int:
+    """The cores this process may run on (its CPU affinity, which a container or taskset
+    narrows), not every core of the machine: the default for decoder and parser threads."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:          # no sched_getaffinity (macOS, Windows)
+        return os.cpu_count() or 1
 
 
 class AttributeKind(enum.Enum):

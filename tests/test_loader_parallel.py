@@ -1,0 +1,178 @@
+"""The parallel LAZ decoder and the direct LAS reads against laspy: every core and thread
+count, batch sizes that cut chunks and reads, partial reads of damaged files."""
+
+from __future__ import annotations
+
+import io
+import os
+
+import laspy
+import lazrs
+import numpy as np
+import pytest
+from test_loaders import assert_covers, expected_values, joined, load, one_line_naming
+
+from conftest import SAMPLE, shared_file
+from progressive.errors import InputError
+from progressive.loaders import CloudLoader
+from progressive.loaders import las as las_module
+from progressive.loaders.las import open_las
+from progressive.loaders.laz import decode_chunks
+
+CHUNKED = ("lone-star.copc.laz", "lion_takanawa.copc.laz", "las_with_several_extra_byte_bloc.laz",
+           "pine_plot.laz", "fullwave.laz")
+"""Real LAZ files with sound chunk tables: variable-size (COPC) and fixed-size chunks,
+point formats 0, 6, 7, 8 and 10, extra bytes."""
+CORES = (1, 2, 3, 8)
+
+
+def records_of(path) -> np.ndarray:
+    return laspy.read(path).points.array
+
+
+@pytest.mark.parametrize("name", CHUNKED)
+def test_decode_chunks_equals_laspy_for_every_core_count(name):
+    path = shared_file(name)
+    source = open_las(path)
+    laz = source.laz
+    assert laz.chunks, "the file should take the parallel path"
+    expected = records_of(path)
+    chunk = laz.chunks[0][0]
+    cut = min(len(expected), 2 * chunk + 17)            # inside the third chunk
+    for cores in CORES:
+        for first_read in (1, chunk + 1, len(expected)):
+            reads = list(decode_chunks(str(path), laz, len(expected), first_read, source.records.dtype, cores))
+            got = np.concatenate(reads)
+            assert got.dtype == expected.dtype
+            np.testing.assert_array_equal(got, expected, err_msg=f"{cores} cores, first read {first_read}")
+        partial = np.concatenate(list(decode_chunks(str(path), laz, cut, 1, source.records.dtype, cores)))
+        np.testing.assert_array_equal(partial, expected[:cut])
+
+
+def test_reads_hold_rounds_of_chunks_per_core():
+    """A read holds the first read's chunks, then ROUNDS_PER_READ chunks per core."""
+    from progressive.loaders.laz import ROUNDS_PER_READ
+    path = shared_file("las_with_several_extra_byte_bloc.laz")
+    source = open_las(path)
+    sizes = [n for n, _ in source.laz.chunks]
+    for cores in (1, 2, 3):
+        reads = [len(r) for r in decode_chunks(str(path), source.laz, source.info.points, 1, source.records.dtype, cores)]
+        per = ROUNDS_PER_READ * cores
+        expected = [sizes[0]] + [sum(sizes[i:i + per]) for i in range(1, len(sizes), per)]
+        assert reads == expected
+
+
+def assert_equals_laspy(loader, batches, las) -> None:
+    assert_covers(batches, len(las.points), loader.batch_points)
+    positions = joined(batches)
+    for axis, dim in enumerate("xyz"):
+        np.testing.assert_array_equal(positions[:, axis], np.float32(np.asarray(getattr(las, dim)) - loader.info.origin[axis]))
+    for attr in loader.info.attributes:
+        if attr.name != "elevation":
+            values = joined(batches, attr.name)
+            assert values.dtype == attr.dtype
+            np.testing.assert_array_equal(values, expected_values(las, attr.name), err_msg=attr.name)
+
+
+@pytest.mark.parametrize("name", ["autzen_trim.las", "lone-star.copc.laz", "pine_plot.laz"])
+def test_every_thread_and_core_count_equals_laspy(name, monkeypatch):
+    """Batches that cut chunks (chunk size +- 1, a prime) and reads, any parser threads."""
+    path = SAMPLE if name == SAMPLE.name else shared_file(name)
+    las = laspy.read(path)
+    chunk = 50_000 if name.endswith(".las") else open_las(path).laz.chunks[0][0]
+    for cores, threads, batch in ((1, 1, chunk - 1), (2, 3, chunk + 1), (3, 2, 7_919), (8, 5, 500_000)):
+        monkeypatch.setattr(las_module, "available_cores", lambda cores=cores: cores)
+        loader, batches = load([path], parser_threads=threads, batch_points=batch)
+        assert loader.done and not loader.warnings
+        assert_equals_laspy(loader, batches, las)
+
+
+def test_default_threads_follow_the_cpu_affinity(monkeypatch):
+    """Parser threads default to the cores this process may run on, not min(4, cores)
+    nor every core of the machine."""
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 2, 5, 7, 9}, raising=False)
+    with CloudLoader([SAMPLE]) as loader:
+        assert loader.parser_threads == 5
+        assert sum(b.count for b in loader) == loader.total
+
+
+def sequential_prefix(path) -> np.ndarray:
+    """The points lazrs's sequential decoder gives, one at a time, until its first failure."""
+    data = path.read_bytes()
+    header = laspy.LasHeader.read_from(io.BytesIO(data))
+    stream = io.BytesIO(data)
+    stream.seek(header.offset_to_point_data)
+    decoder = lazrs.LasZipDecompressor(stream, bytes(header.vlrs.get("LasZipVlr")[0].record_data))
+    out = np.empty(header.point_count, header.point_format.dtype())
+    view = memoryview(out).cast("B")
+    size = header.point_format.size
+    for i in range(header.point_count):
+        try:
+            decoder.decompress_many(view[i * size:(i + 1) * size])
+        except BaseException:       # lazrs errors and panics
+            return out[:i]
+    return out
+
+
+@pytest.fixture(scope="module")
+def sample_laz(tmp_path_factory):
+    """The sample as a LAZ of laspy's 50,000-point chunks."""
+    path = tmp_path_factory.mktemp("laz") / "sample.laz"
+    laspy.read(SAMPLE).write(path, laz_backend=laspy.LazBackend.Lazrs)
+    return path
+
+
+def test_partial_read_of_a_corrupt_chunk_keeps_every_point_before_it(tmp_path, monkeypatch, sample_laz):
+    """Bytes of the second chunk overwritten (the chunk table still adds up): the parallel
+    read of that chunk fails, and what a partial load keeps is a prefix of what the
+    sequential decoder gives, at least every point before the damage, for any cores."""
+    source = laspy.read(SAMPLE)
+    data = bytearray(sample_laz.read_bytes())
+    header = laspy.LasHeader.read_from(io.BytesIO(bytes(data)))
+    stream = io.BytesIO(bytes(data))
+    stream.seek(header.offset_to_point_data)
+    table = lazrs.read_chunk_table(stream, lazrs.LazVlr(bytes(header.vlrs.get("LasZipVlr")[0].record_data)))
+    assert len(table) >= 2
+    second = header.offset_to_point_data + 8 + table[0][1]
+    data[second + table[1][1] // 3: second + table[1][1] // 3 + 64] = bytes(range(64))
+    path = tmp_path / "damaged.laz"
+    path.write_bytes(bytes(data))
+    reference = sequential_prefix(path)
+    for cores, batch in ((1, 20_000), (2, 500_000), (3, 7_919)):
+        monkeypatch.setattr(las_module, "available_cores", lambda cores=cores: cores)
+        loader, batches = load([path], partial=True, batch_points=batch)
+        read = sum(b.count for b in batches)
+        assert_covers(batches, read, batch)
+        assert table[0][0] <= read <= len(reference)
+        z = source.header.scales[2] * reference["Z"][:read] + source.header.offsets[2]
+        np.testing.assert_array_equal(joined(batches)[:, 2], np.float32(z - loader.info.origin[2]))
+    with pytest.raises(InputError) as err:
+        load([path])
+    one_line_naming(err.value, path)
+
+
+def test_las_cut_after_it_was_opened_is_one_line(tmp_path):
+    """The size is checked at open; a file cut before its spans are read fails in one
+    line naming the points that could be read, not with a short array."""
+    path = tmp_path / "shrinking.las"
+    data = SAMPLE.read_bytes()
+    path.write_bytes(data)
+    loader = CloudLoader([path], batch_points=10_000, parser_threads=2)
+    with open(path, "r+b") as f:
+        f.truncate(len(data) - 34 * 30_000)
+    with pytest.raises(InputError) as err, loader:
+        for _ in loader:
+            pass
+    one_line_naming(err.value, path)
+    assert "could be read" in str(err.value)
+
+
+def test_las_spans_are_read_by_the_parser_threads():
+    """An uncompressed file's reader hands out spans, not records: the reads happen in
+    the parser threads."""
+    source = open_las(SAMPLE)
+    spans = list(source.chunks(30_000))
+    assert [(s.first, s.count) for s in spans] == [(0, 30_000), (30_000, 30_000), (60_000, 30_000), (90_000, 20_000)]
+    expected = records_of(SAMPLE)
+    batch = source.parse(spans[1], 30_000, np.zeros(3), ("intensity",))
+    np.testing.assert_array_equal(batch.attributes["intensity"], expected["intensity"][30_000:60_000])
