@@ -23,6 +23,7 @@ from progressive.camera import Camera, auto_camera, view_uniforms
 from progressive.context import GLContext, create_context
 from progressive.gpu import grid
 from progressive.packing import RECORD_BYTES
+from progressive.passes.raster_compute import ComputeTuning, subgroup_reduction_available
 from progressive.permutation import FillOrder
 from progressive.renderer import Raster, Renderer
 from progressive.timing import Timestamps
@@ -77,13 +78,14 @@ def rasters(glc: GLContext) -> list[Raster]:
     return ([Raster.COMPUTE] if glc.caps.atomic_int64 else []) + [Raster.COMPUTE32, Raster.POINTS]
 
 
-def variants(glc: GLContext) -> list[tuple[Raster, bool]]:
-    """Each rasterizer, the compute ones also with the (opt-in) subgroup reduction where
-    the GPU has it, so its gain is measured side by side."""
-    from progressive.passes.raster_compute import subgroup_reduction_available
-
+def variants(glc: GLContext, batched: bool) -> list[tuple[Raster, ComputeTuning]]:
+    """Each rasterizer; the compute ones on the batched layout also one invocation a slot
+    (against one work group a batch) and, where the GPU has it, with the subgroup
+    reduction, so each choice is measured side by side."""
     reduce = subgroup_reduction_available(glc)
-    return [(r, p) for r in rasters(glc) for p in ((False, True) if reduce and r is not Raster.POINTS else (False,))]
+    tunings = [ComputeTuning(batch_groups=g, subgroup_reduction=s) for g in ((False, True) if batched else (False,))
+               for s in ((False, True) if reduce else (False,))]
+    return [(r, t) for r in rasters(glc) for t in (tunings if r is not Raster.POINTS else [ComputeTuning()])]
 
 
 def close_up(cloud: TiledCloud, aspect: float) -> Camera:
@@ -108,11 +110,11 @@ def measure(glc: GLContext, cloud: TiledCloud, layouts, sizes, repeats: int) -> 
             for view, cam in views(cloud, width / height).items():
                 culled = (1.0 - float(np.mean(batches.in_view(scene.store.boxes, view_uniforms(
                     cam, cloud.info.origin, width, height))))) if scene.store.batched else 0.0
-                for raster, partitioned in variants(glc):
+                for raster, tuning in variants(glc, scene.store.batched):
                     if raster is Raster.POINTS and view != "overview":
                         continue
                     r = Renderer(glc, cloud.info, cloud.attribute, raster=raster, width=width, height=height,
-                                 scene=scene, partitioned=partitioned)
+                                 scene=scene, tuning=tuning)
                     style = r.style()
                     times = [r.render(cam, width, height, style).gpu_ms["raster"] for _ in range(repeats + 1)]
                     frame = r.render(cam, width, height, style)
@@ -120,6 +122,7 @@ def measure(glc: GLContext, cloud: TiledCloud, layouts, sizes, repeats: int) -> 
                     rows.append({"points": cloud.points, "width": width, "height": height, "layout": layout.label,
                                  "view": view, "raster": r.raster_path, "ms": ms, "ms_all": times[1:],
                                  "subgroup_reduction": getattr(r.raster, "partitioned", False),
+                                 "batch_groups": getattr(r.raster, "batch_groups", False),
                                  "passes": r.raster.passes, "points_per_s": cloud.points / (ms / 1e3),
                                  "bytes_per_s": cloud.points * RECORD_BYTES * r.raster.passes / (ms / 1e3),
                                  "batches_culled": culled, "covered_pixels": int((frame.slots != 0xFFFFFFFF).sum()),
@@ -138,7 +141,7 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
         rows += measure(glc, tiled(str(SAMPLE), n), layouts, sizes, repeats)
     table = Table(f"raster_{max(points)}", "Brute-force rasterization of every point", f"{SAMPLE.name} tiled on a grid",
                   ", ".join(f"{n:,}" for n in points), (
-                      "points", "size", "store order", "view", "rasterizer", "subgroup reduction", "ms (median)", "Mpoints/s", "GB/s read",
+                      "points", "size", "store order", "view", "rasterizer", "work group", "subgroup reduction", "ms (median)", "Mpoints/s", "GB/s read",
                       "share of copy bandwidth", "× GL_POINTS", "batches culled", "× overview", "covered pixels"))
     def twin(r: dict, **keys) -> float:
         """ms of the row of the same cloud, size and layout with `keys` changed."""
@@ -147,12 +150,13 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
 
     for r in rows:
         base = twin(r, view="overview", raster="GL_POINTS")
-        overview = twin(r, view="overview", raster=r["raster"], subgroup_reduction=r["subgroup_reduction"])
+        overview = twin(r, view="overview", raster=r["raster"], subgroup_reduction=r["subgroup_reduction"],
+                        batch_groups=r["batch_groups"])
         r["vs_points"] = base / r["ms"] if r["view"] == "overview" else None
         r["vs_overview"] = overview / r["ms"]
         r["share_of_copy"] = r["bytes_per_s"] / copy
         table.rows.append((r["points"], f"{r['width']}x{r['height']}", r["layout"], r["view"], r["raster"],
-                           "yes" if r["subgroup_reduction"] else "no", r["ms"],
+                           "batch" if r["batch_groups"] else "256 slots", "yes" if r["subgroup_reduction"] else "no", r["ms"],
                            r["points_per_s"] / 1e6, r["bytes_per_s"] / 1e9, r["share_of_copy"], r["vs_points"],
                            r["batches_culled"], r["vs_overview"], r["covered_pixels"]))
     missing = [] if glc.caps.atomic_int64 else [
@@ -170,7 +174,8 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
         "per tile, vertical scan lines by azimuth (bench/synthetic.py). Views: overview = the auto camera on the "
         "whole cloud; close-up = one corner tile from above at 45° (GL_POINTS not run); batches culled = share of "
         "the store's batches the culling test leaves out (batched layouts only); × overview = overview ms / this "
-        "ms, same rasterizer. Mpoints/s and GB/s count every point of the cloud, culled ones included.")]
+        "ms, same rasterizer. Work group: batch = one work group walks one batch's slices (ComputeTuning.batch_groups), "
+        "256 slots = one invocation a slot. Mpoints/s and GB/s count every point of the cloud, culled ones included.")]
     table.raw = {"copy_bytes": copy_bytes, "copy_bytes_per_s": copy, "copy_methods": copies, "rows": rows}
     return table
 

@@ -15,7 +15,6 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
-from pye57 import libe57
 
 from progressive.errors import InputError
 from progressive.loaders.types import (
@@ -144,7 +143,9 @@ class _Image:
     def __init__(self, path: str):
         self.path = path
 
-    def __enter__(self) -> libe57.ImageFile:
+    def __enter__(self):
+        from pye57 import libe57  # here, not at the top: importing it costs every start 30 ms
+
         try:
             self.image = libe57.ImageFile(self.path, "r")
         except Exception as exc:
@@ -181,6 +182,8 @@ def _chunks(path: str, scans: tuple[_Scan, ...], batch_points: int) -> Iterator[
 
 
 def _scan_chunks(image, points, scan: _Scan, batch_points: int, path: str) -> Iterator[E57Chunk]:
+    from pye57 import libe57
+
     capacity = min(batch_points, scan.info.points)
     arrays = {f: np.empty(capacity, dtype=FIELD_TYPES[f]) for f in scan.fields}
     buffers = libe57.VectorSourceDestBuffer()
@@ -226,6 +229,8 @@ def _pose(path: str, node, index: int) -> tuple[tuple[float, ...], tuple[float, 
 
 
 def _scan(path: str, node, index: int) -> _Scan:
+    from pye57 import libe57
+
     points = node["points"]
     prototype = libe57.StructureNode(points.prototype())
     present = {prototype.get(i).elementName() for i in range(prototype.childCount())}

@@ -3,7 +3,9 @@ the camera uniforms of camera.glsl."""
 
 from __future__ import annotations
 
-from progressive.camera import ViewUniforms
+import numpy as np
+
+from progressive.camera import NO_SECTION_RANGE, ViewUniforms
 
 GUARANTEED_GROUPS = 65535
 
@@ -22,6 +24,14 @@ def grid_2d(width: int, height: int, tile: int = 16) -> tuple[int, int, int]:
     return -(-width // tile), -(-height // tile), 1
 
 
+def filters_apply(view: ViewUniforms) -> bool:
+    """Whether a hidden category, a return filter, a clip box or a section can leave a
+    point out: without one the raster skips those tests in a uniform branch (on the
+    H200 they cost a quarter of its time)."""
+    return bool(view.hidden.any() or view.returns or np.isfinite(view.clip_lo).any()
+                or np.isfinite(view.clip_hi).any() or not np.array_equal(view.section_range, NO_SECTION_RANGE))
+
+
 def set_view(program, view: ViewUniforms) -> None:
     """Camera uniforms (camera.glsl); a program may not use all of them."""
     program["u_view_rotation"].write(view.rotation.T.tobytes())
@@ -35,6 +45,8 @@ def set_view(program, view: ViewUniforms) -> None:
         program["u_hidden"].write(view.hidden.tobytes())
     if "u_returns" in program:
         program["u_returns"] = view.returns
+    if "u_filtering" in program:
+        program["u_filtering"] = int(filters_apply(view))
     if "u_clip_lo" in program:
         program["u_clip_lo"].write(view.clip_lo.tobytes())
         program["u_clip_hi"].write(view.clip_hi.tobytes())

@@ -159,7 +159,8 @@ class Permutation:
 
 def glsl_defines() -> str:
     """The layout's constants for every shader (shaders/common.glsl slot_of)."""
-    return f"#define BATCH_POINTS {BATCH_POINTS}u\n#define SLICE_POINTS {SLICE_POINTS}u\n"
+    return (f"#define BATCH_POINTS {BATCH_POINTS}u\n#define BATCH_SLOTS {BATCH_SLOTS}u\n"
+            f"#define SLICE_POINTS {SLICE_POINTS}u\n")
 
 
 def _shuffle(i: np.ndarray, p: np.uint64, offset) -> np.ndarray:

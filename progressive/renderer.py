@@ -13,7 +13,7 @@ from progressive.colors import Colormap, ColorStyle
 from progressive.context import GLContext
 from progressive.effects import Effects
 from progressive.loaders.types import AttributeInfo, Batch, CloudInfo
-from progressive.passes.raster_compute import ComputeRaster
+from progressive.passes.raster_compute import DEFAULT_TUNING, ComputeRaster, ComputeTuning
 from progressive.passes.raster_points import PointsRaster
 from progressive.passes.visibility import EMPTY, VisibilityBuffer
 from progressive.pointstore import PointStore
@@ -42,7 +42,8 @@ class Renderer:
     def __init__(self, glc: GLContext, info: CloudInfo, attribute: AttributeInfo, *,
                  raster: Raster = Raster.COMPUTE, width: int = 1280, height: int = 720,
                  chunk_points: int | None = None, capacity: int | None = None, scene: Scene | None = None,
-                 keep_batches: bool = False, partitioned: bool = False, class_filter: bool = False):
+                 keep_batches: bool = False, tuning: ComputeTuning = DEFAULT_TUNING,
+                 class_filter: bool = False):
         """`scene`: a cloud already on the GPU to render (kept on release)."""
         self.glc, self.info, self.attribute = glc, info, attribute
         self._own_scene = scene is None
@@ -51,7 +52,7 @@ class Renderer:
         self.store = self.scene.store
         self.vis = VisibilityBuffer(glc, width, height)
         self.raster_kind = raster
-        self.raster = make_raster(glc, self.store, self.vis, raster, partitioned)
+        self.raster = make_raster(glc, self.store, self.vis, raster, tuning)
         self.shading = Shading(glc, self.store, self.vis)
         self.timestamps = Timestamps(glc)
 
@@ -106,12 +107,13 @@ class Renderer:
             self.scene.release()
 
 
-def make_raster(glc: GLContext, store: PointStore, vis: VisibilityBuffer, raster: Raster, partitioned: bool = False):
-    """partitioned: the subgroup reduction where the GPU has it (ComputeRaster; opt-in)."""
+def make_raster(glc: GLContext, store: PointStore, vis: VisibilityBuffer, raster: Raster,
+                tuning: ComputeTuning = DEFAULT_TUNING):
+    """tuning: how a compute raster walks the store (GL_POINTS ignores it)."""
     if raster is Raster.POINTS:
         return PointsRaster(glc, store, vis)
     return ComputeRaster(glc, store, vis, atomic64=raster is Raster.COMPUTE and glc.caps.atomic_int64,
-                         partitioned=partitioned)
+                         tuning=tuning)
 
 
 def raster_path(kind: Raster, raster) -> str:

@@ -1,7 +1,13 @@
-// The batched layout's per-batch culling flags, written by cull.comp each frame.
+// The batched layout's batches, and their culling flags written by cull.comp each frame.
 
-layout(std430, binding = BINDING_BATCH_FLAGS) readonly buffer Flags { uint batch_flags[]; };
 uniform uint u_batches;
+
+#if CULL
+layout(std430, binding = BINDING_BATCH_FLAGS) readonly buffer Flags { uint batch_flags[]; };
+
+bool batch_shown(uint b) {
+    return batch_flags[b] != 0u;
+}
 
 // The batch whose slice holds a slot (progressive/permutation.py).
 uint slot_batch(uint slot) {
@@ -9,5 +15,6 @@ uint slot_batch(uint slot) {
 }
 
 bool slot_in_view(uint slot) {
-    return batch_flags[slot_batch(slot)] != 0u;
+    return batch_shown(slot_batch(slot));
 }
+#endif

@@ -17,20 +17,17 @@ layout(std430, binding = BINDING_VISIBILITY) buffer Visibility { uint64_t visibi
 layout(std430, binding = BINDING_VISIBILITY) buffer Visibility { uint visibility[]; };
 #endif
 
-#if CULL
+#if CULL || BATCH_GROUPS
 #include "batches.glsl"
 #endif
 
-void main() {
-    uint i;
-    if (!range_index(source_count(), i)) return;
-    uint slot = source_slot(i);
-#if CULL
-    if (!slot_in_view(slot)) return;
-#endif
-    uvec4 record = source_record(i, slot);
-    if (!finite_position(record) || !flags_shown(point_flags(slot, record.w))
-        || !clip_keeps(uintBitsToFloat(record.xyz))) return;
+uniform uint u_filtering;    // 0: no filter can leave a point out (progressive/gpu.py filters_apply)
+
+// One point into its pixel (source index i: the reprojection list's hint).
+void raster(uint i, uint slot, uvec4 record) {
+    if (!finite_position(record)) return;
+    if (u_filtering != 0u && (!flags_shown(point_flags(slot, record.w)) || !clip_keeps(uintBitsToFloat(record.xyz))))
+        return;
     uint pixel;
     float depth;
     if (!project(uintBitsToFloat(record.xyz), pixel, depth)) return;
@@ -67,3 +64,44 @@ void main() {
     }
 #endif
 }
+
+#if BATCH_GROUPS
+// One work group per batch: its slices are SLICE_POINTS consecutive slots every
+// u_batches·SLICE_POINTS (progressive/permutation.py), and the group walks them in
+// turn, so the few pixels a compact batch covers stay in cache while all its points
+// go through. A culled batch costs one read. Each invocation loads PREFETCH records
+// before it draws them, so that many reads are in flight while the atomics wait.
+const uint ROUNDS = BATCH_SLOTS / SLICE_POINTS;
+
+void main() {
+    uint b = gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x;
+    if (b >= u_batches || u_count == 0u) return;
+#if CULL
+    if (!batch_shown(b)) return;
+#endif
+    uint stride = u_batches * SLICE_POINTS;
+    uint base = b * SLICE_POINTS + gl_LocalInvocationID.x;
+    uint last = u_first + (u_count - 1u);
+    uint k = u_first > base ? (u_first - base + stride - 1u) / stride : 0u;
+    for (; k < ROUNDS && base + k * stride <= last; k += PREFETCH) {
+        uint slots[PREFETCH];
+        uvec4 records[PREFETCH];
+        for (uint j = 0u; j < PREFETCH; ++j) {
+            // k + j < ROUNDS first: past the last round the product could wrap around.
+            slots[j] = k + j < ROUNDS ? base + (k + j) * stride : EMPTY;
+            records[j] = slots[j] <= last ? load_point(slots[j]) : uvec4(EMPTY);
+        }
+        for (uint j = 0u; j < PREFETCH; ++j) raster(slots[j], slots[j], records[j]);
+    }
+}
+#else
+void main() {
+    uint i;
+    if (!range_index(source_count(), i)) return;
+    uint slot = source_slot(i);
+#if CULL
+    if (!slot_in_view(slot)) return;
+#endif
+    raster(i, slot, source_record(i, slot));
+}
+#endif

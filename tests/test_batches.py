@@ -11,8 +11,9 @@ import pytest
 from progressive import batches
 from progressive.attributes import find_attribute
 from progressive.camera import Camera, auto_camera, project, view_uniforms
-from progressive.passes.raster_compute import ComputeRaster
-from progressive.permutation import BATCH_POINTS
+from progressive.passes.raster_compute import ComputeRaster, ComputeTuning
+from progressive.passes.visibility import EMPTY
+from progressive.permutation import BATCH_POINTS, SLICE_POINTS
 from progressive.renderer import Renderer
 from progressive.scene import Scene
 
@@ -141,28 +142,68 @@ def test_stats_report_batches_culled(tmp_path, sample):
     assert counts["outside"] == {"total": total, "drawn": 0, "culled": total}
 
 
+TUNINGS = [ComputeTuning(batch_groups=g, subgroup_reduction=s) for g in (True, False) for s in (True, False)]
+"""Every way the compute raster walks the store; the last (one invocation a slot, an
+atomic a point) is the plain reference the others must equal."""
+
+
+def slots_of_range(gl, r: Renderer, cam: Camera, first: int, count: int) -> np.ndarray:
+    """The visibility buffer's slots after drawing slots [first, first+count) alone."""
+    r.vis.resize(W, H)
+    r.vis.clear()
+    r.raster.draw(view_uniforms(cam, r.info.origin, W, H), first, count)
+    return r.vis.read()[:, :, 0].copy()
+
+
 @pytest.mark.parametrize("atomic64", [True, False], ids=["64-bit", "32-bit"])
 @pytest.mark.parametrize("name", ["overview", "zoomed corner"])
-def test_subgroup_reduction_keeps_the_ids(gl, sample, atomic64, name):
-    """Where GL_NV_shader_subgroup_partitioned exists, a subgroup's points on one pixel
-    meet before the atomic; the ids equal those of one atomic per point."""
+def test_every_tuning_keeps_the_ids(gl, sample, atomic64, name):
+    """One work group a batch and the subgroup reduction (where the GPU has
+    GL_NV_shader_subgroup_partitioned) give the ids of one invocation and one atomic per
+    point, for the whole store and for ranges that start and end inside slices."""
     if atomic64 and not gl.caps.atomic_int64:
         pytest.skip("no GL_NV_shader_atomic_int64")
     info, parts, _, _ = sample
     scene = Scene(gl, info, find_attribute(info, "elevation"))
     r = Renderer(gl, info, scene.attribute, width=W, height=H, scene=scene)
+    cam = cameras(info)[name]
+    round_slots = scene.store.permutation.batches * SLICE_POINTS
+    ranges = [(0, scene.store.capacity), (round_slots + 3 * SLICE_POINTS + 17, 2 * round_slots + 5),
+              (5, 40), (scene.store.capacity - 300, 300)]
     try:
         for b in parts:
             scene.add_batch(b)
-        ids = {}
-        for partitioned in (True, False):
+        seen = {}
+        for tuning in TUNINGS:
             r.raster.release()
-            r.raster = ComputeRaster(gl, scene.store, r.vis, atomic64=atomic64, partitioned=partitioned)
-            if partitioned and not r.raster.partitioned:
-                pytest.skip("no GL_NV_shader_subgroup_partitioned")
-            ids[partitioned] = r.render(cameras(info)[name], W, H, r.style()).ids
-        assert np.array_equal(ids[True], ids[False])
+            r.raster = ComputeRaster(gl, scene.store, r.vis, atomic64=atomic64, tuning=tuning)
+            if tuning.subgroup_reduction and not r.raster.partitioned:
+                continue
+            assert r.raster.batch_groups == tuning.batch_groups
+            seen[tuning] = [slots_of_range(gl, r, cam, *span) for span in ranges]
+        reference = seen.pop(TUNINGS[-1])
+        assert len(seen) >= 1 and (reference[0] != EMPTY).any()
+        for tuning, slots in seen.items():
+            for span, got, want in zip(ranges, slots, reference):
+                assert np.array_equal(got, want), f"{tuning} over slots {span}"
         assert gl.ctx.error == "GL_NO_ERROR"
     finally:
         r.release()
         scene.release()
+
+
+@pytest.mark.parametrize("kind", ["none", "hidden", "returns", "clip box", "clip z", "section"])
+def test_filters_apply_whenever_a_filter_can_leave_a_point_out(sample, kind):
+    """The raster skips the filter tests when filters_apply is false: it must be true for
+    every filter that can leave a point out, and false with none."""
+    from progressive.camera import Clip, Returns, Section
+    from progressive.gpu import filters_apply
+
+    info = sample[0]
+    lo, hi = info.bounds_min, info.bounds_max
+    options = {"none": {}, "hidden": {"hidden": frozenset({2})}, "returns": {"returns": Returns.FIRST},
+               "clip box": {"clip": Clip(lo=tuple(lo), hi=tuple((lo + hi) / 2))},
+               "clip z": {"clip": Clip(lo=(-np.inf, -np.inf, lo[2]), hi=(np.inf, np.inf, hi[2]))},
+               "section": {"clip": Clip(section=Section(start=(lo[0], lo[1]), end=(hi[0], hi[1]), width=1.0))}}[kind]
+    view = view_uniforms(cameras(info)["overview"], info.origin, W, H, **options)
+    assert filters_apply(view) == (kind != "none")

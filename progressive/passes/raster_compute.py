@@ -3,6 +3,8 @@ where GL_NV_shader_atomic_int64 exists, else a depth pass and an index pass."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 from progressive import shaderlib
 from progressive.camera import ViewUniforms
 from progressive.context import GLContext
@@ -23,22 +25,43 @@ def subgroup_reduction_available(glc: GLContext) -> bool:
     return all(e in glc.ctx.extensions for e in SUBGROUP_EXTENSIONS)
 
 
+PREFETCH = 4
+"""Records each invocation of a batch's work group loads before it draws them: enough
+reads in flight to hide the memory's latency behind the atomics (the paper's uvec4
+prefetch, 2-billion-points §3.4)."""
+
+
+@dataclass(frozen=True)
+class ComputeTuning:
+    """How the compute raster walks the store; each choice gives the same image (the
+    tests hold it), the bench measures them side by side.
+
+    batch_groups: brute force runs one work group per batch of the batched layout,
+    walking its slices, instead of one invocation per slot.
+    subgroup_reduction: where GL_NV_shader_subgroup_partitioned exists, the points of a
+    subgroup that hit one pixel are reduced to one atomic (the least key)."""
+
+    batch_groups: bool = True
+    subgroup_reduction: bool = False
+
+
+DEFAULT_TUNING = ComputeTuning()
+
+
 class ComputeRaster:
     """`passes` is 1 (64-bit) or 2 (depth, then index): a frame runs pass 0 over all
     its sources before pass 1, so the index pass sees the final depths."""
 
     def __init__(self, glc: GLContext, store: PointStore, vis: VisibilityBuffer, *, atomic64: bool,
-                 cull: bool = True, partitioned: bool = False):
+                 cull: bool = True, tuning: ComputeTuning = DEFAULT_TUNING):
         """cull: skip batches whose box is outside the view (batched layout; ranges and
-        fill pieces, not the reprojection list, whose points were visible).
-        partitioned: where GL_NV_shader_subgroup_partitioned exists, the points of a
-        subgroup that hit one pixel are reduced to one atomic (same result: the least key).
-        Off by default until it has run on a GPU that has the extension (none has yet)."""
+        fill pieces, not the reprojection list, whose points were visible)."""
         if atomic64 and not glc.caps.atomic_int64:
             raise ValueError("64-bit atomics requested but GL_NV_shader_atomic_int64 is missing")
         self.glc, self.store, self.vis = glc, store, vis
         self.atomic64 = atomic64
-        self.partitioned = partitioned and subgroup_reduction_available(glc)
+        self.partitioned = tuning.subgroup_reduction and subgroup_reduction_available(glc)
+        self.batch_groups = tuning.batch_groups and store.batched
         self.culling = CullPass(glc, store) if cull and store.batched else None
         self.passes = 1 if atomic64 else 2
         self._programs: dict[tuple[Source, int], object] = {}
@@ -51,7 +74,8 @@ class ComputeRaster:
         key = (source, pass_index)
         if key not in self._programs:
             defines = dict(self.store.defines, **Source.defines(source), **layout_defines(), **Meta.defines(),
-                           CULL=int(self._culls(source)))
+                           CULL=int(self._culls(source)), BATCH_GROUPS=int(self._walks_batches(source)),
+                           PREFETCH=PREFETCH)
             if self.atomic64:
                 defines["ATOMIC64"] = 1
                 ext = ("GL_ARB_gpu_shader_int64", "GL_NV_shader_atomic_int64")
@@ -80,11 +104,15 @@ class ComputeRaster:
     def _culls(self, source: Source) -> bool:
         return self.cull and source is not Source.LIST
 
+    def _walks_batches(self, source: Source) -> bool:
+        return self.batch_groups and source is Source.RANGE
+
     def _prepare(self, source: Source, pass_index: int, view: ViewUniforms):
         program = self.program(source, pass_index)
         set_view(program, view)
-        if self._culls(source):
+        if self._culls(source) or self._walks_batches(source):
             program["u_batches"] = self.store.permutation.batches
+        if self._culls(source):
             self.culling.bind()
         self.store.bind()
         self.vis.bind()
@@ -99,7 +127,10 @@ class ComputeRaster:
             program = self._prepare(Source.RANGE, pass_index, view)
             program["u_first"] = first
             program["u_count"] = count
-            program.run(*grid(count))
+            if self.batch_groups:
+                program.run(*grid(self.store.permutation.batches, local_size=1))
+            else:
+                program.run(*grid(count))
             self.glc.ctx.memory_barrier()
 
     def draw_piece(self, view: ViewUniforms, budget: BudgetPass, piece: int, pass_index: int) -> None:
