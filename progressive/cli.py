@@ -177,6 +177,32 @@ def add_cloud_args(parser) -> None:
     parser.add_argument("--partial", action="store_true", help="show what a truncated file holds, with a warning")
     parser.add_argument("--gpu-memory-limit", type=bytes_arg, help="GPU memory to use, e.g. 4G; a larger cloud shows "
                         "a uniform random subset (the free memory the driver reports also counts)")
+    add_reproject_arg(parser)
+    parser.add_argument("--palette", type=path_arg, metavar="FILE.json",
+                        help='classification colours overriding the default ones: {"2": [166, 116, 66], "6": "#ff8c1e"}')
+
+
+def add_reproject_arg(parser) -> None:
+    parser.add_argument("--reproject", type=reproject_arg, metavar="EPSG:CODE",
+                        help="load files in any coordinate systems as one cloud in this one (float64, pyproj)")
+
+
+def reproject_arg(text: str) -> str:
+    """A CRS code pyproj knows, checked before any file is read."""
+    from progressive.reproject import target_crs
+
+    try:
+        target_crs(text)
+    except ProgressiveError as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("--reproject ")) from None
+    return text.strip().upper()
+
+
+def palette_from(args):
+    """The classification palette: the default, with --palette's entries in place."""
+    from progressive.colors import DEFAULT_PALETTE, Palette
+
+    return Palette.from_json(args.palette) if args.palette else DEFAULT_PALETTE
 
 
 def add_look_args(parser) -> None:
@@ -225,10 +251,25 @@ def cmd_info(args) -> int:
     import json
 
     from progressive.loaders import describe, format_text
+    from progressive.reproject import describe_crs, describe_reprojected, format_crs
 
-    desc = describe(input_paths(args.files))
-    say(json.dumps(desc, indent=2) if args.json else format_text(desc))
+    paths = input_paths(args.files)
+    if args.reproject:
+        desc, own = describe_reprojected(paths, args.reproject)
+        say(json.dumps(desc, indent=2) if args.json else format_crs(desc, "\n\n".join(map(format_text, own))))
+        return 0
+    desc = describe(paths)
+    for summary, f in zip(desc["files"], _file_infos(paths)):
+        summary.update(describe_crs(f))
+    desc.update({k: desc["files"][0][k] for k in ("crs_name", "epsg")})
+    say(json.dumps(desc, indent=2) if args.json else format_crs(desc, format_text(desc)))
     return 0
+
+
+def _file_infos(paths):
+    from progressive.loaders import open_cloud
+
+    return open_cloud(paths).files
 
 
 def budget_arg(text: str) -> int | None:
@@ -296,7 +337,7 @@ def session_options(args):
                           progressive=progressive, color_by=args.color_by,
                           colormap=args.colormap, background=args.background, partial=args.partial,
                           gpu_memory_limit=args.gpu_memory_limit, value_range=args.value_range,
-                          class_filter=filters(args))
+                          class_filter=filters(args), palette=palette_from(args), reproject=args.reproject)
 
 
 def cmd_render(args) -> int:
@@ -433,17 +474,13 @@ def cmd_view(args) -> int:
 
     paths = input_paths(args.files)
     effects, clip = effects_from(args), clip_from(args)       # bad values are one line before any notice or window
+    options = view_session_options(args)
+    check_cloud(paths, args)        # a bad file or attribute is one line, before any notice or window
     if has_display():
-        from progressive.attributes import find_attribute
-        from progressive.loaders import open_cloud
         from progressive.viewer.app import Viewer, ViewerOptions
 
-        info = open_cloud(paths, partial=args.partial)       # a bad file or attribute is one line, before any window
-        if args.color_by:
-            find_attribute(info, args.color_by)
-
         try:
-            viewer = Viewer(paths, ViewerOptions(session=view_session_options(args),
+            viewer = Viewer(paths, ViewerOptions(session=options,
                                                  ui=not args.no_ui, effects=effects, hidden_classes=args.hide_classes,
                                                  clip=clip, returns=args.returns))
         except GLCapabilityError as exc:
@@ -455,7 +492,17 @@ def cmd_view(args) -> int:
         check_outputs([args.out], paths)
         print(f"progressive: no display (DISPLAY and WAYLAND_DISPLAY are unset); rendering headless to "
               f"{one_line(args.out)}", file=sys.stderr)
-    return _view_headless(paths, effects, clip, args)
+    return _view_headless(paths, effects, clip, args, options)
+
+
+def check_cloud(paths: list[str], args) -> None:
+    """Open the files' headers (reprojected as asked) and find --color-by."""
+    from progressive.attributes import find_attribute
+    from progressive.reproject import open_info, target_crs
+
+    info = open_info(paths, partial=args.partial, reproject=target_crs(args.reproject) if args.reproject else None)
+    if args.color_by:
+        find_attribute(info, args.color_by)
 
 
 def view_session_options(args):
@@ -464,15 +511,15 @@ def view_session_options(args):
 
     return SessionOptions(width=args.width, height=args.height, color_by=args.color_by, partial=args.partial,
                           gpu_memory_limit=args.gpu_memory_limit, value_range=args.value_range,
-                          class_filter=filters(args))
+                          class_filter=filters(args), palette=palette_from(args), reproject=args.reproject)
 
 
-def _view_headless(paths: list[str], effects, clip, args) -> int:
+def _view_headless(paths: list[str], effects, clip, args, options) -> int:
     from progressive.output import Outputs, check_outputs, png_writer
     from progressive.session import Session
 
     check_outputs([args.out], paths)
-    with Session(paths, view_session_options(args)) as session, Outputs() as outputs:
+    with Session(paths, options) as session, Outputs() as outputs:
         check_classes(session, args)
         camera = session.auto_camera()
         frames = 0
@@ -532,6 +579,7 @@ def build_parser() -> Parser:
     info = sub.add_parser("info", help="describe LAS/LAZ files (header, bounds, attributes)")
     info.add_argument("files", nargs="*", type=path_arg, help="LAS/LAZ files (default: the bundled sample)")
     info.add_argument("--json", action="store_true", help="machine-readable output")
+    add_reproject_arg(info)
     info.set_defaults(func=cmd_info)
 
     render = sub.add_parser("render", help="render a cloud headless to PNG")

@@ -11,7 +11,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from progressive.camera import Returns
-from progressive.colors import NO_RANGE, Colormap, ColorMode, ColorStyle
+from progressive.colors import DEFAULT_PALETTE, NO_RANGE, Colormap, ColorMode, ColorStyle, Palette
 from progressive.context import GLContext
 from progressive.errors import ProgressiveError
 from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, CloudInfo, nonfinite_records
@@ -183,12 +183,14 @@ class Scene:
         return self._range
 
     def style(self, colormap: Colormap = Colormap.VIRIDIS, background=(0, 0, 0),
-              value_range: tuple[float, float] | None = None) -> ColorStyle:
+              value_range: tuple[float, float] | None = None, palette: Palette = DEFAULT_PALETTE) -> ColorStyle:
         """`value_range`: scalar values (less the attribute's offset) at the colormap's
-        ends; None: the contract's range, which `resolved` keeps current."""
+        ends; None: the contract's range, which `resolved` keeps current. `palette`:
+        the colours of category codes."""
         automatic = value_range is None
         taken = self.value_range() if automatic else value_range
-        return ColorStyle.for_attribute(self.attribute, taken or NO_RANGE, colormap, background, automatic=automatic)
+        return ColorStyle.for_attribute(self.attribute, taken or NO_RANGE, colormap, background, automatic=automatic,
+                                        palette=palette)
 
     def resolved(self, style: ColorStyle) -> ColorStyle:
         """`style` with its automatic range as it stands now (renderers call this after

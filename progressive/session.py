@@ -21,16 +21,16 @@ from progressive import batches, memory
 from progressive.attributes import default_choice, find_attribute
 from progressive.budget import BudgetParams
 from progressive.camera import NO_CLIP, Camera, Clip, Returns, auto_camera, view_uniforms
-from progressive.colors import Colormap, ColorStyle
+from progressive.colors import DEFAULT_PALETTE, Colormap, ColorStyle, Palette
 from progressive.context import GLContext, create_context
 from progressive.effects import Effects
 from progressive.frame_loop import FrameStats, ProgressiveOptions, ProgressiveRenderer
-from progressive.loaders import CloudLoader
 from progressive.loaders.lookup import read_record
 from progressive.loaders.types import AttributeKind
 from progressive.passes.visibility import EMPTY
 from progressive.pointstore import CLASS_BYTES, GPUMemoryError
 from progressive.renderer import Frame, Raster, Renderer, ids_for
+from progressive.reproject import Geography, open_loader, target_crs
 from progressive.scene import CLASSIFICATION, AttributeSwitch
 
 PICK_RADIUS = 7
@@ -86,13 +86,18 @@ class SessionOptions:
     switchable: bool = False                # keep every attribute in host memory to switch without reloading
     value_range: tuple[float, float] | None = None   # the first attribute's values at the colormap's ends; None: percentiles
     class_filter: bool = False              # keep classification on the GPU (where the cloud has it): any colouring filters
+    palette: Palette = DEFAULT_PALETTE      # colours of classification codes
+    reproject: str | None = None
+    """A CRS code (EPSG:32610): load files in any CRSs as one cloud in it (float64,
+    pyproj); None: files whose EPSG codes differ are refused."""
 
 
 class Session:
     def __init__(self, paths, options: SessionOptions = SessionOptions(), glc: GLContext | None = None):
         self.options = options
         self.opened = time.perf_counter()
-        self.loader = CloudLoader(paths, partial=options.partial)
+        self.target = target_crs(options.reproject) if options.reproject else None
+        self.loader = open_loader(paths, partial=options.partial, reproject=self.target)
         self._given_range = options.value_range
         self._early: list = []
         self._notes: list[str] = []
@@ -103,6 +108,7 @@ class Session:
         (the frame that showed points first, its distributes included; GPU work queued)."""
         try:
             self.info = self.loader.info
+            self.geography = Geography(self.info, self.target)
             self.loader.start()
             if options.color_by:
                 self.attribute = find_attribute(self.info, options.color_by)
@@ -188,7 +194,7 @@ class Session:
         chosen = value_range or self._given_range
         offset_range = None if chosen is None else (chosen[0] - self.attribute.offset, chosen[1] - self.attribute.offset)
         return self.renderer.scene.style(colormap or self.options.colormap, background or self.options.background,
-                                         offset_range)
+                                         offset_range, self.options.palette)
 
     def color_range(self, value_range: tuple[float, float] | None = None) -> tuple[float, float] | None:
         """The scalar values at the colormap's ends, in the attribute's units, for the
@@ -244,13 +250,21 @@ class Session:
 
     def pick(self, x: float, y: float, radius: int = PICK_RADIUS) -> dict | None:
         """All of the point shown nearest to image pixel (x, y) within `radius`: its file,
-        its index there and in the cloud, x, y, z in file coordinates and every attribute,
-        read back from its file; the pixel and depth it was found at. None: nothing there."""
+        its index there and in the cloud, x, y, z in file coordinates (reprojected: in the
+        target CRS, and the file's under "file_coordinates"), the CRS, "lat" and "lon"
+        (None where the CRS allows none) and every attribute, read back from its file;
+        the pixel and depth it was found at. None: nothing there."""
         hit = self.nearest_shown(x, y, radius)
         if hit is None:
             return None
         index, depth, pixel = hit
-        return {**read_record(self.info, index), "pixel": list(pixel), "depth": depth}
+        record = self.geography.place(index, read_record(self.info, index))
+        return {**record, "pixel": list(pixel), "depth": depth}
+
+    def point(self, index: int) -> np.ndarray:
+        """(3,) float64 coordinates of the point with cloud index `index`, read back from
+        its file, in the cloud's CRS (the target's when reprojecting)."""
+        return self.geography.point(index)
 
     def set_budget(self, params: BudgetParams) -> None:
         """Another fill budget from the next frame on (progressive)."""
