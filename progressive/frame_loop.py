@@ -11,16 +11,18 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from progressive.budget import BudgetParams
-from progressive.camera import NO_CLIP, Camera, Clip, Returns, view_uniforms
+from progressive.camera import NO_CLIP, Camera, Clip, Returns, ViewUniforms, view_uniforms
 from progressive.colors import ColorStyle
 from progressive.context import GLContext
 from progressive.effects import Effects
 from progressive.loaders.types import AttributeInfo, Batch, CloudInfo
-from progressive.passes.budget import TIMESTAMP_SLOTS, BudgetPass, Stamp, StateWord
+from progressive.passes.budget import BudgetPass
 from progressive.passes.compare import ComparePass
+from progressive.passes.handles import TIMESTAMP_SLOTS, Stamp, StateWord
 from progressive.passes.prepare import PreparePass
 from progressive.passes.stats import GPURecord, StatsRing
 from progressive.passes.visibility import VisibilityBuffer
+from progressive.pointstore import PointStore
 from progressive.renderer import Raster, ids_for, make_raster, raster_path
 from progressive.scene import Scene
 from progressive.shading import Shading
@@ -75,6 +77,32 @@ class FrameStats:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
 
 
+class ReferenceCheck:
+    """Accuracy on the GPU each frame: a brute-force render of the frame's camera into
+    a visibility buffer of its own (the compute raster), and the count of pixels whose
+    visible point equals the frame's (into `counter`)."""
+
+    def __init__(self, glc: GLContext, store: PointStore, vis: VisibilityBuffer):
+        self.store, self.vis = store, vis
+        self.reference = VisibilityBuffer(glc, vis.width, vis.height, label="reference visibility")
+        self.raster = make_raster(glc, store, self.reference, Raster.COMPUTE)
+        self.compare = ComparePass(glc, vis)
+
+    @property
+    def counter(self):
+        return self.compare.counter
+
+    def run(self, view: ViewUniforms) -> None:
+        self.reference.resize(self.vis.width, self.vis.height)
+        self.reference.clear()
+        self.raster.draw(view, 0, self.store.capacity)
+        self.compare.run(self.reference)
+
+    def release(self) -> None:
+        for obj in (self.raster, self.reference, self.compare):
+            obj.release()
+
+
 class ProgressiveRenderer:
     def __init__(self, glc: GLContext, info: CloudInfo, attribute: AttributeInfo,
                  options: ProgressiveOptions = ProgressiveOptions(), scene: Scene | None = None):
@@ -90,7 +118,7 @@ class ProgressiveRenderer:
         self.budget = BudgetPass(glc, self.store.capacity, options.budget)
         self.prepare = PreparePass(glc, self.store, self.vis)
         self.shading = Shading(glc, self.store, self.vis, pixel_words=True)
-        self.compare = ComparePass(glc, self.store, self.vis, atomic64=glc.caps.atomic_int64) if options.reference else None
+        self.compare = ReferenceCheck(glc, self.store, self.vis) if options.reference else None
         self.stats_ring = StatsRing(glc)
         self.pending: deque[Batch] = deque()
         self.frame_index = 0
@@ -198,6 +226,7 @@ class ProgressiveRenderer:
                 passes: list[str], reset: bool) -> tuple[str, ...]:
         view = view_uniforms(camera, self.info.origin, self.vis.width, self.vis.height, hidden, clip, returns)
         b, raster = self.budget, self.raster
+        pieces, reprojection = b.pieces, self.prepare.reprojection
         if self._has_visible:
             passes.append("reproject")
         b.stamp(Stamp.FRAME)
@@ -205,17 +234,17 @@ class ProgressiveRenderer:
         raster.begin_frame(view)
         for p in range(raster.passes):
             if self._has_visible:
-                raster.draw_list(view, self.prepare, p)
+                raster.draw_list(view, reprojection, p)
             if p == 0:
                 b.stamp(Stamp.FILL)
                 b.begin(reset)
-            raster.draw_piece(view, b, 0, p)
-            raster.draw_piece(view, b, 1, p)
+            raster.draw_piece(view, pieces, 0, p)
+            raster.draw_piece(view, pieces, 1, p)
             if p == 0:
                 b.stamp(Stamp.FIRST_END)
                 b.adapt()
-            raster.draw_piece(view, b, 2, p)
-            raster.draw_piece(view, b, 3, p)
+            raster.draw_piece(view, pieces, 2, p)
+            raster.draw_piece(view, pieces, 3, p)
         raster.end_frame(view)
         b.stamp(Stamp.FILL_END)
         self.prepare.run(regather=self._regather)

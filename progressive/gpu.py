@@ -8,16 +8,24 @@ import numpy as np
 from progressive.camera import NO_SECTION_RANGE, ViewUniforms
 
 GUARANTEED_GROUPS = 65535
+RANGE_GROUP = 256          # invocations of a work group over a 1-D range (range_index)
 
 
-def grid(count: int, local_size: int = 256) -> tuple[int, int, int]:
-    """Groups covering `count` invocations as a 2-D grid (shaders use range_index)."""
+def grid(count: int, local_size: int = RANGE_GROUP) -> tuple[int, int, int]:
+    """Groups covering `count` invocations as a 2-D grid (shaders use range_index);
+    dispatch_grid() in common.glsl is its twin for indirect arguments written on the
+    GPU (there 0 invocations give 0 groups)."""
     groups = max(1, -(-count // local_size))
     gx = min(groups, GUARANTEED_GROUPS)
     gy = -(-groups // gx)
     if gy > GUARANTEED_GROUPS:
         raise ValueError(f"{count} invocations exceed the dispatch grid")
     return gx, gy, 1
+
+
+def dispatch_defines() -> dict[str, str]:
+    """What dispatch_grid() in common.glsl needs."""
+    return {"RANGE_GROUP": f"{RANGE_GROUP}u", "GUARANTEED_GROUPS": f"{GUARANTEED_GROUPS}u"}
 
 
 def grid_2d(width: int, height: int, tile: int = 16) -> tuple[int, int, int]:

@@ -19,6 +19,7 @@ class Shading:
         self.glc, self.vis, self.pixel_words = glc, vis, pixel_words
         self.resolve = ResolvePass(glc, store, vis, pixel_words=pixel_words)
         self.dilate: DilatePass | None = None
+        self.dilated: VisibilityBuffer | None = None
         self.eye_dome: EyeDomePass | None = None
         self.shown = vis
 
@@ -27,8 +28,12 @@ class Shading:
         passes = []
         self.shown = self.vis
         if effects.point_size > 1:
-            self.dilate = self.dilate or DilatePass(self.glc, pixel_words=self.pixel_words)
-            self.shown = self.dilate.run(self.vis, effects.point_size, words)
+            if self.dilate is None:
+                self.dilate = DilatePass(self.glc, pixel_words=self.pixel_words)
+                self.dilated = VisibilityBuffer(self.glc, self.vis.width, self.vis.height, label="dilated visibility")
+            self.dilated.resize(self.vis.width, self.vis.height)
+            self.dilate.run(self.vis, self.dilated, effects.point_size, words)
+            self.shown = self.dilated
             words = self.dilate.words
             passes.append("dilate")
         self.resolve.run(style, words, vis=self.shown)
@@ -44,6 +49,6 @@ class Shading:
         return self.resolve.read()
 
     def release(self) -> None:
-        for obj in (self.resolve, self.dilate, self.eye_dome):
+        for obj in (self.resolve, self.dilate, self.dilated, self.eye_dome):
             if obj is not None:
                 obj.release()

@@ -3,6 +3,7 @@
 // timestamps into the points that still fit and places them. Both write the range
 // of each fill piece and its indirect dispatch arguments. No CPU readback.
 layout(local_size_x = 1) in;
+#include "common.glsl"
 
 layout(std430, binding = BINDING_FILL_STATE) buffer FillState { uint state[]; };
 layout(std430, binding = BINDING_FILL_ARGS) writeonly buffer FillArgs { uint args[]; };
@@ -29,12 +30,10 @@ uint64_t clamp64(uint64_t v, uint64_t lo, uint64_t hi) {
 void write_piece(uint piece, uint first, uint count) {
     state[STATE_PIECES + 2u * piece] = first;
     state[STATE_PIECES + 2u * piece + 1u] = count;
-    uint groups = (count + 255u) / 256u;
-    uint gx = min(groups, 65535u);
-    uint gy = gx == 0u ? 0u : (groups + gx - 1u) / gx;
-    args[3u * piece] = gx;
-    args[3u * piece + 1u] = gy;
-    args[3u * piece + 2u] = 1u;
+    uvec3 grid = dispatch_grid(count);
+    args[3u * piece] = grid.x;
+    args[3u * piece + 1u] = grid.y;
+    args[3u * piece + 2u] = grid.z;
     // the same piece as DrawArraysIndirectCommand for the GL_POINTS baseline
     args[DRAW_ARGS_WORD + 4u * piece] = count;
     args[DRAW_ARGS_WORD + 4u * piece + 1u] = 1u;

@@ -3,7 +3,8 @@
 layout(local_size_x = 16, local_size_y = 16) in;
 #include "common.glsl"
 
-layout(std430, binding = BINDING_VISIBILITY) readonly buffer Visibility { uint visibility[]; };
+#define VISIBILITY_ACCESS readonly
+#include "visibility.glsl"
 layout(std430, binding = BINDING_REFERENCE) readonly buffer Reference { uint reference[]; };
 layout(std430, binding = BINDING_COUNTERS) buffer Counters { uint counters[]; };
 uniform uvec2 u_size;

@@ -5,7 +5,8 @@
 layout(local_size_x = 16, local_size_y = 16) in;
 #include "common.glsl"
 
-layout(std430, binding = BINDING_VISIBILITY) readonly buffer Visibility { uint visibility[]; };
+#define VISIBILITY_ACCESS readonly
+#include "visibility.glsl"
 layout(std430, binding = BINDING_DILATED) writeonly buffer Dilated { uint dilated[]; };
 #if PIXEL_WORDS
 layout(std430, binding = BINDING_PIXEL_WORDS) readonly buffer PixelWords { uint pixel_words[]; };

@@ -5,7 +5,8 @@
 layout(local_size_x = 16, local_size_y = 16) in;
 #include "common.glsl"
 
-layout(std430, binding = BINDING_VISIBILITY) readonly buffer Visibility { uint visibility[]; };
+#define VISIBILITY_ACCESS readonly
+#include "visibility.glsl"
 layout(std430, binding = BINDING_IMAGE) buffer Image { uint image[]; };
 
 uniform uvec2 u_size;

@@ -3,7 +3,8 @@
 layout(local_size_x = 16, local_size_y = 16) in;
 #include "common.glsl"
 
-layout(std430, binding = BINDING_VISIBILITY) writeonly buffer Visibility { uint visibility[]; };
+#define VISIBILITY_ACCESS writeonly
+#include "visibility.glsl"
 uniform usampler2D u_slots;
 uniform usampler2D u_depths;
 uniform uvec2 u_size;

@@ -21,19 +21,19 @@ uniform uint u_capacity;
 #if ARGS
 void main() {
     uint count = min(out_meta[META_COUNT], u_capacity);
-    uint groups = (count + 255u) / 256u;
-    uint gx = min(groups, 65535u);
-    out_meta[1] = gx;
-    out_meta[2] = gx == 0u ? 0u : (groups + gx - 1u) / gx;
-    out_meta[3] = 1u;
-    out_meta[4] = count;
-    out_meta[5] = 1u;
-    out_meta[6] = 0u;
-    out_meta[7] = 0u;
+    uvec3 grid = dispatch_grid(count);
+    out_meta[META_DISPATCH] = grid.x;
+    out_meta[META_DISPATCH + 1] = grid.y;
+    out_meta[META_DISPATCH + 2] = grid.z;
+    out_meta[META_DRAW] = count;
+    out_meta[META_DRAW + 1] = 1u;
+    out_meta[META_DRAW + 2] = 0u;
+    out_meta[META_DRAW + 3] = 0u;
 }
 #else
 #include "points.glsl"
-layout(std430, binding = BINDING_VISIBILITY) readonly buffer Visibility { uint visibility[]; };
+#define VISIBILITY_ACCESS readonly
+#include "visibility.glsl"
 layout(std430, binding = BINDING_SLOT_LIST) readonly buffer PrevSlots { uint prev_meta[META_WORDS]; uint prev_slots[]; };
 layout(std430, binding = BINDING_LIST_RECORDS) readonly buffer PrevRecords { uvec4 prev_records[]; };
 layout(std430, binding = BINDING_HINT) readonly buffer Hint { uint hint[]; };

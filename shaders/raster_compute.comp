@@ -11,11 +11,10 @@ layout(local_size_x = 256) in;
 #include "classes.glsl"
 
 #if ATOMIC64
-layout(std430, binding = BINDING_VISIBILITY) buffer Visibility { uint64_t visibility[]; };
-#else
-// word 2p: slot, word 2p+1: depth bits; byte-identical to the 64-bit key.
-layout(std430, binding = BINDING_VISIBILITY) buffer Visibility { uint visibility[]; };
+#define VISIBILITY_64
 #endif
+#define VISIBILITY_ACCESS
+#include "visibility.glsl"
 
 #if CULL || BATCH_GROUPS
 #include "batches.glsl"

@@ -3,7 +3,8 @@ layout(local_size_x = 16, local_size_y = 16) in;
 #include "common.glsl"
 #include "points.glsl"
 
-layout(std430, binding = BINDING_VISIBILITY) readonly buffer Visibility { uint visibility[]; };
+#define VISIBILITY_ACCESS readonly
+#include "visibility.glsl"
 layout(std430, binding = BINDING_IMAGE) writeonly buffer Image { uint image[]; };
 layout(std430, binding = BINDING_PALETTE) readonly buffer Palette { uint palette[256]; };
 #if PIXEL_WORDS

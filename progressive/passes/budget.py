@@ -14,43 +14,29 @@ from progressive.bindings import Binding
 from progressive.budget import FIRST_INITIAL, GAIN_ONE, BudgetParams
 from progressive.context import GLContext
 from progressive.glext import GL_QUERY_BUFFER, GL_QUERY_RESULT, GL_TIMESTAMP
-
-FILL_PIECES = 4            # first fill and adaptive fill, each possibly wrapped in two
-TIMESTAMP_SLOTS = 8
-ARGS_BYTES = 12            # one DispatchIndirectCommand
-DRAW_ARGS_WORD = FILL_PIECES * 3
-DRAW_ARGS_BYTES = 16       # one DrawArraysIndirectCommand
+from progressive.gpu import dispatch_defines
+from progressive.passes.handles import (
+    ARGS_BYTES,
+    DRAW_ARGS_BYTES,
+    DRAW_ARGS_WORD,
+    FILL_PIECES,
+    TIMESTAMP_SLOTS,
+    FillPieces,
+    Stamp,
+    StateWord,
+)
 
 
 class Stage(enum.IntEnum):
+    """What a run of budget.comp does (the fill state and timestamp layouts it shares
+    with the rasterizers and the statistics are in passes/handles.py)."""
+
     BEGIN = 0
     ADAPT = 1
 
 
-class StateWord(enum.IntEnum):
-    OFFSET = 0
-    RATE_POINTS = 1
-    RATE_NS = 2
-    GAIN = 3
-    FILLED = 4          # ring slots filled since the last reset, saturating at the cloud size
-    BUDGET = 5          # the adaptive part of this frame
-    FIRST = 6           # the fixed first part of this frame
-    NEXT_FIRST = 7      # the next frame's first part (adaptive: a share of the goal)
-    PIECES = 8          # FILL_PIECES x (first slot, count)
-    WORDS = 16
-
-
-class Stamp(enum.IntEnum):
-    FRAME = 0
-    FILL = 1
-    FIRST_END = 2
-    FILL_END = 3
-    PREPARE_END = 4
-    END = 5
-
-
 def layout_defines() -> dict[str, int]:
-    d = {f"STATE_{w.name}": int(w) for w in StateWord}
+    d = dict(StateWord.defines(), **dispatch_defines())
     d.update({f"TS_{s.name}": int(s) for s in Stamp})
     d.update({f"STAGE_{s.name}": int(s) for s in Stage})
     d["TIMESTAMP_SLOTS"] = TIMESTAMP_SLOTS
@@ -71,6 +57,7 @@ class BudgetPass:
         self.state.label = "fill state"
         self.args = ctx.buffer(reserve=FILL_PIECES * (ARGS_BYTES + DRAW_ARGS_BYTES))
         self.args.label = "fill dispatch args"
+        self.pieces = FillPieces(self.state, self.args)
         self.stamps = ctx.buffer(reserve=2 * TIMESTAMP_SLOTS * 8)
         self.stamps.label = "timestamps"
         self.queries = (ctypes.c_uint * (2 * TIMESTAMP_SLOTS))()
@@ -78,10 +65,6 @@ class BudgetPass:
         self.program = shaderlib.compute(ctx, "budget.comp", layout_defines(), ("GL_ARB_gpu_shader_int64",), "budget")
         self.parity = 0
         self.have_prev = False
-
-    @staticmethod
-    def draw_offset(piece: int) -> int:
-        return DRAW_ARGS_WORD * 4 + piece * DRAW_ARGS_BYTES
 
     def bind(self) -> None:
         self.state.bind_to_storage_buffer(Binding.FILL_STATE)

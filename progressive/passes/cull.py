@@ -7,10 +7,10 @@ group: no barrier in the raster (costly on llvmpipe), one test a batch, not a sl
 from __future__ import annotations
 
 from progressive import shaderlib
-from progressive.bindings import Binding
 from progressive.camera import ViewUniforms
 from progressive.context import GLContext
 from progressive.gpu import grid, set_view
+from progressive.passes.handles import BatchFlags
 from progressive.pointstore import PointStore
 
 
@@ -20,19 +20,16 @@ class CullPass:
         self.program = shaderlib.compute(glc.ctx, "cull.comp", label="cull")
         self.flags = glc.ctx.buffer(reserve=max(1, store.permutation.batches) * 4)
         self.flags.label = "batch flags"
+        self.batch_flags = BatchFlags(self.flags)
 
     def run(self, view: ViewUniforms) -> None:
         program = self.program
         set_view(program, view)
         program["u_batches"] = self.store.permutation.batches
         self.store.bind_boxes()
-        self.flags.bind_to_storage_buffer(Binding.BATCH_FLAGS)
+        self.batch_flags.bind()
         program.run(*grid(self.store.permutation.batches))
         self.glc.ctx.memory_barrier()
-
-    def bind(self) -> None:
-        """For the rasterizer: the flags of the last run (batches.glsl)."""
-        self.flags.bind_to_storage_buffer(Binding.BATCH_FLAGS)
 
     def release(self) -> None:
         self.program.release()

@@ -7,7 +7,7 @@ from progressive.bindings import Binding
 from progressive.context import GLContext
 from progressive.effects import EyeDome
 from progressive.gpu import grid_2d
-from progressive.passes.visibility import VisibilityBuffer
+from progressive.passes.handles import Visibility
 
 
 class EyeDomePass:
@@ -15,7 +15,7 @@ class EyeDomePass:
         self.glc = glc
         self.program = shaderlib.compute(glc.ctx, "eye_dome.comp", label="eye-dome lighting")
 
-    def run(self, vis: VisibilityBuffer, image, params: EyeDome) -> None:
+    def run(self, vis: Visibility, image, params: EyeDome) -> None:
         p = self.program
         p["u_size"] = (vis.width, vis.height)
         p["u_strength"] = params.strength

@@ -3,40 +3,21 @@ reprojects, and per-pixel attribute words for resolve."""
 
 from __future__ import annotations
 
-import enum
-
 import numpy as np
 
 from progressive import shaderlib
 from progressive.bindings import Binding
 from progressive.context import GLContext
-from progressive.gpu import grid_2d
-from progressive.passes.visibility import VisibilityBuffer
+from progressive.gpu import dispatch_defines, grid_2d
+from progressive.packing import RECORD_BYTES
+from progressive.passes.handles import Meta, Reprojection, Visibility
 from progressive.pointstore import PointStore
-
-RECORD_BYTES = 16
-
-
-class Meta(enum.IntEnum):
-    """Words of a list's meta buffer."""
-
-    COUNT = 0
-    DISPATCH = 1     # 3 words: the next reprojection's dispatch arguments
-    DRAW = 4         # 4 words: the same as draw arguments
-    GATHERS = 8      # records that had to come from the shuffled store
-    WORDS = 12
-
-    @classmethod
-    def defines(cls) -> dict[str, int]:
-        return {f"META_{m.name}": int(m) for m in cls}
 
 
 class SlotList:
     """Visible points: meta words then slots in one buffer (`meta`), and record copies.
     Capacity is the pixel count, so it cannot overflow (the GPU checks anyway)."""
 
-    DISPATCH_OFFSET = Meta.DISPATCH * 4
-    DRAW_OFFSET = Meta.DRAW * 4
     META_BYTES = Meta.WORDS * 4
 
     def __init__(self, glc: GLContext, capacity: int, label: str):
@@ -50,10 +31,6 @@ class SlotList:
 
     def reset(self) -> None:
         self.glc.gl.clear_u32(self.meta.glo, 0, size=self.META_BYTES, total=self.meta.size)
-
-    def bind_input(self) -> None:
-        self.meta.bind_to_storage_buffer(Binding.SLOT_LIST)
-        self.records.bind_to_storage_buffer(Binding.LIST_RECORDS)
 
     def bind_output(self) -> None:
         self.meta.bind_to_storage_buffer(Binding.OUT_SLOTS)
@@ -72,9 +49,9 @@ class SlotList:
 
 
 class PreparePass:
-    def __init__(self, glc: GLContext, store: PointStore, vis: VisibilityBuffer):
+    def __init__(self, glc: GLContext, store: PointStore, vis: Visibility):
         self.glc, self.store, self.vis = glc, store, vis
-        defines = dict(store.defines, **Meta.defines())
+        defines = dict(store.defines, **Meta.defines(), **dispatch_defines())
         self.append = shaderlib.compute(glc.ctx, "prepare.comp", dict(defines, ARGS=0), label="prepare")
         self.args = shaderlib.compute(glc.ctx, "prepare.comp", dict(defines, ARGS=1), label="prepare args")
         self.lists: list[SlotList] = []
@@ -98,9 +75,11 @@ class PreparePass:
         """What the last prepare wrote: this frame's reprojection input."""
         return self.lists[self.current]
 
-    def bind_reprojection(self) -> None:
-        self.previous.bind_input()
-        self.hint.bind_to_storage_buffer(Binding.HINT)
+    @property
+    def reprojection(self) -> Reprojection:
+        """The handle a rasterizer reprojects this frame's input through."""
+        last = self.previous
+        return Reprojection(last.meta, last.records, self.hint, self.capacity)
 
     def invalidate(self) -> None:
         """Forget the visible set (a new size, or records that changed)."""
@@ -113,7 +92,7 @@ class PreparePass:
         """regather: read every visible record from the store (its words were rewritten)."""
         out = self.lists[1 - self.current]
         out.reset()
-        self.bind_reprojection()
+        self.reprojection.bind()
         out.bind_output()
         self.vis.bind()
         self.store.bind()

@@ -9,11 +9,8 @@ from progressive import shaderlib
 from progressive.camera import ViewUniforms
 from progressive.context import GLContext
 from progressive.gpu import grid, set_view
-from progressive.passes.budget import ARGS_BYTES, BudgetPass, layout_defines
 from progressive.passes.cull import CullPass
-from progressive.passes.prepare import Meta, PreparePass
-from progressive.passes.sources import Source
-from progressive.passes.visibility import VisibilityBuffer
+from progressive.passes.handles import FillPieces, Meta, Reprojection, Source, StateWord, Visibility
 from progressive.pointstore import PointStore
 
 SUBGROUP_EXTENSIONS = ("GL_KHR_shader_subgroup", "GL_NV_shader_subgroup_partitioned")     # as the driver names them
@@ -52,10 +49,11 @@ class ComputeRaster:
     """`passes` is 1 (64-bit) or 2 (depth, then index): a frame runs pass 0 over all
     its sources before pass 1, so the index pass sees the final depths."""
 
-    def __init__(self, glc: GLContext, store: PointStore, vis: VisibilityBuffer, *, atomic64: bool,
+    def __init__(self, glc: GLContext, store: PointStore, vis: Visibility, *, atomic64: bool,
                  cull: bool = True, tuning: ComputeTuning = DEFAULT_TUNING):
         """cull: skip batches whose box is outside the view (batched layout; ranges and
-        fill pieces, not the reprojection list, whose points were visible)."""
+        fill pieces, not the reprojection list, whose points were visible). The raster
+        composes its cull pass: a compute raster made alone (bench, tests) culls too."""
         if atomic64 and not glc.caps.atomic_int64:
             raise ValueError("64-bit atomics requested but GL_NV_shader_atomic_int64 is missing")
         self.glc, self.store, self.vis = glc, store, vis
@@ -73,7 +71,7 @@ class ComputeRaster:
         """Compiled at construction, so no frame pays for a compile."""
         key = (source, pass_index)
         if key not in self._programs:
-            defines = dict(self.store.defines, **Source.defines(source), **layout_defines(), **Meta.defines(),
+            defines = dict(self.store.defines, **Source.defines(source), **StateWord.defines(), **Meta.defines(),
                            CULL=int(self._culls(source)), BATCH_GROUPS=int(self._walks_batches(source)),
                            PREFETCH=PREFETCH)
             if self.atomic64:
@@ -113,7 +111,7 @@ class ComputeRaster:
         if self._culls(source) or self._walks_batches(source):
             program["u_batches"] = self.store.permutation.batches
         if self._culls(source):
-            self.culling.bind()
+            self.culling.batch_flags.bind()
         self.store.bind()
         self.vis.bind()
         return program
@@ -133,19 +131,19 @@ class ComputeRaster:
                 program.run(*grid(count))
             self.glc.ctx.memory_barrier()
 
-    def draw_piece(self, view: ViewUniforms, budget: BudgetPass, piece: int, pass_index: int) -> None:
+    def draw_piece(self, view: ViewUniforms, pieces: FillPieces, piece: int, pass_index: int) -> None:
         program = self._prepare(Source.PIECE, pass_index, view)
         program["u_piece"] = piece
-        budget.bind()
-        program.run_indirect(budget.args, offset=piece * ARGS_BYTES)
+        pieces.bind()
+        program.run_indirect(pieces.args, offset=pieces.dispatch_offset(piece))
         self.glc.ctx.memory_barrier()
 
-    def draw_list(self, view: ViewUniforms, prepare: PreparePass, pass_index: int) -> None:
+    def draw_list(self, view: ViewUniforms, reprojection: Reprojection, pass_index: int) -> None:
         """Reproject the record copies of the points visible last frame."""
         program = self._prepare(Source.LIST, pass_index, view)
-        program["u_capacity"] = prepare.capacity
-        prepare.bind_reprojection()
-        program.run_indirect(prepare.previous.meta, offset=prepare.previous.DISPATCH_OFFSET)
+        program["u_capacity"] = reprojection.capacity
+        reprojection.bind()
+        program.run_indirect(reprojection.meta, offset=reprojection.dispatch_offset)
         self.glc.ctx.memory_barrier()
 
     def release(self) -> None:

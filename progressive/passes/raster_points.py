@@ -7,14 +7,10 @@ from __future__ import annotations
 import moderngl
 
 from progressive import shaderlib
-from progressive.bindings import Binding
 from progressive.camera import ViewUniforms
 from progressive.context import GLContext
 from progressive.gpu import grid_2d, set_view
-from progressive.passes.budget import BudgetPass, layout_defines
-from progressive.passes.prepare import Meta, PreparePass
-from progressive.passes.sources import Source
-from progressive.passes.visibility import EMPTY, VisibilityBuffer
+from progressive.passes.handles import EMPTY, FillPieces, Meta, Reprojection, Source, StateWord, Visibility
 from progressive.pointstore import PointStore
 
 
@@ -24,14 +20,14 @@ class PointsRaster:
 
     passes = 1
 
-    def __init__(self, glc: GLContext, store: PointStore, vis: VisibilityBuffer):
+    def __init__(self, glc: GLContext, store: PointStore, vis: Visibility):
         self.glc, self.store, self.vis = glc, store, vis
         ctx = glc.ctx
         self.program = self._program({"VERTEX_PULLING": 0, "CLASS_FILTER": int(store.has_classes)}, "raster points")
         # With the classes kept, the shown word is not read (the linker drops a_word).
         layout = ("3f4 u4", "a_position", "a_word") if "a_word" in self.program else ("3f4 4x", "a_position")
         self.vaos = [ctx.vertex_array(self.program, [(buf, *layout)]) for buf in store.buffers]
-        defines = dict(store.defines, **layout_defines(), **Meta.defines(), VERTEX_PULLING=1)
+        defines = dict(store.defines, **StateWord.defines(), **Meta.defines(), VERTEX_PULLING=1)
         self.pulling = {s: self._program(dict(defines, **Source.defines(s)), f"raster points {s.name.lower()}")
                         for s in (Source.PIECE, Source.LIST)}
         self.empty_vaos = {s: ctx.vertex_array(p, []) for s, p in self.pulling.items()}
@@ -89,7 +85,7 @@ class PointsRaster:
         self.gather["u_slots"] = 0
         self.gather["u_depths"] = 1
         self.gather["u_size"] = view.size
-        self.vis.buffer.bind_to_storage_buffer(Binding.VISIBILITY)
+        self.vis.bind()
         self.gather.run(*grid_2d(*view.size))
         ctx.memory_barrier()
 
@@ -110,15 +106,15 @@ class PointsRaster:
         self.glc.ctx.memory_barrier()
         self.glc.gl.draw_points_indirect(program.glo, self.empty_vaos[source].glo, args_buffer.glo, offset)
 
-    def draw_piece(self, view: ViewUniforms, budget: BudgetPass, piece: int, pass_index: int) -> None:
+    def draw_piece(self, view: ViewUniforms, pieces: FillPieces, piece: int, pass_index: int) -> None:
         self.pulling[Source.PIECE]["u_piece"] = piece
-        budget.bind()
-        self._pull(Source.PIECE, view, budget.args, budget.draw_offset(piece))
+        pieces.bind()
+        self._pull(Source.PIECE, view, pieces.args, pieces.draw_offset(piece))
 
-    def draw_list(self, view: ViewUniforms, prepare: PreparePass, pass_index: int) -> None:
-        self.pulling[Source.LIST]["u_capacity"] = prepare.capacity
-        prepare.bind_reprojection()
-        self._pull(Source.LIST, view, prepare.previous.meta, prepare.previous.DRAW_OFFSET)
+    def draw_list(self, view: ViewUniforms, reprojection: Reprojection, pass_index: int) -> None:
+        self.pulling[Source.LIST]["u_capacity"] = reprojection.capacity
+        reprojection.bind()
+        self._pull(Source.LIST, view, reprojection.meta, reprojection.draw_offset)
 
     def release(self) -> None:
         for obj in [*self._targets, *self.vaos, *self.empty_vaos.values(), self.program, *self.pulling.values(), self.gather]:

@@ -9,12 +9,12 @@ from progressive.bindings import Binding
 from progressive.colors import ColorMode, ColorStyle
 from progressive.context import GLContext
 from progressive.gpu import grid_2d
-from progressive.passes.visibility import VisibilityBuffer
+from progressive.passes.handles import Visibility
 from progressive.pointstore import PointStore
 
 
 class ResolvePass:
-    def __init__(self, glc: GLContext, store: PointStore, vis: VisibilityBuffer, *, pixel_words: bool = False):
+    def __init__(self, glc: GLContext, store: PointStore, vis: Visibility, *, pixel_words: bool = False):
         """pixel_words: read each visible point's word from the buffer prepare writes
         (progressive frames) instead of gathering it from the store."""
         self.glc, self.store, self.vis = glc, store, vis
@@ -25,7 +25,7 @@ class ResolvePass:
         self.image = None
         self._palette_key = None
 
-    def run(self, style: ColorStyle, words=None, vis: VisibilityBuffer | None = None) -> None:
+    def run(self, style: ColorStyle, words=None, vis: Visibility | None = None) -> None:
         """`words`: the per-pixel word buffer, with pixel_words. `vis`: another buffer
         of the same size to colour (the point-size pass's output)."""
         vis = vis or self.vis

@@ -10,8 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from progressive.context import GLContext
-from progressive.passes.budget import TIMESTAMP_SLOTS, StateWord
-from progressive.passes.prepare import Meta
+from progressive.passes.handles import TIMESTAMP_SLOTS, Meta, StateWord
 
 SLOT_WORDS = 48          # fill state (16), timestamps (16), visible count, equal pixels, gathers
 TS_WORD = 16

@@ -10,11 +10,12 @@ from progressive import shaderlib
 from progressive.bindings import Binding
 from progressive.context import GLContext
 from progressive.gpu import grid
-
-EMPTY = 0xFFFFFFFF
+from progressive.passes.handles import EMPTY
 
 
 class VisibilityBuffer:
+    """The owner of the buffer; passes read it as handles.Visibility."""
+
     def __init__(self, glc: GLContext, width: int, height: int, label: str = "visibility"):
         self.glc, self.label = glc, label
         self.buffer = None
