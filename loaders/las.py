@@ -62,6 +62,9 @@ EXTRA_BYTES_TEXT = ((4, 32), (160, 32))  # name, description
 SCAN_ANGLE_STEP = 0.006                 # degrees per unit of the PF 6-10 scan_angle
 PROBE_PIECE = 65_536                    # points per read while looking for 16-bit colour
 BOUNDS_SAMPLE = 4_096                   # first points checked against the header bounds
+PARSE_BLOCK_BYTES = 1 << 21
+"""Records parsed at a time: each attribute is a strided pass over the records, and over
+a block that stays in the CPU's cache the passes after the first cost little."""
 SALVAGE_PIECE = 1_000                   # points per read while salvaging a damaged LAZ
 RECORD_INT = (-2**31, 2**31 - 1)        # the int32 X, Y, Z of a point record
 STANDARD = (
@@ -69,6 +72,18 @@ STANDARD = (
     "number_of_returns", "gps_time", "point_source_id", "user_data", "scan_angle",
 )
 """Standard attributes in the order a cloud lists them; extra bytes follow."""
+LAYERS = {
+    "rgb": laspy.DecompressionSelection.RGB,
+    "intensity": laspy.DecompressionSelection.INTENSITY,
+    "classification": laspy.DecompressionSelection.CLASSIFICATION,
+    "gps_time": laspy.DecompressionSelection.GPS_TIME,
+    "point_source_id": laspy.DecompressionSelection.POINT_SOURCE_ID,
+    "user_data": laspy.DecompressionSelection.USER_DATA,
+    "scan_angle": laspy.DecompressionSelection.SCAN_ANGLE,
+}
+"""The LAZ layer (point formats 6-10) each standard attribute is decoded from; x, y and
+return numbers are in the base layer, z (positions, elevation) in its own, extra bytes
+in theirs."""
 PLAIN = ("intensity", "classification", "return_number", "number_of_returns",
          "gps_time", "point_source_id", "user_data")
 """Standard attributes copied from the laspy dimension of the same name."""
@@ -206,30 +221,45 @@ class LasSource:
     records: Records
     warnings: tuple[str, ...] = ()
 
-    def chunks(self, batch_points: int, *, salvage: bool = False) -> Iterator[np.ndarray | Span]:
+    def chunks(self, batch_points: int, *, salvage: bool = False,
+               names: tuple[str, ...] | None = None) -> Iterator[np.ndarray | Span]:
         """Record arrays of at most batch_points, info.points in total, else TruncatedInput;
         with salvage, a damaged LAZ first yields what still decodes. An uncompressed file
-        yields Spans, which parse() reads."""
+        yields Spans, which parse() reads. Given the attribute `names` that will be
+        parsed, a LAZ of point format 6-10 decodes only the layers they need (what
+        `selection` says); the other fields of its records hold no meaningful values."""
         if self.laz is None:
             count = self.info.points
             return (Span(first, min(batch_points, count - first)) for first in range(0, count, batch_points))
-        return decode(self.info.path, self.laz, self.records, self.info.points, batch_points, salvage=salvage)
+        return decode(self.info.path, self.laz, self.records, self.info.points, batch_points, salvage=salvage,
+                      selection=None if names is None else selection(names))
 
     def parse(self, chunk: np.ndarray | Span, start: int, origin: np.ndarray, names: tuple[str, ...]) -> Batch:
         """A Batch of the named attributes; positions are computed in float64 as laspy
         scales them, so that float32 rounding happens only once."""
         if isinstance(chunk, Span):
             chunk = read_span(self.info.path, self.records, chunk, self.info.points)
-        positions = np.empty((len(chunk), 3), dtype=np.float32)
-        lo, hi = np.empty(3), np.empty(3)
+        n = len(chunk)
+        positions = np.empty((n, 3), dtype=np.float32)
+        lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+        attributes: dict[str, np.ndarray] = {}
+        step = max(1, PARSE_BLOCK_BYTES // chunk.dtype.itemsize)
         with np.errstate(over="ignore", invalid="ignore"):     # overflow is counted, not warned
-            for axis in range(3):
-                coords = self.records.coordinates(chunk, axis)
-                lo[axis], hi[axis] = coords.min(), coords.max()
-                coords -= origin[axis]
-                positions[:, axis] = coords
-        record = laspy.PackedPointRecord(chunk, self.records.point_format)
-        attributes = {name: self._values(record, name) for name in names if name != "elevation"}
+            for at in range(0, n, step):
+                block = chunk[at:at + step]
+                rows = slice(at, at + len(block))
+                for axis in range(3):
+                    coords = self.records.coordinates(block, axis)
+                    lo[axis], hi[axis] = np.minimum(lo[axis], coords.min()), np.maximum(hi[axis], coords.max())
+                    coords -= origin[axis]
+                    positions[rows, axis] = coords
+                record = laspy.PackedPointRecord(block, self.records.point_format)
+                for name in names:
+                    if name != "elevation":
+                        values = self._values(record, name)
+                        if name not in attributes:
+                            attributes[name] = np.empty((n, *values.shape[1:]), values.dtype)
+                        attributes[name][rows] = values
         counts = {name: n for name, v in attributes.items() if (n := nonfinite_count(v))}
         for name in counts:
             quiet_nans(attributes[name])
@@ -254,6 +284,15 @@ class LasSource:
         return np.ascontiguousarray(values)
 
 
+def selection(names: tuple[str, ...]) -> lazrs.DecompressionSelection:
+    """The LAZ layers the named attributes are parsed from, with the positions' (lazrs
+    ignores a selection below point format 6, whose records are not layered)."""
+    layers = laspy.DecompressionSelection.base() | laspy.DecompressionSelection.Z
+    for name in names:
+        layers |= LAYERS.get(name, 0 if name in STANDARD else laspy.DecompressionSelection.ALL_EXTRA_BYTES)
+    return layers.to_lazrs()
+
+
 def read_span(path: str, records: Records, span: Span, count: int) -> np.ndarray:
     """The records of `span` of an uncompressed file, in one read; TruncatedInput where the
     file ends first (it was cut after it was opened: its size was checked then)."""
@@ -271,16 +310,18 @@ def _read_records(stream, path: str, records: Records, span: Span, count: int) -
     return array
 
 
-def _pieces(path: str, laz: LazLayout | None, records: Records, count: int, piece: int) -> Iterator[np.ndarray]:
+def _pieces(path: str, laz: LazLayout | None, records: Records, count: int, piece: int,
+            layers: lazrs.DecompressionSelection | None) -> Iterator[np.ndarray]:
     """The first `count` records in file order, in arrays of any size: read straight into
     numpy (the text patches of an uncompressed file lie before its points), decoded by
-    lazrs over several chunks at once, or else through laspy."""
+    lazrs over several chunks at once (only the `layers` selected), or else through laspy
+    (every field)."""
     if laz is None:
         with open_binary(path) as stream:
             for first in range(0, count, piece):
                 yield _read_records(stream, path, records, Span(first, min(piece, count - first)), count)
     elif laz.chunks:
-        yield from decode_chunks(path, laz, count, piece, records.dtype, available_cores())
+        yield from decode_chunks(path, laz, count, piece, records.dtype, available_cores(), layers)
     else:
         with _reader(laz.open(path), path, laz.backend, count) as reader:
             for chunk in reader.chunk_iterator(piece):
@@ -288,11 +329,12 @@ def _pieces(path: str, laz: LazLayout | None, records: Records, count: int, piec
 
 
 def decode(path: str, laz: LazLayout | None, records: Records, count: int, piece: int, *,
-           salvage: bool = False) -> Iterator[np.ndarray]:
-    """Record arrays of at most `piece` points, `count` in total, else TruncatedInput."""
+           salvage: bool = False, selection: lazrs.DecompressionSelection | None = None) -> Iterator[np.ndarray]:
+    """Record arrays of at most `piece` points, `count` in total, else TruncatedInput;
+    a LAZ decoded in parallel decodes only the layers of `selection` (None: all)."""
     read = 0
     try:
-        for part in _pieces(path, laz, records, count, piece):
+        for part in _pieces(path, laz, records, count, piece, selection):
             for at in range(0, len(part), piece):
                 chunk = part[at:at + piece]
                 read += len(chunk)

@@ -105,7 +105,8 @@ def decode_chunks(path: str, laz: LazLayout, points: int, first_read: int, dtype
     `dtype`, one per read of up to ROUNDS_PER_READ chunks per core, decoded by lazrs on
     every core; the compressed bytes are read without the GIL. The first read holds
     only the chunks of the first `first_read` points (a first batch, or a probe of the
-    file's first points, comes sooner). Fields that `selection` leaves out are zero."""
+    file's first points, comes sooner). Fields that `selection` leaves out are not
+    decoded: they hold no values of the file's (a chunk's first point's, say)."""
     chunks = clipped(list(laz.chunks), points, None)
     largest = max((n for n, _ in chunks), default=0) * dtype.itemsize
     per_read = max(1, min(cores * ROUNDS_PER_READ, READ_BYTES // max(largest, 1)))

@@ -124,14 +124,16 @@ def _common_attributes(sources: tuple[LasSource | E57Source | PlySource, ...], o
 
 def _tasks(source: Source, start: int, batch_points: int, origin: np.ndarray,
            names: tuple[str, ...], partial: bool) -> Iterator[Task]:
-    """Per batch, the work a parser thread does: parsing LAS chunks, checking fast-format
-    records for non-finite values."""
+    """Per batch, the work a parser thread does: parsing LAS chunks (of a LAZ, only the
+    layers `names` need were decoded), checking fast-format records for non-finite values."""
     path = source.info.path
     if isinstance(source, FastSource):
         for batch in source.batches(batch_points, start):
             yield path, functools.partial(source.parse, batch)
         return
-    for chunk in source.chunks(batch_points, salvage=partial):
+    chunks = source.chunks(batch_points, salvage=partial, names=names) if isinstance(source, LasSource) \
+        else source.chunks(batch_points, salvage=partial)
+    for chunk in chunks:
         yield path, functools.partial(source.parse, chunk, start, origin, names)
         start += len(chunk)
 
@@ -151,14 +153,23 @@ class CloudLoader:
     handed out so far, `nonfinite_positions` counts the points that are never drawn (x,
     y or z NaN/Inf) and `nonfinite_values` the NaN/Inf values per float attribute that
     has any; both are final once `done`.
+
+    `attributes` (names of info.attributes) limits what batches carry, and so what a LAZ
+    of point format 6-10 decodes: a caller that shows one attribute and keeps no others
+    loads faster. None: every attribute. Fast-format batches carry their one attribute.
     """
 
     def __init__(self, paths, *, batch_points: int = BATCH_POINTS,
-                 parser_threads: int | None = None, partial: bool = False):
+                 parser_threads: int | None = None, partial: bool = False,
+                 attributes: tuple[str, ...] | None = None):
         parser_threads = available_cores() if parser_threads is None else parser_threads
         if batch_points < 1 or parser_threads < 1:
             raise ValueError("batch_points and parser_threads must be at least 1")
         self.info, self._sources = open_sources(paths, partial=partial)
+        known = tuple(a.name for a in self.info.attributes)
+        if unknown := sorted(set(attributes or ()) - set(known)):
+            raise ValueError(f"the cloud has no attribute {', '.join(unknown)}")
+        self.attributes = known if attributes is None else tuple(n for n in known if n in attributes)
         check_addressable(self.info.files[-1].path, self.info.points)
         self.batch_points = batch_points
         self.parser_threads = parser_threads
@@ -272,7 +283,7 @@ class CloudLoader:
         return _END
 
     def _read(self) -> None:
-        names = tuple(a.name for a in self.info.attributes)
+        names = self.attributes
         start, path = 0, ""
         try:
             for source in self._sources:

@@ -176,3 +176,43 @@ def test_las_spans_are_read_by_the_parser_threads():
     expected = records_of(SAMPLE)
     batch = source.parse(spans[1], 30_000, np.zeros(3), ("intensity",))
     np.testing.assert_array_equal(batch.attributes["intensity"], expected["intensity"][30_000:60_000])
+
+
+LAYERED = ("lone-star.copc.laz", "lion_takanawa.copc.laz", "las_with_several_extra_byte_bloc.laz", "fullwave.laz")
+"""Real LAZ files of point formats 6, 7, 8 and 10, whose records lazrs decodes in layers."""
+
+
+@pytest.mark.parametrize("name", LAYERED)
+def test_selective_decoding_equals_full_decoding(name):
+    """Asking for one attribute decodes only its layer and the positions', and gives
+    exactly what a full load gives for them; every other attribute is left out."""
+    path = shared_file(name)
+    full_loader, full = load([path], batch_points=100_000)
+    for attr in full_loader.info.attributes:
+        loader, batches = load([path], batch_points=100_000, attributes=(attr.name,))
+        assert loader.attributes == (attr.name,)
+        np.testing.assert_array_equal(joined(batches), joined(full))
+        if attr.name == "elevation":
+            assert all(not b.attributes for b in batches)
+        else:
+            assert all(set(b.attributes) == {attr.name} for b in batches)
+            np.testing.assert_array_equal(joined(batches, attr.name), joined(full, attr.name), err_msg=attr.name)
+
+
+def test_selection_leaves_the_other_layers_undecoded():
+    """The selection reaches lazrs: fields of layers not asked for are not the file's."""
+    path = shared_file("las_with_several_extra_byte_bloc.laz")
+    source = open_las(path)
+    expected = records_of(path)
+    only = np.concatenate(list(decode_chunks(str(path), source.laz, source.info.points, 1, source.records.dtype, 2,
+                                             las_module.selection(("intensity",)))))
+    np.testing.assert_array_equal(only["intensity"], expected["intensity"])
+    for field in ("X", "Y", "Z"):
+        np.testing.assert_array_equal(only[field], expected[field])
+    for field in ("gps_time", "red"):
+        assert not np.array_equal(only[field], expected[field]), field
+
+
+def test_unknown_attribute_is_refused():
+    with pytest.raises(ValueError, match="no attribute nir"):
+        CloudLoader([SAMPLE], attributes=("intensity", "nir"))
