@@ -45,10 +45,16 @@ def raster_lines(raster: dict) -> list[str]:
     rows = [r for r in rows if r["points"] == n and r["width"] == width]
     layout = "batched" if any(r["layout"] == "batched" for r in rows) else "shuffled"
 
-    def row(layout: str, raster_path: str, view: str = "overview", reduced: bool | None = None) -> dict | None:
+    walks = any(r.get("batch_groups") for r in rows)     # runs before ComputeTuning had no such rows
+
+    def row(layout: str, raster_path: str, view: str = "overview", reduced: bool = False,
+            groups: bool | None = None) -> dict | None:
+        """The row of the renderer's own tuning (one work group a batch where measured,
+        no subgroup reduction) unless `reduced` or `groups` asks for another."""
+        groups = walks and layout == "batched" if groups is None else groups
         return next((r for r in rows if r["layout"] == layout and r["raster"] == raster_path
-                     and r.get("view", "overview") == view
-                     and (reduced is None or r.get("subgroup_reduction", False) == reduced)), None)
+                     and r.get("view", "overview") == view and r.get("subgroup_reduction", False) == reduced
+                     and (raster_path == "GL_POINTS" or r.get("batch_groups", False) == groups)), None)
 
     points = row(layout, "GL_POINTS")
     where = f"{n:,} points at {points['width']}x{points['height']}"
@@ -69,7 +75,12 @@ def raster_lines(raster: dict) -> list[str]:
                        f"shuffle of the whole cloud {shuffled['ms']:.2f} ms (median of "
                        f"{', '.join(f'{t:.1f}' for t in shuffled['ms_all'])}): **{_x(shuffled['ms'] / r['ms'])}** "
                        f"(`{raster['_file']}`).")
-        reduced = None if r.get("subgroup_reduction") else row(layout, r["raster"], reduced=True)
+        slots = row(layout, r["raster"], groups=False) if r.get("batch_groups") else None
+        if slots:
+            out.append(f"- Brute force, {where}, {r['raster']}, {layout} store: one work group a batch "
+                       f"{r['ms']:.2f} ms against one invocation a slot {slots['ms']:.2f} ms: "
+                       f"**{_x(slots['ms'] / r['ms'])}** (`{raster['_file']}`).")
+        reduced = row(layout, r["raster"], reduced=True)
         if reduced:
             out.append(f"- Brute force, {where}, {r['raster']}, {layout} store: with the subgroup reduction "
                        f"{reduced['ms']:.2f} ms against {r['ms']:.2f} ms without: **{_x(r['ms'] / reduced['ms'])}** "
