@@ -20,6 +20,7 @@ from progressive.passes.budget import BudgetPass
 from progressive.passes.compare import ComparePass
 from progressive.passes.handles import TIMESTAMP_SLOTS, Stamp, StateWord
 from progressive.passes.prepare import PreparePass
+from progressive.passes.raster_compute import DEFAULT_TUNING, ComputeTuning
 from progressive.passes.stats import GPURecord, StatsRing
 from progressive.passes.visibility import VisibilityBuffer
 from progressive.pointstore import PointStore
@@ -46,6 +47,7 @@ class ProgressiveOptions:
     history_frames: int = 10_000        # per-frame statistics kept (a viewer runs for hours)
     keep_batches: bool = False          # keep loaded attributes in host memory to switch attributes
     class_filter: bool = False          # keep classification codes on the GPU: hidden classes apply to any colouring
+    tuning: ComputeTuning = DEFAULT_TUNING  # how the compute raster walks the store (benchmarks compare them)
 
 
 @dataclass(frozen=True)
@@ -114,8 +116,8 @@ class ProgressiveRenderer:
                                     class_filter=options.class_filter)
         self.store = self.scene.store
         self.vis = VisibilityBuffer(glc, options.width, options.height)
-        self.raster = make_raster(glc, self.store, self.vis, options.raster)
-        self.budget = BudgetPass(glc, self.store.capacity, options.budget)
+        self.raster = make_raster(glc, self.store, self.vis, options.raster, options.tuning)
+        self.budget = BudgetPass(glc, self.store.capacity, options.budget, self.store.permutation.batches)
         self.prepare = PreparePass(glc, self.store, self.vis)
         self.shading = Shading(glc, self.store, self.vis, pixel_words=True)
         self.compare = ReferenceCheck(glc, self.store, self.vis) if options.reference else None

@@ -19,6 +19,7 @@ uniform bool u_have_prev;     // the other block holds the previous frame
 uniform uint u_goal_ns;
 uniform uint u_min_budget;
 uniform uint u_max_budget;
+uniform uint u_batches;       // batches of the batched layout (0: none)
 
 const uint64_t VALID_NS = 4294967296ul;
 
@@ -39,6 +40,14 @@ void write_piece(uint piece, uint first, uint count) {
     args[DRAW_ARGS_WORD + 4u * piece + 1u] = 1u;
     args[DRAW_ARGS_WORD + 4u * piece + 2u] = 0u;
     args[DRAW_ARGS_WORD + 4u * piece + 3u] = 0u;
+    // the batch walk (raster_compute.comp BATCH_GROUPS): a group for each batch whose
+    // slices meet the piece, consecutive slice indices modulo the batches
+    uint walk = count == 0u || u_batches == 0u ? 0u
+        : min(u_batches, (first + (count - 1u)) / SLICE_POINTS - first / SLICE_POINTS + 1u);
+    uvec3 groups = dispatch_groups(walk);
+    args[WALK_ARGS_WORD + 3u * piece] = groups.x;
+    args[WALK_ARGS_WORD + 3u * piece + 1u] = groups.y;
+    args[WALK_ARGS_WORD + 3u * piece + 2u] = groups.z;
 }
 
 // split_ring(): two contiguous pieces of [offset, offset+count) on the ring.

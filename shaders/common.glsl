@@ -24,10 +24,13 @@ bool range_index(uint count, out uint i) {
 #ifdef RANGE_GROUP
 // Indirect dispatch arguments for `count` invocations of range_index in work groups of
 // RANGE_GROUP: the twin of progressive/gpu.py grid(), except that 0 gives 0 groups.
-uvec3 dispatch_grid(uint count) {
-    uint groups = (count + RANGE_GROUP - 1u) / RANGE_GROUP;
+uvec3 dispatch_groups(uint groups) {
     uint gx = min(groups, GUARANTEED_GROUPS);
     return uvec3(gx, gx == 0u ? 0u : (groups + gx - 1u) / gx, 1u);
+}
+
+uvec3 dispatch_grid(uint count) {
+    return dispatch_groups((count + RANGE_GROUP - 1u) / RANGE_GROUP);
 }
 #endif
 

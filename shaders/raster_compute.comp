@@ -65,23 +65,32 @@ void raster(uint i, uint slot, uvec4 record) {
 }
 
 #if BATCH_GROUPS
-// One work group per batch: its slices are SLICE_POINTS consecutive slots every
-// u_batches·SLICE_POINTS (progressive/permutation.py), and the group walks them in
-// turn, so the few pixels a compact batch covers stay in cache while all its points
-// go through. A culled batch costs one read. Each invocation loads PREFETCH records
-// before it draws them, so that many reads are in flight while the atomics wait.
+// One work group per batch over a contiguous slot range (brute force or a fill
+// piece): the batch's slices are SLICE_POINTS consecutive slots every
+// u_batches·SLICE_POINTS (progressive/permutation.py), and the group walks those in
+// the range in turn, so the few pixels a compact batch covers stay in cache while
+// its points go through, and a culled batch costs its group one read. Each
+// invocation loads PREFETCH records before it draws them, so that many reads are in
+// flight while the atomics wait.
 const uint ROUNDS = BATCH_SLOTS / SLICE_POINTS;
 
 void main() {
-    uint b = gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x;
-    if (b >= u_batches || u_count == 0u) return;
+    uint g = gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x;
+    uint first = source_first(), count = source_count();
+    if (count == 0u) return;
+    // Group g takes the g-th batch whose slices meet the range: slice indices
+    // first/SLICE_POINTS, ... belong to consecutive batches modulo u_batches (the
+    // dispatch has one group for each, at most u_batches; budget.comp counts them).
+    uint slice = first / SLICE_POINTS;
+    if (g >= min(u_batches, (first + (count - 1u)) / SLICE_POINTS - slice + 1u)) return;
+    uint b = (slice % u_batches + g) % u_batches;
 #if CULL
     if (!batch_shown(b)) return;
 #endif
     uint stride = u_batches * SLICE_POINTS;
     uint base = b * SLICE_POINTS + gl_LocalInvocationID.x;
-    uint last = u_first + (u_count - 1u);
-    uint k = u_first > base ? (u_first - base + stride - 1u) / stride : 0u;
+    uint last = first + (count - 1u);
+    uint k = first > base ? (first - base + stride - 1u) / stride : 0u;
     for (; k < ROUNDS && base + k * stride <= last; k += PREFETCH) {
         uint slots[PREFETCH];
         uvec4 records[PREFETCH];

@@ -143,7 +143,8 @@ def test_gpu_budget_equals_pure_function(gl, case, points):
 
     t_frame, t_fill, t_first, prev_start, prev_end, first, (rp, rn, gain) = case
     params = BudgetParams(target_ns=16_666_667, first_fill=first, min_budget=100, max_budget=50_000_000)
-    bp = BudgetPass(gl, points, params)
+    batches = max(1, points // 10_240)
+    bp = BudgetPass(gl, points, params, batches)
     offset = points // 3
     st = np.zeros(StateWord.WORDS, dtype=np.uint32)
     st[[StateWord.OFFSET, StateWord.RATE_POINTS, StateWord.RATE_NS, StateWord.GAIN]] = [offset, rp, rn, gain]
@@ -174,7 +175,13 @@ def test_gpu_budget_equals_pure_function(gl, case, points):
     words = np.frombuffer(bp.args.read(), dtype=np.uint32)
     dispatch = words[:12].reshape(4, 3)
     draws = words[12:28].reshape(4, 4)
-    for (_, count), (gx, gy, gz), draw in zip([piece0, piece1, piece2, piece3], dispatch, draws):
+    walks = words[28:40].reshape(4, 3)
+    for (start, count), (gx, gy, gz), draw, walk in zip([piece0, piece1, piece2, piece3], dispatch, draws, walks):
         assert gx * gy * 256 >= count and gz == 1 and gx <= 65535
         assert draw.tolist() == [count, 1, 0, 0]
+        # the batch walk: at least one group for each batch a slice of the piece belongs to
+        slices = np.arange(start // 256, (start + count - 1) // 256 + 1) if count else np.arange(0)
+        met = np.unique(slices % batches).size
+        groups = int(walk[0]) * int(walk[1])
+        assert met <= groups < met + max(int(walk[0]), 1) and (groups == 0) == (met == 0) and walk[2] == 1
     bp.release()

@@ -252,3 +252,37 @@ def test_file_fill_order_stores_file_order_and_converges(gl, cloud):
     assert frames_until_equal(gl, pr, cam, scene.style(), expected, math.ceil(info.points / B) + 1) is not None
     for obj in (pr, r, scene):
         obj.release()
+
+
+@pytest.mark.parametrize("view", ["overview", "corner"])
+def test_fill_pieces_walk_batches_frame_for_frame(gl, cloud, brute, view):
+    """Fill pieces walked by one work group a batch (culled batches skipped whole) give
+    every frame the ids of one invocation a slot, and converge to brute force."""
+    from progressive.batches import in_view as batches_in_view
+    from progressive.camera import view_uniforms
+    from progressive.passes.raster_compute import ComputeTuning
+
+    info, batches = cloud
+    lo, hi = info.bounds_min, info.bounds_max
+    cam = auto_camera(lo, hi, W / H) if view == "overview" else Camera(
+        position=tuple(lo + (hi - lo) * [0.15, 0.15, 0.0] + [0, 0, 0.4 * (hi - lo)[0]]),
+        target=tuple(lo + (hi - lo) * [0.15, 0.15, 0.0]), up=(0, 1, 0), near=1.0, far=1e4)
+    runs = {}
+    for groups in (True, False):
+        pr = ProgressiveRenderer(gl, info, default_attribute(info), ProgressiveOptions(
+            W, H, budget=BudgetParams(fixed=B), batches_per_frame=100, tuning=ComputeTuning(batch_groups=groups)))
+        for b in batches:
+            pr.add_batch(b)
+        assert pr.raster.batch_groups == groups
+        style = pr.scene.style()
+        runs[groups] = []
+        for _ in range(math.ceil(info.points / B) + 1):
+            pr.frame(cam, style)
+            runs[groups].append(pr.read_ids())
+        shown = batches_in_view(pr.store.boxes, view_uniforms(cam, info.origin, W, H))
+        assert shown.any() and (shown.all() == (view == "overview"))
+        gl.check()
+        pr.release()
+    assert all(np.array_equal(a, b) for a, b in zip(runs[True], runs[False]))
+    assert not np.array_equal(runs[True][0], runs[True][-1])
+    assert np.array_equal(runs[True][-1], brute(cam))

@@ -16,11 +16,10 @@ from progressive.context import GLContext
 from progressive.glext import GL_QUERY_BUFFER, GL_QUERY_RESULT, GL_TIMESTAMP
 from progressive.gpu import dispatch_defines
 from progressive.passes.handles import (
-    ARGS_BYTES,
-    DRAW_ARGS_BYTES,
     DRAW_ARGS_WORD,
-    FILL_PIECES,
+    FILL_ARGS_BYTES,
     TIMESTAMP_SLOTS,
+    WALK_ARGS_WORD,
     FillPieces,
     Stamp,
     StateWord,
@@ -42,20 +41,22 @@ def layout_defines() -> dict[str, int]:
     d["TIMESTAMP_SLOTS"] = TIMESTAMP_SLOTS
     d["FIRST_INITIAL"] = f"{FIRST_INITIAL}u"
     d["DRAW_ARGS_WORD"] = f"{DRAW_ARGS_WORD}u"
+    d["WALK_ARGS_WORD"] = f"{WALK_ARGS_WORD}u"
     return d
 
 
 class BudgetPass:
-    def __init__(self, glc: GLContext, points: int, params: BudgetParams):
+    def __init__(self, glc: GLContext, points: int, params: BudgetParams, batches: int = 0):
+        """batches: the store's batches (batched layout), for the batch walk's dispatch."""
         if not glc.caps.shader_int64:
             raise ValueError("the GPU budget needs GL_ARB_gpu_shader_int64")
-        self.glc, self.points, self.params = glc, points, params
+        self.glc, self.points, self.params, self.batches = glc, points, params, batches
         ctx = glc.ctx
         initial = np.zeros(StateWord.WORDS, dtype=np.uint32)
         initial[StateWord.GAIN] = GAIN_ONE
         self.state = ctx.buffer(initial.tobytes())
         self.state.label = "fill state"
-        self.args = ctx.buffer(reserve=FILL_PIECES * (ARGS_BYTES + DRAW_ARGS_BYTES))
+        self.args = ctx.buffer(reserve=FILL_ARGS_BYTES)
         self.args.label = "fill dispatch args"
         self.pieces = FillPieces(self.state, self.args)
         self.stamps = ctx.buffer(reserve=2 * TIMESTAMP_SLOTS * 8)
@@ -92,6 +93,7 @@ class BudgetPass:
         p["u_goal_ns"] = min(params.goal_ns, 2**32 - 1)
         p["u_min_budget"] = params.min_budget
         p["u_max_budget"] = min(params.max_budget, 2**32 - 1)
+        p["u_batches"] = self.batches
         self.glc.ctx.memory_barrier()
         self.bind()
         p.run(1, 1, 1)

@@ -89,6 +89,8 @@ FILL_PIECES = 4            # first fill and adaptive fill, each possibly wrapped
 ARGS_BYTES = 12            # one DispatchIndirectCommand
 DRAW_ARGS_WORD = FILL_PIECES * 3
 DRAW_ARGS_BYTES = 16       # one DrawArraysIndirectCommand
+WALK_ARGS_WORD = DRAW_ARGS_WORD + FILL_PIECES * 4    # the batch walk's dispatch arguments
+FILL_ARGS_BYTES = FILL_PIECES * (2 * ARGS_BYTES + DRAW_ARGS_BYTES)
 
 
 class Meta(enum.IntEnum):
@@ -108,7 +110,8 @@ class Meta(enum.IntEnum):
 @dataclass(frozen=True)
 class FillPieces:
     """The budget pass's fill pieces of this frame: `state` holds each piece's first
-    slot and count (StateWord.PIECES), `args` its indirect dispatch and draw arguments,
+    slot and count (StateWord.PIECES), `args` its indirect dispatch arguments (one
+    invocation a slot, and one work group a batch its slices meet) and draw arguments,
     both written on the GPU."""
 
     state: moderngl.Buffer
@@ -126,6 +129,10 @@ class FillPieces:
     @staticmethod
     def draw_offset(piece: int) -> int:
         return DRAW_ARGS_WORD * 4 + piece * DRAW_ARGS_BYTES
+
+    @staticmethod
+    def walk_offset(piece: int) -> int:
+        return WALK_ARGS_WORD * 4 + piece * ARGS_BYTES
 
 
 @dataclass(frozen=True)

@@ -33,8 +33,9 @@ class ComputeTuning:
     """How the compute raster walks the store; each choice gives the same image (the
     tests hold it), the bench measures them side by side.
 
-    batch_groups: brute force runs one work group per batch of the batched layout,
-    walking its slices, instead of one invocation per slot.
+    batch_groups: brute force and fill pieces run one work group per batch of the
+    batched layout, walking its slices in the range, instead of one invocation per
+    slot: a culled batch costs its group one read, not a read per point.
     subgroup_reduction: where GL_NV_shader_subgroup_partitioned exists, the points of a
     subgroup that hit one pixel are reduced to one atomic (the least key)."""
 
@@ -103,7 +104,7 @@ class ComputeRaster:
         return self.cull and source is not Source.LIST
 
     def _walks_batches(self, source: Source) -> bool:
-        return self.batch_groups and source is Source.RANGE
+        return self.batch_groups and source is not Source.LIST
 
     def _prepare(self, source: Source, pass_index: int, view: ViewUniforms):
         program = self.program(source, pass_index)
@@ -135,7 +136,8 @@ class ComputeRaster:
         program = self._prepare(Source.PIECE, pass_index, view)
         program["u_piece"] = piece
         pieces.bind()
-        program.run_indirect(pieces.args, offset=pieces.dispatch_offset(piece))
+        offset = pieces.walk_offset(piece) if self.batch_groups else pieces.dispatch_offset(piece)
+        program.run_indirect(pieces.args, offset=offset)
         self.glc.ctx.memory_barrier()
 
     def draw_list(self, view: ViewUniforms, reprojection: Reprojection, pass_index: int) -> None:
