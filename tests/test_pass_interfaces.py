@@ -56,6 +56,10 @@ class StorageBlocks:
         self._resource = ctypes.CFUNCTYPE(None, u, u, u, i, ctypes.POINTER(u), i, ip, ip)(loader("glGetProgramResourceiv"))
         self._cache: dict[int, frozenset[Binding]] = {}
 
+    def forget(self, glo: int) -> None:
+        """A new program may take a released one's name (NVIDIA reuses them at once)."""
+        self._cache.pop(glo, None)
+
     def __call__(self, glo: int) -> frozenset[Binding]:
         if glo not in self._cache:
             count = ctypes.c_int(0)
@@ -123,6 +127,8 @@ class Spy:
         self.call = None
 
     def built_program(self, program) -> None:
+        self.blocks.forget(program.glo)
+        self.programs.pop(program.glo, None)
         frames = self._pass_frames()
         if frames:
             self.programs[program.glo] = (Path(frames[-1].f_code.co_filename).stem, program)
