@@ -125,7 +125,7 @@ def first_image_lines(first: dict) -> list[str]:
 def progressive_lines(prog: dict) -> list[str]:
     out = []
     for r in prog["raw"]["rows"]:
-        if r["target_ms"] and r["path"] == "still":
+        if r["target_ms"] and r["path"] == "still" and r.get("batch_groups", True):
             conv = (f"exact after {r['frames_to_converge']} frames ({r['ms_to_converge']:.1f} ms of GPU time)"
                     if r["frames_to_converge"] else "not converged within the run")
             out.append(f"- Progressive, {prog['points']} points, {r['budget']}, still camera: frame median "

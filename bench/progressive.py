@@ -21,6 +21,7 @@ from progressive.budget import BudgetParams
 from progressive.camera import Camera, auto_camera
 from progressive.context import GLContext, create_context
 from progressive.frame_loop import FrameStats, ProgressiveOptions, ProgressiveRenderer
+from progressive.passes.raster_compute import DEFAULT_TUNING, ComputeTuning
 from progressive.renderer import Renderer
 from progressive.scene import Scene
 
@@ -97,10 +98,11 @@ def summarize(stats: list[FrameStats], points: int, target_ms: float | None, mot
 
 
 def run_case(glc: GLContext, scene: Scene, cloud: TiledCloud, size: tuple[int, int], budget: Budget,
-             path: CameraPath, motion: int, max_frames: int) -> tuple[dict, list[dict]]:
+             path: CameraPath, motion: int, max_frames: int,
+             tuning: ComputeTuning = DEFAULT_TUNING) -> tuple[dict, list[dict]]:
     width, height = size
-    r = ProgressiveRenderer(glc, cloud.info, cloud.attribute,
-                            ProgressiveOptions(width, height, budget=budget.params, frames_in_flight=2), scene=scene)
+    r = ProgressiveRenderer(glc, cloud.info, cloud.attribute, ProgressiveOptions(
+        width, height, budget=budget.params, frames_in_flight=2, tuning=tuning), scene=scene)
     lo, hi = cloud.info.bounds_min, cloud.info.bounds_max
     base = auto_camera(lo, hi, width / height)
     style = scene.style()
@@ -115,7 +117,8 @@ def run_case(glc: GLContext, scene: Scene, cloud: TiledCloud, size: tuple[int, i
     stats = r.flush()
     summary = summarize(stats, cloud.points, budget.target_ms, motion)
     summary.update(budget=budget.label, target_ms=budget.target_ms, path=path.value, motion_frames=motion,
-                   cpu_frame_ms_median=float(np.median(cpu_ms)), pacing_waits=r.pacing_waits)
+                   cpu_frame_ms_median=float(np.median(cpu_ms)), pacing_waits=r.pacing_waits,
+                   batch_groups=r.raster.batch_groups if hasattr(r.raster, "batch_groups") else False)
     r.release()
     return summary, [s.as_dict() for s in stats]
 
@@ -129,27 +132,51 @@ def brute_ms(glc: GLContext, scene: Scene, cloud: TiledCloud, size: tuple[int, i
     return float(np.median(times[1:]))
 
 
+WARM_UP_S = 3.0
+"""Seconds of frames before the first measured case: a GPU that has just loaded the cloud
+runs its first second or two at lower clocks (on the H200 every pass took about twice
+as long in the first cases of a run after a four-frame warm-up)."""
+
+
+def warm_up(glc: GLContext, scene: Scene, cloud: TiledCloud, size: tuple[int, int]) -> None:
+    width, height = size
+    r = ProgressiveRenderer(glc, cloud.info, cloud.attribute, ProgressiveOptions(
+        width, height, budget=BudgetParams(fixed=max(1, cloud.points // 8)), frames_in_flight=2), scene=scene)
+    base = auto_camera(cloud.info.bounds_min, cloud.info.bounds_max, width / height)
+    style = scene.style()
+    end, k = time.perf_counter() + WARM_UP_S, 0
+    while time.perf_counter() < end:
+        r.frame(orbit(base, k), style)
+        k += 1
+    r.flush()
+    r.release()
+
+
 def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], targets_ms: list[float],
-        paths: list[CameraPath], motion: int, max_frames: int) -> Table:
+        paths: list[CameraPath], motion: int, max_frames: int, compare_walk: bool = False) -> Table:
+    """compare_walk: also run every case with fill pieces walked one invocation a slot
+    (ComputeTuning.batch_groups off), side by side with the renderer's batch walk."""
     cloud = tiled(str(SAMPLE), points)
     scene, upload_s = load(glc, cloud)
     brute = brute_ms(glc, scene, cloud, size)
-    run_case(glc, scene, cloud, size, Budget("warm-up", BudgetParams(fixed=max(1, points // 8))), CameraPath.STILL, 0, 4)
+    warm_up(glc, scene, cloud, size)
     rows, frames = [], {}
     for budget in budgets(fixed, targets_ms):
         for path in paths:
-            summary, stats = run_case(glc, scene, cloud, size, budget, path, motion, max_frames)
-            rows.append(summary)
-            frames[f"{budget.label}, {path.value}"] = stats
+            for tuning in (DEFAULT_TUNING, ComputeTuning(batch_groups=False)) if compare_walk else (DEFAULT_TUNING,):
+                summary, stats = run_case(glc, scene, cloud, size, budget, path, motion, max_frames, tuning)
+                rows.append(summary)
+                walk = "" if tuning == DEFAULT_TUNING else ", one invocation a slot"
+                frames[f"{budget.label}, {path.value}{walk}"] = stats
     scene.release()
     table = Table(f"progressive_{points}", f"Progressive frames, {size[0]}x{size[1]}",
                   f"{SAMPLE.name} tiled on a grid", f"{points:,}", (
-                      "budget", "camera", "frame ms median", "p95", "max", "target ms", "frames over target",
+                      "budget", "camera", "fill work group", "frame ms median", "p95", "max", "target ms", "frames over target",
                       "reproject", "fill", "prepare", "resolve", "fill share", "points/frame",
                       "frames to converge", "ms to converge"))
     for r in rows:
         p = r["pass_ms_median"]
-        table.rows.append((r["budget"], r["path"], r["frame_ms_median"], r["frame_ms_p95"], r["frame_ms_max"],
+        table.rows.append((r["budget"], r["path"], "batch" if r["batch_groups"] else "256 slots", r["frame_ms_median"], r["frame_ms_p95"], r["frame_ms_max"],
                            r["target_ms"], f"{r['over_target']:.0%}" if r["over_target"] is not None else None,
                            p["reproject"], p["fill"], p["prepare"], p["resolve"], f"{r['fill_share_median']:.0%}",
                            round(r["points_per_frame_median"]), r["frames_to_converge"] or "no",
@@ -161,7 +188,8 @@ def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], ta
          f"height), then hold the last camera. Frames to converge count from the first still frame to the first "
          f"frame by which every point was filled since the last change (exact: the image then equals brute "
          f"force); ms to converge sums their GPU frame times. Runs stop there or at {max_frames} frames. "
-         f"Two frames in flight, as a swap chain paces a window.")]
+         f"Two frames in flight, as a swap chain paces a window. Fill work group: batch = fill pieces walked "
+         f"one work group a batch (the renderer's), 256 slots = one invocation a slot.")]
     table.raw = {"brute_ms": brute, "upload_s": upload_s, "rows": rows, "frames": frames}
     return table
 
@@ -174,12 +202,13 @@ def main(argv=None) -> int:
     ap.add_argument("--fixed", type=int, nargs="*", default=[1_000_000])
     ap.add_argument("--motion-frames", type=int, default=30)
     ap.add_argument("--max-frames", type=int, default=400)
+    ap.add_argument("--compare-walk", action="store_true", help="also run each case with one invocation a slot")
     ap.add_argument("--out", default="bench/results/local")
     args = ap.parse_args(argv)
     glc = create_context()
     size = tuple(int(v) for v in args.size.split("x"))
     table = run(glc, args.points, size, args.fixed, args.targets_ms, list(CameraPath), args.motion_frames,
-                args.max_frames)
+                args.max_frames, args.compare_walk)
     info = RunInfo.from_caps(glc.caps, "progressive only")
     table.write(Path(args.out), info)
     print(table.markdown(info))
