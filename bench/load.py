@@ -1,7 +1,8 @@
 """Load: points/s and GB/s of the loader for LAS, LAZ and the fast format at 1, 2, 4
-parser threads, cold and warm page cache, each beside what the same file costs to
-(a) `laspy.read()` plus the conversion a user would write, and (b) read raw; then
-time to first image and to fully loaded through `progressive.open()`."""
+parser threads and the default (the cores available), cold and warm page cache, each
+beside what the same file costs to (a) `laspy.read()` plus the conversion a user would
+write, (b) read raw and (c) for LAZ, decode with lazrs's own parallel decoder alone;
+then time to first image and to fully loaded through `progressive.open()`."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import laspy
+import lazrs
 import numpy as np
 
 import progressive
@@ -21,8 +23,11 @@ from bench.report import Table
 from progressive.budget import BudgetParams
 from progressive.context import GLContext
 from progressive.loaders import CloudLoader
+from progressive.loaders.types import available_cores
 
 BLOCK = 8 << 20
+LAZRS_PIECE = 10_000_000
+"""Points per `decompress_many` of the lazrs ceiling: 200 chunks, every core busy."""
 COLD_MIN_SLOWDOWN = 1.2
 """A cold raw read must be at least this much slower than a warm one to count as cold."""
 
@@ -43,6 +48,24 @@ def raw_read(path: Path) -> None:
     with open(path, "rb", buffering=0) as f:
         while f.readinto(view):
             pass
+
+
+def lazrs_decode(path: Path) -> None:
+    """lazrs's `ParLasZipDecompressor` alone over every point (all cores, pieces of
+    LAZRS_PIECE into one buffer): the LAZ decoding ceiling."""
+    with open(path, "rb") as f:
+        header = laspy.LasHeader.read_from(f)
+        f.seek(header.offset_to_point_data)
+        vlr = header.vlrs.get("LasZipVlr")[0].record_data
+        decoder = lazrs.ParLasZipDecompressor(f, vlr)
+        size = header.point_format.size
+        buffer = bytearray(min(header.point_count, LAZRS_PIECE) * size)
+        view = memoryview(buffer)
+        left = header.point_count
+        while left:
+            n = min(left, LAZRS_PIECE)
+            decoder.decompress_many(view[:n * size])
+            left -= n
 
 
 def pipeline(path: Path, threads: int) -> None:
@@ -111,11 +134,11 @@ def first_image(glc: GLContext, path: Path, width: int, height: int, cold: bool,
 
 def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats: int,
         size: tuple[int, int], max_frames: int) -> tuple[Table, Table]:
-    load = Table("load", "Load: points/s and GB/s, against laspy and raw reads", "", "", (
-        "file", "format", "MB", "cache", "parser threads", "s", "Mpoints/s", "GB/s",
-        "× laspy.read + convert", "share of raw read GB/s"))
-    load.columns = ("file", "format", "points", "MB", "cache", "parser threads", "s", "Mpoints/s", "GB/s",
-                    "× laspy.read + convert", "share of raw read GB/s")
+    cores = available_cores()
+    threads = tuple(sorted({*threads, cores}))
+    load = Table("load", "Load: points/s and GB/s, against laspy, raw reads and lazrs alone", "", "", (
+        "file", "format", "points", "MB", "cache", "parser threads", "s", "Mpoints/s", "GB/s",
+        "× laspy.read + convert", "share of raw read GB/s", "lazrs alone Mpoints/s", "share of lazrs alone"))
     rows = []
     cold_forced = {}
     for case in cases:
@@ -125,6 +148,8 @@ def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats
         for cold in (True, False):
             raw_s = timed(functools.partial(raw_read, case.path), case.path, cold, repeats)
             laspy_s = timed(functools.partial(laspy_user, baseline_path), baseline_path, cold, repeats) if baseline_path else None
+            lazrs_s = timed(functools.partial(lazrs_decode, case.path), case.path, cold, repeats) \
+                if case.format == "LAZ" else None
             if cold:
                 cold_forced[f"{case.label} {case.format}"] = raw_s
             for t in threads:
@@ -133,7 +158,8 @@ def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats
                        "cold": cold, "threads": t, "seconds": s, "points_per_s": case.points / s,
                        "gb_per_s": size_b / s / 1e9, "raw_seconds": raw_s, "laspy_seconds": laspy_s,
                        "laspy_file": baseline_path.name if baseline_path else None,
-                       "vs_laspy": laspy_s / s if laspy_s else None, "share_of_raw": raw_s / s}
+                       "vs_laspy": laspy_s / s if laspy_s else None, "share_of_raw": raw_s / s,
+                       "cores": cores, "lazrs_seconds": lazrs_s, "share_of_lazrs": lazrs_s / s if lazrs_s else None}
                 rows.append(row)
         key = f"{case.label} {case.format}"
         warm_raw = next(r["raw_seconds"] for r in rows if (r["file"], r["format"], r["cold"]) == (case.label, case.format, False))
@@ -143,13 +169,19 @@ def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats
         cache = ("cold" if forced else "cold (not forced)") if r["cold"] else "warm"
         r["cold_forced"] = forced if r["cold"] else None
         load.rows.append((r["file"], r["format"], r["points"], r["bytes"] / 1e6, cache, r["threads"], r["seconds"],
-                          r["points_per_s"] / 1e6, r["gb_per_s"], r["vs_laspy"], f"{r['share_of_raw']:.2g}"))
+                          r["points_per_s"] / 1e6, r["gb_per_s"], r["vs_laspy"], f"{r['share_of_raw']:.2g}",
+                          r["points"] / r["lazrs_seconds"] / 1e6 if r["lazrs_seconds"] else None,
+                          f"{r['share_of_lazrs']:.2g}" if r["share_of_lazrs"] else None))
     load.notes = [
-        ("Loader: `CloudLoader` (reader thread + parser threads) to float32 positions and attribute arrays. "
+        (f"Cores available to the process (`os.sched_getaffinity`): {cores}; the loader's default parser threads "
+         f"are that many ({cores} rows). lazrs decodes LAZ on every core whatever the parser threads. "
+         "Loader: `CloudLoader` (reader thread + parser threads) to float32 positions and attribute arrays. "
         "× laspy = seconds of `laspy.read()` plus float32 positions relative to the bounds' centre and one attribute "
         "(RGB, else intensity), divided by the loader's seconds, same file and cache state, same run; for the fast "
         "format laspy reads the LAS file of the same cloud. Share of raw read = raw read seconds (8 MiB blocks, "
-        "Python `readinto`) / loader seconds (1.0 = as fast as reading the bytes)."),
+        "Python `readinto`) / loader seconds (1.0 = as fast as reading the bytes). lazrs alone = "
+        f"`lazrs.ParLasZipDecompressor.decompress_many` over every point in pieces of {LAZRS_PIECE:,} (LAZ only), "
+        "share of it = lazrs seconds / loader seconds: the decoding ceiling, without parsing."),
         "Cold = `posix_fadvise(POSIX_FADV_DONTNEED)` after `fsync` before each run; it counts as forced only where "
         f"the cold raw read was ≥ {COLD_MIN_SLOWDOWN}× slower than the warm one (slowdown per file: "
         + ", ".join(f"{k} {v:.2f}×" for k, v in cold_forced.items()) + "). Where not forced, the cold rows "

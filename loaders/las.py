@@ -634,8 +634,8 @@ def _probe(path: str, laz: LazLayout | None, records: Records, count: int, has_r
             if first is None:
                 first = chunk[:1].copy()
                 with np.errstate(over="ignore", invalid="ignore"):
-                    coords = np.stack([records.coordinates(chunk, axis) for axis in range(3)], axis=1)
-                    seen = np.stack([coords.min(axis=0), coords.max(axis=0)])
+                    coords = [records.coordinates(chunk, axis) for axis in range(3)]
+                    seen = np.array([[c.min() for c in coords], [c.max() for c in coords]])
             if has_rgb:
                 max_rgb = max(max_rgb, *(int(np.max(chunk[c])) for c in ("red", "green", "blue")))
                 if max_rgb > RGB8_MAX:

@@ -119,10 +119,10 @@ def decode_chunks(path: str, laz: LazLayout, points: int, first_read: int, dtype
             compressed = bytearray(sum(n for _, n in group))
             if stream.readinto(compressed) != len(compressed):
                 raise EOFError("the file ends inside its LAZ chunk data")
-            points = np.empty(sum(n for n, _ in group), dtype)
-            lazrs.decompress_points_with_chunk_table(compressed, laz.vlr_data, memoryview(points).cast("B"),
+            records = np.empty(sum(n for n, _ in group), dtype)
+            lazrs.decompress_points_with_chunk_table(compressed, laz.vlr_data, memoryview(records).cast("B"),
                                                      list(group), selection)
-            yield points
+            yield records
 
 
 def clipped(table: list[Chunk], points: int, chunk_size: int | None) -> tuple[Chunk, ...]:
