@@ -51,15 +51,19 @@ def main() -> int:
     try:
         from progressive.session import SessionOptions
         from progressive.viewer.app import Viewer, ViewerOptions
+        from progressive.viewer.controls import Action
 
         v = Viewer([str(SAMPLE)], ViewerOptions(SessionOptions(width=SIZE[0], height=SIZE[1])))
-        v.orbit = v.navigator.zoom(v.orbit, 1)
+        v.orbit = v.navigator.zoom(v.orbit, 1)       # about the cloud's centre, framed beside the panel
         shoot(v, "viewer-rgb.png")
         shoot(v, "viewer-rgb-edl.png", eye_dome=True, point_size=2)
         v.switch_attribute("classification")
         shoot(v, "viewer-classification.png", eye_dome=False, point_size=1)
         v.switch_attribute("elevation")
-        shoot(v, "viewer-elevation-edl.png", eye_dome=True, point_size=2, panel=False)
+        v.act(Action.PANEL)
+        v.home()                                      # framed in the whole window
+        v.orbit = v.navigator.zoom(v.orbit, 1)
+        shoot(v, "viewer-elevation-edl.png", eye_dome=True, point_size=2)
         v.close()
     finally:
         proc.terminate()

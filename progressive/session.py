@@ -12,6 +12,7 @@ statistics. The CLI, the viewer and the benchmarks all go through it.
 from __future__ import annotations
 
 import enum
+import functools
 import time
 from dataclasses import dataclass, field, replace
 
@@ -25,8 +26,10 @@ from progressive.colors import DEFAULT_PALETTE, Colormap, ColorStyle, Palette
 from progressive.context import GLContext, create_context
 from progressive.effects import Effects
 from progressive.frame_loop import FrameStats, ProgressiveOptions, ProgressiveRenderer
+from progressive.loaders.crs import file_crs
 from progressive.loaders.lookup import read_record
 from progressive.loaders.types import AttributeKind
+from progressive.packing import attribute_word
 from progressive.passes.visibility import EMPTY
 from progressive.pointstore import CLASS_BYTES, GPUMemoryError
 from progressive.renderer import Frame, Raster, Renderer, ids_for
@@ -205,6 +208,35 @@ class Session:
             return chosen if self.attribute.kind is AttributeKind.SCALAR else None
         taken = self.renderer.scene.value_range()
         return None if taken is None else (taken[0] + self.attribute.offset, taken[1] + self.attribute.offset)
+
+    def histogram(self, bins: int, value_range: tuple[float, float]) -> np.ndarray | None:
+        """Counts of the shown scalar's values in `bins` equal bins over `value_range`
+        (attribute units; the last bin closed, as numpy's), over the loaded points the
+        colour range is taken over: finite position and value, as stored on the GPU
+        (float32 of the value less the attribute's offset). Counted on the host from
+        the kept batches (SessionOptions.switchable); None for other kinds or without
+        them."""
+        scene = self.renderer.scene
+        if self.attribute.kind is not AttributeKind.SCALAR or not scene.keep_batches:
+            return None
+        lo, hi = value_range
+        counts = np.zeros(bins, dtype=np.int64)
+        for batch in list(scene.batches):
+            if batch.records is not None:
+                words, finite = batch.records[:, 3], np.isfinite(batch.records[:, :3].view(np.float32)).all(axis=1)
+            else:
+                words = attribute_word(batch, self.attribute, float(self.info.origin[2]))
+                finite = np.isfinite(batch.positions).all(axis=1)
+            values = words.view(np.float32)[finite].astype(np.float64) + self.attribute.offset
+            counts += np.histogram(values[np.isfinite(values)], bins, (lo, hi))[0]
+        return counts
+
+    @functools.cached_property
+    def units(self) -> str | None:
+        """The horizontal unit of the cloud's CRS as pyproj names it ("metre", "foot"):
+        the target's when reprojecting, else the first file's; None without a CRS."""
+        crs = self.target if self.target is not None else file_crs(self.info.files[0])
+        return None if crs is None or not crs.axis_info else crs.axis_info[0].unit_name
 
     def switch_attribute(self, name: str) -> AttributeSwitch:
         """Colour by another attribute (needs SessionOptions.switchable). Progressive

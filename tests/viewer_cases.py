@@ -21,7 +21,7 @@ from PIL import Image
 
 from colour_reference import assert_scalar_colours, las_values, reference_range
 from conftest import SAMPLE
-from progressive.camera import Camera
+from progressive.camera import Camera, screen_points
 from progressive.reference import EMPTY
 from progressive.session import SessionOptions
 from progressive.viewer.controls import Action
@@ -77,6 +77,7 @@ def no_gl_error(v):
 
 
 def test_window_shows_the_cloud_and_p_saves_the_frame(viewer, tmp_path):
+    viewer.act(Action.PANEL)            # at the home view: framed again in the whole window
     settle(viewer)
     frame = viewer.session.image()
     covered = (viewer.session.ids() != EMPTY).mean()
@@ -89,14 +90,15 @@ def test_window_shows_the_cloud_and_p_saves_the_frame(viewer, tmp_path):
 
 
 def test_present_puts_the_frame_on_the_window(viewer, monkeypatch):
-    """The window's back buffer (panel hidden) is the frame, pixel for pixel."""
+    """The window's back buffer (panel hidden) is the frame, pixel for pixel, above the
+    gizmo and scale bar at the bottom."""
     viewer.act(Action.PANEL)
     settle(viewer)
     shots = []
     swap = glfw.swap_buffers
     monkeypatch.setattr(glfw, "swap_buffers", lambda w: (shots.append(viewer.capture_window()), swap(w)))
     viewer.step()
-    np.testing.assert_array_equal(shots[-1], viewer.session.image()[:, :, :3])
+    np.testing.assert_array_equal(shots[-1][: H // 2], viewer.session.image()[: H // 2, :, :3])
 
 
 def test_panel_draws_over_the_frame(viewer, monkeypatch):
@@ -158,7 +160,10 @@ def test_orbit_pan_zoom_and_reset(viewer):
     viewer.mouse_button(glfw.MOUSE_BUTTON_LEFT, True, 100, 100)
     viewer.cursor(160, 90)
     viewer.mouse_button(glfw.MOUSE_BUTTON_LEFT, False, 160, 90)
-    assert viewer.orbit.target == home.target and viewer.orbit.distance == home.distance
+    # framed at home, it turns about the cloud's centre, which keeps its place on screen
+    assert viewer.orbit.pivot == home.pivot and viewer.orbit.distance == pytest.approx(home.distance)
+    np.testing.assert_allclose(screen_points(viewer.camera, np.array([home.pivot]), W, H)[0],
+                               screen_points(viewer.navigator.camera(home), np.array([home.pivot]), W, H)[0], atol=1e-6)
     assert viewer.orbit.yaw < home.yaw and viewer.orbit.pitch < home.pitch
     orbited = viewer.orbit
     viewer.mouse_button(glfw.MOUSE_BUTTON_RIGHT, True, 100, 100)
@@ -614,8 +619,268 @@ def test_section_along_the_measured_line_and_its_profile_view(viewer):
     assert cam.orthographic
     np.testing.assert_allclose(forward, [-axis[1], axis[0], 0.0], atol=1e-9)
     profile = viewer.session.ids()
-    assert np.array_equal(profile, brute_ids(viewer)) and (profile != EMPTY).mean() > 0.01
+    assert np.array_equal(profile, brute_ids(viewer))
+    # framed in the free area: the segment spans most of its width, nothing under the panel
+    x0, _, x1, _ = viewer.free_area
+    cols = np.nonzero((profile != EMPTY).any(axis=0))[0]
+    assert cols.min() >= x0 and cols.max() - cols.min() >= 0.6 * (x1 - x0)
     assert np.mean(profile == clipped_reference(viewer, viewer.settings.clip)) >= 0.999
     viewer.clear_section()
     assert viewer.settings.clip == Clip()
     no_gl_error(viewer)
+
+
+def open_viewer(paths, width=W, height=H, **session):
+    from progressive.viewer.app import Viewer, ViewerOptions
+
+    return Viewer([str(p) for p in paths], ViewerOptions(SessionOptions(width=width, height=height, **session)))
+
+
+def corners(lo, hi) -> np.ndarray:
+    return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+
+
+@pytest.mark.parametrize("width", [640, 1280])
+def test_the_cloud_is_framed_in_the_area_the_docked_panel_leaves(display, width):
+    """The panel docks at the left with its own width; the bounding box's corners (float64
+    projection of the camera) and every point drawn lie right of it, and the box fills
+    most of the free width; Tab at the home view frames it in the whole window."""
+    v = open_viewer([SAMPLE], width, 360)
+    try:
+        settle(v)
+        x0, _, x1, y1 = v.free_area
+        assert 0 < x0 < 0.5 * width and (x1, y1) == (width, 360)
+        scale = v.framebuffer_size[0] / glfw.get_window_size(v.window)[0]
+        assert v.panel.docked[0] == 0 and v.panel.docked[1] * scale == pytest.approx(x0, abs=1)
+        xy, depth = screen_points(v.camera, corners(v.session.info.bounds_min, v.session.info.bounds_max), width, 360)
+        assert (depth > 0).all() and xy[:, 0].min() >= x0 and xy[:, 0].max() <= x1
+        assert xy[:, 1].min() >= 0 and xy[:, 1].max() <= 360
+        assert xy[:, 0].max() - xy[:, 0].min() >= 0.85 * (x1 - x0) or xy[:, 1].max() - xy[:, 1].min() >= 0.85 * 360
+        cols = np.nonzero((v.session.ids() != EMPTY).any(axis=0))[0]
+        assert cols.min() >= x0
+        v.act(Action.PANEL)
+        assert v.free_area[0] == 0
+        xy, _ = screen_points(v.camera, corners(v.session.info.bounds_min, v.session.info.bounds_max), width, 360)
+        assert xy[:, 0].min() < x0 and xy[:, 0].max() <= width
+        no_gl_error(v)
+    finally:
+        v.close()
+
+
+def test_axes_gizmo_and_scale_bar(viewer, monkeypatch):
+    """The gizmo's axes point where the camera projects the file's X, Y, Z at the target;
+    the scale bar's pixels are its length across the view at the target's depth (the
+    camera's float64 projection), labelled in the file's unit (pyproj's of its CRS)."""
+    viewer.orbit = viewer.navigator.orbit(viewer.orbit, 35, -20)
+    shots = []
+    swap = glfw.swap_buffers
+    monkeypatch.setattr(glfw, "swap_buffers", lambda w: (shots.append(viewer.capture_window()), swap(w)))
+    settle(viewer)
+    cam, p = viewer.camera, viewer.panel
+    target = np.array(cam.target)
+    eps = 1e-4 * viewer.navigator.diagonal
+    base = screen_points(cam, target[None], W, H)[0][0]
+    for k, name in enumerate("XYZ"):
+        moved = screen_points(cam, (target + eps * np.eye(3)[k])[None], W, H)[0][0] - base
+        drawn = np.subtract(p.gizmo[name], p.gizmo_centre)
+        assert np.linalg.norm(drawn) > 5
+        np.testing.assert_allclose(drawn / np.linalg.norm(drawn), moved / np.linalg.norm(moved), atol=2e-3)
+    length, pixels, label = p.scale_bar
+    right = cam.rotation()[0]
+    a, b = screen_points(cam, np.stack([target, target + length * right]), W, H)[0]
+    assert np.hypot(*(b - a)) == pytest.approx(pixels, rel=1e-9)
+    assert 0.2 * 160 <= pixels <= 160
+    leading = float(f"{length:e}".split("e")[0])
+    assert leading in (1.0, 2.0, 5.0)
+    unit = laspy.open(SAMPLE).header.parse_crs().axis_info[0].unit_name
+    assert unit == "foot" and label == f"{length:g} ft"
+    # drawn: the window differs from the image around the gizmo
+    gx, gy = (int(c) for c in p.gizmo_centre)
+    region = (slice(gy - 20, gy + 20), slice(gx - 20, gx + 20))
+    assert (shots[-1][region] != viewer.session.image()[:, :, :3][region]).any()
+    no_gl_error(viewer)
+
+
+@pytest.mark.parametrize("name", ["elevation", "intensity"])
+def test_histogram_under_the_colour_range(viewer, name):
+    """The histogram the panel draws under the colour bar: numpy's counts over laspy's
+    values as the contract stores them (float32 of the value less the attribute's
+    offset), in equal bins over the colour range; it follows a range set in the panel."""
+    from progressive.viewer.app import HISTOGRAM_BINS
+
+    viewer.switch_attribute(name)
+    settle(viewer)
+    s = viewer.session
+    stored = np.float32(las_values(laspy.read(SAMPLE), name) - s.attribute.offset).astype(np.float64) + s.attribute.offset
+    lo, hi = s.color_range()
+    expected = np.histogram(stored, HISTOGRAM_BINS, (lo, hi))[0]
+    np.testing.assert_array_equal(viewer.panel.histogram, expected)
+    assert expected.sum() > 0.9 * stored.size
+    narrow = (lo + 0.25 * (hi - lo), lo + 0.5 * (hi - lo))
+    viewer.settings = replace(viewer.settings, value_range=narrow)
+    viewer.step()
+    np.testing.assert_array_equal(viewer.panel.histogram, np.histogram(stored, HISTOGRAM_BINS, narrow)[0])
+    no_gl_error(viewer)
+
+
+def test_colormap_is_remembered_per_attribute(viewer):
+    """A colormap chosen for elevation comes back with elevation after another attribute
+    was shown with its own, and the image is coloured through it (matplotlib's)."""
+    from progressive.colors import Colormap
+
+    viewer.switch_attribute("elevation")
+    viewer.set_colormap(Colormap.INFERNO)
+    viewer.switch_attribute("intensity")
+    assert viewer.settings.colormap is Colormap.VIRIDIS
+    viewer.set_colormap(Colormap.PLASMA)
+    viewer.switch_attribute("elevation")
+    assert viewer.settings.colormap is Colormap.INFERNO
+    settle(viewer)
+    values = las_values(laspy.read(SAMPLE), "elevation")
+    image, ids = viewer.session.image()[:, :, :3].astype(np.int32), viewer.session.ids()
+    assert_scalar_colours(image, ids, values, viewer.session.color_range(), "inferno")
+    viewer.switch_attribute("intensity")
+    assert viewer.settings.colormap is Colormap.PLASMA
+    no_gl_error(viewer)
+
+
+def click_a_point(viewer, share=0.5) -> int:
+    ids = viewer.session.ids()
+    rows, cols = np.nonzero(ids != EMPTY)
+    k = int(len(rows) * share)
+    x, y = float(cols[k]) + 0.5, float(rows[k]) + 0.5
+    viewer.mouse_button(glfw.MOUSE_BUTTON_LEFT, True, x, y)
+    viewer.mouse_button(glfw.MOUSE_BUTTON_LEFT, False, x, y)
+    viewer.step()
+    return int(ids[rows[k], cols[k]])
+
+
+def test_pick_panel_shows_crs_and_latitude_longitude(viewer):
+    """The picked point's section lists its CRS (pyproj's name of the file's) and its
+    latitude and longitude (pyproj's WGS 84 transform of laspy's coordinates)."""
+    import pyproj
+
+    settle(viewer)
+    index = click_a_point(viewer)
+    las = laspy.read(SAMPLE)
+    crs = las.header.parse_crs()
+    lon, lat = pyproj.Transformer.from_crs(crs, "EPSG:4326", always_xy=True).transform(las.x[index], las.y[index])
+    lines = viewer.panel.picked_lines
+    assert viewer.picked["index"] == index
+    assert f"CRS: {crs.name}" in lines
+    assert f"lat {lat:.8f}  lon {lon:.8f}" in lines
+    assert f"intensity: {int(las.intensity[index])}" in lines
+    no_gl_error(viewer)
+
+
+def test_legend_colours_come_from_the_palette_file(display, tmp_path):
+    """--palette overrides show in the classification legend and in the image: the
+    listed colours are the file's for its codes, ASPRS names beside them."""
+    import json
+
+    from progressive.colors import Palette
+
+    path = tmp_path / "palette.json"
+    path.write_text(json.dumps({"1": [10, 20, 30], "2": "#c86432"}))
+    v = open_viewer([SAMPLE], palette=Palette.from_json(str(path)), color_by="classification")
+    try:
+        settle(v)
+        legend = {code: (name, rgb) for code, name, rgb in v.panel.legend}
+        assert legend == {1: ("unclassified", (10, 20, 30)), 2: ("ground", (200, 100, 50))}
+        classes = np.asarray(laspy.read(SAMPLE).classification)
+        image, ids = v.session.image()[:, :, :3], v.session.ids()
+        shown = ids != EMPTY
+        for code, (_, rgb) in legend.items():
+            mine = shown.copy()
+            mine[shown] = classes[ids[shown]] == code
+            assert mine.any() and (image[mine] == rgb).all()
+        no_gl_error(v)
+    finally:
+        v.close()
+
+
+def test_copy_paste_and_fly_mode_say_so(viewer):
+    """Ctrl+C and Ctrl+V leave a note over the image, F shows the fly mode indicator."""
+    viewer.act(Action.COPY_CAMERA)
+    viewer.act(Action.PASTE_CAMERA)
+    viewer.act(Action.FLY)
+    viewer.step()
+    assert any("copied" in n for n in viewer.panel.notes) and any("pasted" in n for n in viewer.panel.notes)
+    assert viewer.panel.fly_shown
+    viewer.act(Action.FLY)
+    viewer.step()
+    assert not viewer.panel.fly_shown
+    no_gl_error(viewer)
+
+
+UTM = "EPSG:32610"
+
+
+@pytest.fixture(scope="module")
+def two_crs_files(tmp_path_factory):
+    """The sample written in UTM 10N (EPSG:32610, metres) and in Oregon's Lambert grid
+    (EPSG:2992, feet), the second 500 ft east: pyproj's float64 transforms of laspy's
+    coordinates, heights in each CRS's unit."""
+    import pyproj
+
+    src = laspy.read(SAMPLE)
+    source = src.header.parse_crs()
+    out = []
+    for code, shift in (("EPSG:32610", 0.0), ("EPSG:2992", 500.0)):
+        crs = pyproj.CRS.from_user_input(code)
+        x, y = pyproj.Transformer.from_crs(source, crs, always_xy=True).transform(src.x, src.y)
+        header = laspy.LasHeader(point_format=3, version="1.2")
+        header.scales = [0.001] * 3
+        header.offsets = [float(np.floor(x.min())), float(np.floor(y.min())), 0.0]
+        header.add_crs(crs)
+        las = laspy.LasData(header)
+        las.x, las.y, las.z = x + shift, y, src.z * (0.3048 / crs.axis_info[0].unit_conversion_factor)
+        for dim in ("intensity", "classification", "red", "green", "blue"):
+            setattr(las, dim, getattr(src, dim))
+        path = tmp_path_factory.mktemp("crs") / f"autzen_{code.split(':')[1]}.las"
+        las.write(path)
+        out.append(path)
+    return out
+
+
+def test_files_in_two_crs_refused_then_reprojected(display, two_crs_files):
+    """Without --reproject the window shows the refusal naming both CRSs and no cloud;
+    with it both files are one cloud in the target CRS: both drawn side by side, and a
+    double-click orbits about the point's pyproj coordinates, not the file's."""
+    import pyproj
+
+    refused = open_viewer(two_crs_files)
+    try:
+        assert refused.session is None and "2992" in refused.error and "32610" in refused.error
+        refused.step()
+    finally:
+        refused.close()
+    v = open_viewer(two_crs_files, reproject=UTM)
+    try:
+        v.act(Action.PANEL)
+        settle(v)
+        ids = v.session.ids()
+        shown = ids[ids != EMPTY]
+        n = laspy.open(two_crs_files[0]).header.point_count
+        assert (shown < n).any() and (shown >= n).any()
+        rows, cols = np.nonzero((ids >= n) & (ids != EMPTY))
+        k = len(rows) // 2
+        for _ in range(2):
+            v.mouse_button(glfw.MOUSE_BUTTON_LEFT, True, cols[k] + 0.5, rows[k] + 0.5)
+            v.mouse_button(glfw.MOUSE_BUTTON_LEFT, False, cols[k] + 0.5, rows[k] + 0.5)
+        index = int(ids[rows[k], cols[k]]) - n
+        las = laspy.read(two_crs_files[1])
+        x, y = pyproj.Transformer.from_crs("EPSG:2992", UTM, always_xy=True).transform(las.x[index], las.y[index])
+        feet = pyproj.CRS.from_user_input("EPSG:2992").axis_info[0].unit_conversion_factor
+        np.testing.assert_allclose(v.last_focus, [x, y, las.z[index] * feet], rtol=0, atol=1e-6)
+        assert abs(v.last_focus[0] - las.x[index]) > 1e-3 or abs(v.last_focus[1] - las.y[index]) > 1e-3
+        assert v.orbit.target == tuple(v.last_focus.tolist())
+        v.act(Action.PANEL)
+        click_a_point(v, 0.7)
+        p = v.picked
+        assert "32610" in p["crs"] and p["file_coordinates"] is not None
+        lines = v.panel.picked_lines
+        assert any(line.startswith("in the file: ") for line in lines) and f"CRS: {p['crs']}" in lines
+        no_gl_error(v)
+    finally:
+        v.close()

@@ -14,10 +14,10 @@ import numpy as np
 
 from progressive.budget import BudgetParams
 from progressive.camera import NO_CLIP, Camera, CameraError, Clip, Returns, Section
+from progressive.colors import Colormap
 from progressive.context import Backend, GLContext, create_context
 from progressive.effects import Effects, EyeDome
 from progressive.errors import ProgressiveError
-from progressive.loaders.lookup import read_point
 from progressive.measure import Measurement
 from progressive.output import write_png
 from progressive.passes.present import PresentPass
@@ -31,6 +31,11 @@ DOUBLE_CLICK_PIXELS = 4.0
 MESSAGE_SECONDS = 12.0         # how long a note stays in the panel
 CURSOR_SEARCH = 7              # pixels around the cursor searched for a point (zoom, focus)
 IDLE_WAIT_SECONDS = 0.05       # converged and no input: wait for events instead of spinning
+PANEL_WIDTH = 360              # the docked panel's width in screen units ...
+PANEL_MAX_SHARE = 0.42         # ... and at most this share of a narrow window's
+HISTOGRAM_BINS = 64
+SCALE_BAR_PIXELS = 160         # the scale bar is the longest 1, 2 or 5 x 10^k file units shorter than this
+UNIT_SYMBOLS = {"metre": "m", "foot": "ft", "US survey foot": "ftUS", "kilometre": "km"}
 
 GLFW_KEYS: dict[int, Action] = {
     glfw.KEY_R: Action.RESET, glfw.KEY_P: Action.SCREENSHOT, glfw.KEY_EQUAL: Action.POINT_BIGGER,
@@ -122,6 +127,8 @@ class Viewer:
         self._last_click = (0.0, -1e9, -1e9)
         self._dropped: tuple[list[str], bool] | None = None
         self._categories: list[int] | None = None
+        self._colormaps: dict[str, Colormap] = {}    # the colormap chosen for each attribute shown before
+        self._histogram: tuple[tuple, np.ndarray | None] | None = None
         self._last_time = time.perf_counter()
         self.panel = None
         if options.ui:
@@ -149,8 +156,10 @@ class Viewer:
             self.session.close()
         self.session, self.paths, self.error = session, paths, None
         self.navigator = Navigator.for_bounds(session.info.bounds_min, session.info.bounds_max, width / height)
-        self.orbit, self.pasted = self.navigator.home, None
+        self.orbit, self.pasted = self.navigator.framed((width, height), self.free_area), None
+        self._colormaps, self._histogram = {}, None
         self.settings = replace(self.settings, attribute=session.attribute.name, value_range=None,
+                                colormap=options.colormap,
                                 hidden_classes=self.options.hidden_classes if not add else frozenset(),
                                 clip=self.options.clip if not add else self.settings.clip,
                                 returns=self.options.returns if not add else self.settings.returns)
@@ -229,7 +238,11 @@ class Viewer:
         if section is None or self.navigator is None:
             return
         w, h = self.framebuffer_size
-        self.orbit, self.pasted = self.navigator.profile(self.orbit, section, w / h), None
+        x0, _, x1, _ = self.free_area
+        o = self.navigator.profile(self.orbit, section, (x1 - x0) / h)
+        middle = o.target            # moved to the free area's centre, and turned about there
+        o = self.navigator.pan(o, (x0 + x1) / 2.0 - w / 2.0, 0.0, h)
+        self.orbit, self.pasted = replace(o, pivot=middle), None
 
     def toggle_class(self, code: int) -> None:
         self.settings = replace(self.settings, hidden_classes=self.settings.hidden_classes ^ {code})
@@ -261,14 +274,86 @@ class Viewer:
         except ProgressiveError as exc:
             self.fail(str(exc))
             return
-        self.settings = replace(self.settings, attribute=name, value_range=None, hidden_classes=frozenset())
+        self._colormaps[self.settings.attribute] = self.settings.colormap
+        colormap = self._colormaps.get(name, self.options.session.colormap)
+        self.settings = replace(self.settings, attribute=name, value_range=None, hidden_classes=frozenset(),
+                                colormap=colormap)
         self._categories = None
+
+    def set_colormap(self, colormap: Colormap) -> None:
+        """The colormap of the attribute shown; it comes back when the attribute does."""
+        self.settings = replace(self.settings, colormap=colormap)
+
+    def histogram(self) -> tuple[np.ndarray, tuple[float, float]] | None:
+        """(HISTOGRAM_BINS counts, range) of the shown scalar over its colour range, for
+        the legend; counted again when the range, the attribute or the loaded points
+        change (while loading, each time they have doubled)."""
+        s = self.session
+        if s is None:
+            return None
+        value_range = s.color_range(self.settings.value_range)
+        if value_range is None or not value_range[0] < value_range[1]:
+            return None
+        status = s.status()
+        loaded = status.loaded
+        if self._histogram is not None:
+            (name, kept_range, counted), _ = self._histogram
+            fresh = counted == loaded or (status.loading and loaded < 2 * counted)
+            if name == s.attribute.name and kept_range == value_range and fresh:
+                return self._histogram[1], value_range
+        counts = s.histogram(HISTOGRAM_BINS, value_range)
+        self._histogram = ((s.attribute.name, value_range, loaded), counts)
+        return None if counts is None else (counts, value_range)
 
     # ---- the loop ------------------------------------------------------------------
     @property
     def framebuffer_size(self) -> tuple[int, int]:
         w, h = glfw.get_framebuffer_size(self.window)
         return max(1, w), max(1, h)
+
+    @property
+    def panel_width(self) -> int:
+        """Framebuffer pixels the docked panel covers at the window's left (0 when hidden)."""
+        if self.panel is None or not self.settings.panel:
+            return 0
+        ww, _ = glfw.get_window_size(self.window)
+        fw, _ = self.framebuffer_size
+        return int(round(min(PANEL_WIDTH, PANEL_MAX_SHARE * ww) * fw / max(1, ww)))
+
+    @property
+    def free_area(self) -> tuple[int, int, int, int]:
+        """(x0, y0, x1, y1) framebuffer pixels the panel leaves free: where the camera
+        frames the cloud and the overlays go."""
+        w, h = self.framebuffer_size
+        return self.panel_width, 0, w, h
+
+    def home(self) -> None:
+        """Frame the whole cloud in the free area (R)."""
+        self.orbit, self.pasted = self.navigator.framed(self.framebuffer_size, self.free_area), None
+
+    def scale_bar(self) -> tuple[float, float, str] | None:
+        """(length in file units, pixels, label) of a bar measuring lengths across the view
+        at the target's depth: the longest 1, 2 or 5 x 10^k units within SCALE_BAR_PIXELS."""
+        if self.navigator is None or self.session is None:
+            return None
+        camera, (_, h) = self.camera, self.framebuffer_size
+        if camera.orthographic:
+            per_pixel = camera.height / h
+        else:
+            depth = float(np.linalg.norm(np.subtract(camera.target, camera.position)))
+            per_pixel = 2.0 * depth * np.tan(np.radians(camera.fov_y_deg) / 2.0) / h
+        most = per_pixel * SCALE_BAR_PIXELS
+        power = 10.0 ** np.floor(np.log10(most))
+        length = max(k * power for k in (1.0, 2.0, 5.0) if k * power <= most)
+        unit = self.session.units
+        label = f"{length:g} {UNIT_SYMBOLS.get(unit, unit)}" if unit else f"{length:g} (file units)"
+        return float(length), float(length / per_pixel), label
+
+    def axes_gizmo(self) -> dict[str, tuple[float, float]]:
+        """The file's X, Y and Z axes as unit-length screen directions (column, row; row
+        down) of the camera's view: the gizmo draws them scaled."""
+        r = self.camera.rotation()
+        return {name: (float(r[0][k]), float(-r[1][k])) for k, name in enumerate("XYZ")}
 
     @property
     def camera(self) -> Camera:
@@ -341,7 +426,7 @@ class Viewer:
         if action is Action.QUIT:
             self.running = False
         elif action is Action.RESET and self.navigator is not None:
-            self.orbit, self.pasted = self.navigator.home, None
+            self.home()
         elif action is Action.SCREENSHOT:
             self.screenshot()
         elif action is Action.POINT_BIGGER:
@@ -356,11 +441,16 @@ class Viewer:
         elif action is Action.HELP:
             self.settings = replace(s, help=not s.help)
         elif action is Action.PANEL:
+            at_home = self.navigator is not None and self.pasted is None and \
+                self.orbit == self.navigator.framed(self.framebuffer_size, self.free_area)
             self.settings = replace(s, panel=not s.panel)
+            if at_home:             # the home view follows the free area; a view the user chose stays
+                self.home()
         elif action is Action.FLY:
             self.settings = replace(s, fly=not s.fly)
         elif action is Action.COPY_CAMERA and self.navigator is not None:
             glfw.set_clipboard_string(None, self.camera.to_json())
+            self.say("camera copied to the clipboard (Ctrl+V pastes it; render --camera takes it)")
         elif action is Action.PASTE_CAMERA:
             self.paste_camera(glfw.get_clipboard_string(None) or b"")
         elif action is Action.PROJECTION and self.navigator is not None:
@@ -376,6 +466,7 @@ class Viewer:
             self.fail(f"pasted camera: {exc}")
             return
         self.pasted, self.orbit = camera, Orbit.from_camera(camera)
+        self.say("camera pasted")
 
     def set_budget(self, mode: BudgetMode, target_fps: float | None = None, fixed: int | None = None) -> None:
         self.settings = replace(self.settings, budget_mode=mode, target_fps=target_fps or self.settings.target_fps,
@@ -431,12 +522,13 @@ class Viewer:
         return None if hit is None else hit[:2]
 
     def point_at(self, x: float, y: float) -> np.ndarray | None:
-        """Exact float64 file coordinates of the point under the cursor (read from its file)."""
+        """Exact float64 coordinates of the point under the cursor in the cloud's CRS (read
+        from its file; reprojected with --reproject, as the cloud is drawn)."""
         hit = self.pick(x, y)
         if hit is None:
             return None
         try:
-            return read_point(self.session.info, hit[0])
+            return self.session.point(hit[0])
         except (OSError, ValueError, ProgressiveError) as exc:
             self.fail(f"reading the picked point: {exc}")
             return None

@@ -1,6 +1,9 @@
-"""The Dear ImGui panel (imgui-bundle): files and loading, colouring, effects,
-budget, live statistics, messages and errors. It reads the viewer's state and
-calls the viewer to change it; it owns no state of its own but imgui's."""
+"""The Dear ImGui panel (imgui-bundle), docked at the window's left with its own
+width: files and loading, colouring with its legend (colour bar and histogram, or
+the classes), picks, measurements, views, effects, clip, budget and statistics in
+collapsible sections; and over the free area the axes gizmo, the scale bar, the fly
+mode indicator and notes. It reads the viewer's state and calls the viewer to change
+it; what it drew last is kept for the tests, and it owns no other state but imgui's."""
 
 from __future__ import annotations
 
@@ -14,7 +17,7 @@ import numpy as np
 from imgui_bundle import imgui
 
 from progressive.camera import NO_CLIP, Clip, Returns, project
-from progressive.colors import ASPRS_CLASSES, NO_RANGE, UNKNOWN_CLASS, Colormap, ColorMode
+from progressive.colors import NO_RANGE, Colormap, ColorMode, Palette
 from progressive.effects import MAX_POINT_SIZE, EyeDome
 from progressive.loaders.types import AttributeKind
 from progressive.measure import Measurement
@@ -27,6 +30,13 @@ CLIP_COLOUR = imgui.ImVec4(0.3, 0.85, 1.0, 0.9)
 HANDLE_COLOUR = imgui.ImVec4(1.0, 1.0, 1.0, 0.95)
 COLORMAPS = list(Colormap)
 PASSES = ("reproject", "fill", "prepare", "resolve", "frame")
+AXIS_COLOURS = {"X": imgui.ImVec4(1.0, 0.3, 0.3, 1.0), "Y": imgui.ImVec4(0.3, 1.0, 0.3, 1.0),
+                "Z": imgui.ImVec4(0.35, 0.55, 1.0, 1.0)}
+GIZMO_PIXELS = 36.0           # an axis lying in the screen plane is this long (screen units)
+OVERLAY_COLOUR = imgui.ImVec4(1.0, 1.0, 1.0, 0.95)
+SHADOW_COLOUR = imgui.ImVec4(0.0, 0.0, 0.0, 0.7)
+FLY_COLOUR = imgui.ImVec4(1.0, 0.75, 0.2, 1.0)
+HISTOGRAM_HEIGHT = 48.0
 
 
 class Panel:
@@ -45,6 +55,15 @@ class Panel:
         self.frame_times: deque[float] = deque(maxlen=60)
         self.colour_bar: tuple[str, float, float] | None = None   # what the last frame's colour bar showed
         self.clip_overlay: tuple[int, int] = (0, 0)               # edges and handles the last frame drew
+        self.histogram: np.ndarray | None = None                  # the counts the last frame's histogram drew
+        self.legend: list[tuple[int, str, tuple[int, int, int]]] = []   # the classes it listed
+        self.picked_lines: list[str] = []                         # the picked point's lines
+        self.gizmo: dict[str, tuple[float, float]] = {}           # axis -> screen end (framebuffer pixels)
+        self.gizmo_centre: tuple[float, float] = (0.0, 0.0)
+        self.scale_bar: tuple[float, float, str] | None = None    # length, pixels, label
+        self.notes: list[str] = []                                # notes shown over the free area
+        self.fly_shown = False
+        self.docked: tuple[float, float] = (0.0, 0.0)             # the panel window's position and width
         self._last = time.perf_counter()
 
     def wants_mouse(self) -> bool:
@@ -59,7 +78,7 @@ class Panel:
         return bool(imgui.is_popup_open("", imgui.PopupFlags_.any_popup))
 
     def draw(self) -> None:
-        self.colour_bar = None
+        self.colour_bar, self.histogram, self.legend, self.picked_lines = None, None, [], []
         now = time.perf_counter()
         self.frame_times.append(now - self._last)
         self._last = now
@@ -68,6 +87,7 @@ class Panel:
         imgui.new_frame()
         v = self.viewer
         self._clip_overlay()
+        self._overlays()
         if v.settings.panel:
             self._panel()
         if v.error:
@@ -79,9 +99,16 @@ class Panel:
 
     # ---- windows -------------------------------------------------------------------
     def _panel(self) -> None:
-        imgui.set_next_window_pos(imgui.ImVec2(8, 8), imgui.Cond_.first_use_ever)
-        imgui.begin("progressive  (Tab hides, H help)", None, imgui.WindowFlags_.always_auto_resize)
-        imgui.push_item_width(180)
+        """Docked at the left, the window's height, the viewer's panel width; it scrolls."""
+        io = imgui.get_io()
+        width = self.viewer.panel_width / io.display_framebuffer_scale.x
+        imgui.set_next_window_pos(imgui.ImVec2(0, 0), imgui.Cond_.always)
+        imgui.set_next_window_size(imgui.ImVec2(width, io.display_size.y), imgui.Cond_.always)
+        flags = imgui.WindowFlags_.no_move | imgui.WindowFlags_.no_resize | imgui.WindowFlags_.no_collapse
+        imgui.begin("progressive  (Tab hides, H help)", None, flags)
+        pos, size = imgui.get_window_pos(), imgui.get_window_size()
+        self.docked = (float(pos.x), float(size.x))
+        imgui.push_item_width(min(180.0, width * 0.5))
         s = self.viewer.session
         if s is None:
             imgui.text("no cloud: drop a LAS/LAZ file here")
@@ -96,7 +123,6 @@ class Panel:
             self._clip(s)
             self._budget()
             self._stats(s)
-        self._messages()
         imgui.pop_item_width()
         imgui.end()
 
@@ -107,7 +133,7 @@ class Panel:
                 imgui.text(f"    CRS: {f.crs or 'none given'}")
             status = s.status()
             loaded, total = status.loaded, status.points
-            imgui.progress_bar(loaded / max(1, total), imgui.ImVec2(320, 0), f"{loaded:,} / {total:,} loaded")
+            imgui.progress_bar(loaded / max(1, total), imgui.ImVec2(-1, 0), f"{loaded:,} / {total:,} loaded")
 
     def _colouring(self, s) -> None:
         v = self.viewer
@@ -128,7 +154,7 @@ class Panel:
             changed, index = imgui.combo("colormap", COLORMAPS.index(v.settings.colormap),
                                          [c.name.lower() for c in COLORMAPS])
             if changed:
-                v.settings = replace(v.settings, colormap=COLORMAPS[index])
+                v.set_colormap(COLORMAPS[index])
             lo, hi = s.color_range(v.settings.value_range) or NO_RANGE
             speed = max(abs(hi - lo), 1e-6) / 200.0
             changed, values = imgui.drag_float2("range", [lo, hi], speed)
@@ -139,35 +165,56 @@ class Panel:
                 v.settings = replace(v.settings, value_range=None)
             self._colour_bar(s, attribute.name, lo, hi)
         elif ColorMode.for_kind(attribute.kind) is ColorMode.CATEGORY:
-            self._legend()
+            self._legend(s.options.palette)
         changed, colour = imgui.color_edit3("background", [c / 255.0 for c in v.settings.background])
         if changed:
             v.settings = replace(v.settings, background=tuple(int(round(c * 255)) for c in colour))
 
     def _colour_bar(self, s, name: str, lo: float, hi: float) -> None:
         """The colormap as a bar from the range's low end to its high end, labelled with
-        the values (the attribute's units: the file's for elevation)."""
+        the values (the attribute's units: the file's for elevation), and under it the
+        histogram of the loaded values over the range, each bar in its colour."""
         palette = s.style(self.viewer.settings.colormap).palette
         draw = imgui.get_window_draw_list()
         start = imgui.get_cursor_screen_pos()
-        width, height, steps = 320.0, 14.0, 64
+        width, height, steps = imgui.get_content_region_avail().x, 14.0, 64
+        colour_at = lambda t: imgui.get_color_u32(_word_colour(palette[round(t * 255)]))  # noqa: E731
         for k in range(steps):
-            word = palette[round(k * 255 / (steps - 1))]
-            colour = imgui.ImVec4((word & 0xFF) / 255, (word >> 8 & 0xFF) / 255, (word >> 16 & 0xFF) / 255, 1.0)
             x0 = start.x + width * k / steps
             draw.add_rect_filled(imgui.ImVec2(x0, start.y), imgui.ImVec2(x0 + width / steps + 1, start.y + height),
-                                 imgui.get_color_u32(colour))
+                                 colour_at(k / (steps - 1)))
         imgui.dummy(imgui.ImVec2(width, height))
+        units = f" ({s.units})" if name == "elevation" and s.units else ""
         imgui.text(f"{lo:.6g}")
-        imgui.same_line(width - 60.0)
-        imgui.text(f"{hi:.6g}  {name}")
+        label = f"{hi:.6g}"
+        imgui.same_line(width - imgui.calc_text_size(label).x)
+        imgui.text(label)
+        imgui.text_disabled(f"{name}{units}, 1-99 % of the loaded points" if self.viewer.settings.value_range is None
+                            else f"{name}{units}, range set")
         self.colour_bar = (name, lo, hi)
+        shown = self.viewer.histogram()
+        if shown is None:
+            return
+        counts, _ = shown
+        top = imgui.get_cursor_screen_pos()
+        tallest = max(int(counts.max()), 1)
+        bins = len(counts)
+        for k, c in enumerate(counts):
+            x0 = top.x + width * k / bins
+            y0 = top.y + HISTOGRAM_HEIGHT * (1.0 - c / tallest)
+            draw.add_rect_filled(imgui.ImVec2(x0, y0), imgui.ImVec2(x0 + max(width / bins - 1, 1), top.y + HISTOGRAM_HEIGHT),
+                                 colour_at(k / max(bins - 1, 1)))
+        imgui.dummy(imgui.ImVec2(width, HISTOGRAM_HEIGHT))
+        imgui.text_disabled(f"histogram of {int(counts.sum()):,} points in range")
+        self.histogram = counts
 
-    def _legend(self) -> None:
-        """The classes present, each with its colour and a visibility toggle."""
+    def _legend(self, palette: Palette) -> None:
+        """The classes present, each with its ASPRS name, its colour in the session's
+        palette (--palette overrides included) and a visibility toggle."""
         v = self.viewer
         for code in v.categories():
-            name, rgb = ASPRS_CLASSES.get(code, (f"class {code}", UNKNOWN_CLASS))
+            name, rgb = palette.name(code), palette.rgb(code)
+            self.legend.append((code, name, rgb))
             imgui.color_button(f"##class{code}", imgui.ImVec4(*(c / 255.0 for c in rgb), 1.0),
                                0, imgui.ImVec2(12, 12))
             imgui.same_line()
@@ -205,7 +252,7 @@ class Panel:
             if imgui.radio_button(f"{returns.name.lower()} returns", v.settings.returns is returns):
                 v.settings = replace(v.settings, returns=returns)
         if ColorMode.for_kind(s.attribute.kind) is not ColorMode.CATEGORY:
-            self._legend()
+            self._legend(s.options.palette)
 
     def _picked(self) -> None:
         """The last clicked point: a marker where it was found and all of it, as read
@@ -217,12 +264,12 @@ class Panel:
         scale = imgui.get_io().display_framebuffer_scale
         imgui.get_foreground_draw_list().add_circle(imgui.ImVec2(col / scale.x, row / scale.y), 6.0,
                                                     imgui.get_color_u32(imgui.ImVec4(1, 0.2, 0.2, 1)), 0, 2.0)
-        imgui.text(f"{Path(p['file']).name}  point {p['index']:,}")
-        imgui.text(f"x {p['x']}  y {p['y']}  z {p['z']}")
-        for name, value in p["attributes"].items():
-            imgui.text(f"{name}: {value}")
+        self.picked_lines = picked_lines(p)
+        for line in self.picked_lines:
+            imgui.text(line)
         if imgui.small_button("copy as JSON"):
             imgui.set_clipboard_text(json.dumps(p))
+            self.viewer.say("picked point copied as JSON")
 
     def _measure(self) -> None:
         """Shift+clicked points: a line through them in the window with each segment's
@@ -250,6 +297,7 @@ class Panel:
         imgui.text(f"{len(m.points)} points, length {m.length:.3f}, area {m.area:.3f}")
         if imgui.small_button("copy measurement as JSON"):
             imgui.set_clipboard_text(json.dumps(m.to_dict()))
+            v.say("measurement copied as JSON")
         imgui.same_line()
         if imgui.small_button("clear"):
             v.measurement = Measurement(())
@@ -356,7 +404,7 @@ class Panel:
                 v.set_budget(BudgetMode.FIXED, fixed=points)
 
     def _stats(self, s) -> None:
-        if not imgui.collapsing_header("Statistics", imgui.TreeNodeFlags_.default_open):
+        if not imgui.collapsing_header("Statistics"):
             return
         mean = float(np.mean(self.frame_times)) if self.frame_times else 0.0
         imgui.text(f"{1.0 / mean if mean > 0 else 0.0:.0f} fps ({mean * 1e3:.1f} ms a frame on the CPU)")
@@ -372,10 +420,53 @@ class Panel:
             imgui.progress_bar(share, imgui.ImVec2(-1, 0), label)
         imgui.text("last frame: " + (" ".join(self.viewer.last_passes) or "idle"))
 
-    def _messages(self) -> None:
-        self.viewer.expire_messages()
-        for m in self.viewer.messages[-6:]:
-            imgui.text_colored(NOTE_COLOUR, m)
+    def _overlays(self) -> None:
+        """Over the free area: notes at its top (saves, copies, pastes, warnings; shown
+        with the panel hidden too), the fly mode indicator, the axes gizmo at its bottom
+        right and the scale bar at its bottom left."""
+        v = self.viewer
+        scale = imgui.get_io().display_framebuffer_scale
+        x0, y0, x1, y1 = (c / s for c, s in zip(v.free_area, (scale.x, scale.y, scale.x, scale.y)))
+        draw = imgui.get_foreground_draw_list()
+        line = imgui.get_text_line_height_with_spacing()
+        v.expire_messages()
+        self.notes = v.messages[-6:]
+        y = y0 + 8.0
+        self.fly_shown = v.settings.fly
+        if v.settings.fly:
+            _text(draw, imgui.ImVec2(x0 + 10.0, y), FLY_COLOUR, "FLY MODE (F leaves): W A S D move, Space/Z up/down, "
+                                                               "drag to look")
+            y += line
+        for note in self.notes:
+            _text(draw, imgui.ImVec2(x0 + 10.0, y), NOTE_COLOUR, note)
+            y += line
+        if v.navigator is None:
+            self.gizmo, self.scale_bar = {}, None
+            return
+        centre = imgui.ImVec2(x1 - GIZMO_PIXELS - 18.0, y1 - GIZMO_PIXELS - 18.0)
+        axes = v.axes_gizmo()
+        self.gizmo, self.gizmo_centre = {}, (centre.x * scale.x, centre.y * scale.y)
+        draw.add_circle_filled(centre, GIZMO_PIXELS + 12.0, imgui.get_color_u32(imgui.ImVec4(0, 0, 0, 0.35)))
+        for name in sorted(axes, key=lambda a: -abs(axes[a][0]) - abs(axes[a][1])):
+            dx, dy = axes[name]
+            end = imgui.ImVec2(centre.x + dx * GIZMO_PIXELS, centre.y + dy * GIZMO_PIXELS)
+            colour = imgui.get_color_u32(AXIS_COLOURS[name])
+            draw.add_line(centre, end, colour, 2.5)
+            draw.add_text(imgui.ImVec2(end.x - 4.0, end.y - 7.0), colour, name)
+            self.gizmo[name] = (end.x * scale.x, end.y * scale.y)
+        bar = v.scale_bar()
+        self.scale_bar = bar
+        if bar is not None:
+            _, pixels, label = bar
+            left, base = x0 + 16.0, y1 - 18.0
+            right = left + pixels / scale.x
+            white = imgui.get_color_u32(OVERLAY_COLOUR)
+            shadow = imgui.get_color_u32(SHADOW_COLOUR)
+            draw.add_rect_filled(imgui.ImVec2(left - 1, base - 4), imgui.ImVec2(right + 1, base + 2), shadow)
+            draw.add_line(imgui.ImVec2(left, base), imgui.ImVec2(right, base), white, 2.0)
+            for x in (left, right):
+                draw.add_line(imgui.ImVec2(x, base - 6.0), imgui.ImVec2(x, base + 1.0), white, 2.0)
+            _text(draw, imgui.ImVec2(left, base - 8.0 - line), OVERLAY_COLOUR, label)
 
     def _error(self) -> None:
         v = self.viewer
@@ -403,3 +494,31 @@ class Panel:
         imgui.set_current_context(self.context)
         self.renderer.shutdown()
         imgui.destroy_context(self.context)
+
+
+def _word_colour(word: int) -> imgui.ImVec4:
+    """An RGBA8 palette word as imgui's colour."""
+    return imgui.ImVec4((word & 0xFF) / 255, (word >> 8 & 0xFF) / 255, (word >> 16 & 0xFF) / 255, 1.0)
+
+
+def _text(draw, at: imgui.ImVec2, colour: imgui.ImVec4, text: str) -> None:
+    """Text over the image, with a dark shadow so it reads on any colour."""
+    draw.add_text(imgui.ImVec2(at.x + 1, at.y + 1), imgui.get_color_u32(SHADOW_COLOUR), text)
+    draw.add_text(at, imgui.get_color_u32(colour), text)
+
+
+def picked_lines(p: dict) -> list[str]:
+    """A pick's record as the panel lists it: file and index, the coordinates in the
+    cloud's CRS, latitude and longitude, the file's own coordinates when reprojected,
+    and every attribute."""
+    lines = [f"{Path(p['file']).name}  point {p['index']:,}", f"x {p['x']}  y {p['y']}  z {p['z']}",
+             f"CRS: {p.get('crs') or 'none given'}"]
+    if p.get("lat") is not None and p.get("lon") is not None:
+        lines.append(f"lat {p['lat']:.8f}  lon {p['lon']:.8f}")
+    else:
+        lines.append("lat/lon: none (the CRS places nothing on Earth)" if p.get("crs") else "lat/lon: no CRS")
+    own = p.get("file_coordinates")
+    if own is not None:
+        lines.append(f"in the file: x {own['x']}  y {own['y']}  z {own['z']}  ({own['crs'] or 'no CRS'})")
+    lines += [f"{name}: {value}" for name, value in p["attributes"].items()]
+    return lines
