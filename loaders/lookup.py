@@ -10,8 +10,10 @@ import numpy as np
 
 from progressive.loaders.e57 import read_point as read_e57_point
 from progressive.loaders.fastformat import HEADER_BYTES
+from progressive.loaders.laz import TABLE_OFFSET_BYTES
 from progressive.loaders.ply import read_point as read_ply_point
 from progressive.loaders.types import CloudInfo, FileInfo
+from progressive.loaders.validate import open_binary
 
 FAST_FORMAT = "PRGS"
 
@@ -22,7 +24,7 @@ def locate(info: CloudInfo, index: int) -> tuple[FileInfo, int]:
         raise IndexError(f"point {index} outside the cloud of {info.points} points")
     for file in info.files:
         if index < file.points:
-            return file, index
+            return file, file.file_index(index)
         index -= file.points
     raise IndexError(f"point {index} outside the files")
 
@@ -46,10 +48,36 @@ def read_point(info: CloudInfo, index: int) -> np.ndarray:
 def _las_point(path: str, index: int):
     """The one point record at `index` of a LAS/LAZ file, as laspy reads it."""
     import laspy
+    import lazrs
 
     with laspy.open(path) as reader:
+        laszip = reader.header.vlrs.get("LasZipVlr")
+        if laszip and lazrs.LazVlr(laszip[0].record_data).uses_variable_size_chunks():
+            return _variable_chunk_point(path, reader.header, laszip[0].record_data, index)
         reader.seek(index)
         return reader.read_points(1)
+
+
+def _variable_chunk_point(path: str, header, vlr_data: bytes, index: int):
+    """The point at `index` of a LAZ of variable-size chunks (COPC), decoded from its
+    chunk alone: laspy's seek does not find the chunk in such files (it reads another
+    point, or fails)."""
+    import laspy
+    import lazrs
+
+    with open_binary(path) as stream:
+        stream.seek(header.offset_to_point_data)
+        table = lazrs.read_chunk_table(stream, lazrs.LazVlr(vlr_data))
+        counts = np.array([n for n, _ in table], np.int64)
+        sizes = np.array([b for _, b in table], np.int64)
+        chunk = int(np.searchsorted(np.cumsum(counts), index, side="right"))
+        stream.seek(header.offset_to_point_data + TABLE_OFFSET_BYTES + int(sizes[:chunk].sum()))
+        compressed = stream.read(int(sizes[chunk]))
+    records = np.empty(int(counts[chunk]), header.point_format.dtype())
+    lazrs.decompress_points_with_chunk_table(compressed, vlr_data, memoryview(records).cast("B"),
+                                             [(int(counts[chunk]), int(sizes[chunk]))], None)
+    at = index - int(counts[:chunk].sum())
+    return laspy.ScaleAwarePointRecord(records[at:at + 1].copy(), header.point_format, header.scales, header.offsets)
 
 
 def decimals(value: float) -> int:

@@ -22,6 +22,7 @@ from collections.abc import Callable, Iterable, Iterator
 import numpy as np
 
 from progressive.errors import InputError
+from progressive.loaders.copc import is_copc, keep_levels, open_copc
 from progressive.loaders.e57 import E57Source, is_e57, open_e57
 from progressive.loaders.fastformat import FastSource, is_fast, open_fast
 from progressive.loaders.las import LasSource, TruncatedInput, open_las
@@ -30,7 +31,7 @@ from progressive.loaders.types import BATCH_POINTS, AttributeInfo, Batch, CloudI
 from progressive.loaders.validate import check_addressable, fail, shown
 
 Source = LasSource | FastSource | E57Source | PlySource
-OPENERS = ((is_fast, open_fast), (is_e57, open_e57), (is_ply, open_ply))
+OPENERS = ((is_fast, open_fast), (is_e57, open_e57), (is_ply, open_ply), (is_copc, open_copc))
 """Formats told apart by their magic; anything else is opened (and checked) as LAS/LAZ."""
 Task = tuple[str, Callable[[], Batch]]
 WAIT_S = 0.05
@@ -45,11 +46,13 @@ def open_cloud(paths: Iterable[str | os.PathLike] | str | os.PathLike, *, partia
     return open_sources(paths, partial=partial)[0]
 
 
-def open_sources(paths, *, partial: bool = False) -> tuple[CloudInfo, tuple[Source, ...]]:
+def open_sources(paths, *, partial: bool = False, point_budget: int | None = None) -> tuple[CloudInfo, tuple[Source, ...]]:
+    """point_budget: the points that fit on the GPU; a larger cloud's COPC files are read
+    down to a level of detail (loaders/copc.py)."""
     paths = [paths] if isinstance(paths, (str, os.PathLike)) else list(paths)
     if not paths:
         raise InputError("no input files given")
-    sources = tuple(_open(p, partial) for p in paths)
+    sources = keep_levels(tuple(_open(p, partial) for p in paths), point_budget)
     files = tuple(s.info for s in sources)
     lo = np.min([f.bounds_min for f in files], axis=0).astype(np.float64)
     hi = np.max([f.bounds_max for f in files], axis=0).astype(np.float64)
@@ -161,11 +164,11 @@ class CloudLoader:
 
     def __init__(self, paths, *, batch_points: int = BATCH_POINTS,
                  parser_threads: int | None = None, partial: bool = False,
-                 attributes: tuple[str, ...] | None = None):
+                 attributes: tuple[str, ...] | None = None, point_budget: int | None = None):
         parser_threads = available_cores() if parser_threads is None else parser_threads
         if batch_points < 1 or parser_threads < 1:
             raise ValueError("batch_points and parser_threads must be at least 1")
-        self.info, self._sources = open_sources(paths, partial=partial)
+        self.info, self._sources = open_sources(paths, partial=partial, point_budget=point_budget)
         known = tuple(a.name for a in self.info.attributes)
         if unknown := sorted(set(attributes or ()) - set(known)):
             raise ValueError(f"the cloud has no attribute {', '.join(unknown)}")

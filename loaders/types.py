@@ -68,6 +68,18 @@ class FileInfo:
     crs: str | None = None
     scans: tuple[ScanInfo, ...] = ()
     """E57 only: the file's scans (data3D entries), in the order their points are loaded."""
+    runs: tuple[tuple[int, int], ...] = ()
+    """A COPC file read down to a level of detail (loaders/copc.py): the (first, count)
+    runs of the file's points the cloud holds, in file order; `points` counts only them
+    and the cloud numbers them from 0. Empty: every point, in file order."""
+
+    def file_index(self, local: int) -> int:
+        """The index in the file of the file's `local`-th point in the cloud."""
+        for first, count in self.runs:
+            if local < count:
+                return first + local
+            local -= count
+        return local
 
 
 @dataclass(frozen=True)

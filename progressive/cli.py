@@ -176,7 +176,8 @@ def add_cloud_args(parser) -> None:
                         help="scalar values at the colormap's ends (default: the 1st-99th percentile of the loaded points)")
     parser.add_argument("--partial", action="store_true", help="show what a truncated file holds, with a warning")
     parser.add_argument("--gpu-memory-limit", type=bytes_arg, help="GPU memory to use, e.g. 4G; a larger cloud shows "
-                        "a uniform random subset (the free memory the driver reports also counts)")
+                        "whole levels of its COPC files, else a uniform random subset (the free memory the driver "
+                        "reports also counts)")
     add_reproject_arg(parser)
     parser.add_argument("--palette", type=path_arg, metavar="FILE.json",
                         help='classification colours overriding the default ones: {"2": [166, 116, 66], "6": "#ff8c1e"}')
@@ -262,8 +263,23 @@ def cmd_info(args) -> int:
     for summary, f in zip(desc["files"], _file_infos(paths)):
         summary.update(describe_crs(f))
     desc.update({k: desc["files"][0][k] for k in ("crs_name", "epsg")})
-    say(json.dumps(desc, indent=2) if args.json else format_crs(desc, format_text(desc)))
+    hierarchies = _hierarchies(desc)
+    text = "" if args.json else format_crs(desc, format_text(desc))
+    say(json.dumps(desc, indent=2) if args.json else "\n\n".join([text, *hierarchies]))
     return 0
+
+
+def _hierarchies(desc: dict) -> list[str]:
+    """Each COPC file's octree (levels, nodes, points per level), into its summary as
+    "copc" (null for other files); the text of each."""
+    from progressive.loaders.copc import describe_hierarchy, format_hierarchy
+
+    texts = []
+    for summary in desc["files"]:
+        summary["copc"] = describe_hierarchy(summary["path"])
+        if summary["copc"] is not None:
+            texts.append(format_hierarchy(summary["path"], summary["copc"]))
+    return texts
 
 
 def _file_infos(paths):
@@ -552,12 +568,17 @@ def commit_saying(outputs, message: str) -> None:
     outputs.commit()
 
 
+COPC_SUFFIX = ".copc.laz"
+
+
 def cmd_convert(args) -> int:
     from progressive.attributes import default_attribute, find_attribute
     from progressive.loaders import CloudLoader, write_fast_stream
     from progressive.output import Outputs, check_outputs
 
     check_outputs([args.output], args.inputs)
+    if args.output.lower().endswith(COPC_SUFFIX):
+        return _convert_copc(args)
     with CloudLoader(args.inputs, partial=args.partial) as loader, Outputs() as outputs:
         info = loader.info
         attr = find_attribute(info, args.attribute) if args.attribute else default_attribute(info)
@@ -565,6 +586,23 @@ def cmd_convert(args) -> int:
         with open(outputs.reserve(args.output), "wb") as stream:     # the transaction's temporary, no other
             written = write_fast_stream(stream, loader, info, attr, args.output)
         commit_saying(outputs, f"wrote {written:,} points ({attr.name}) to {args.output}")
+    return 0
+
+
+def _convert_copc(args) -> int:
+    """OUT.copc.laz: the inputs as one COPC file (loaders/copc_write.py)."""
+    from progressive.loaders.copc_write import write_copc
+    from progressive.output import Outputs
+
+    if args.attribute:
+        raise UsageError(f"--attribute is for the fast format; a {COPC_SUFFIX} file keeps every attribute")
+    with Outputs() as outputs:
+        with open(outputs.reserve(args.output), "w+b") as stream:     # the transaction's temporary, no other
+            written = write_copc(stream, args.inputs, partial=args.partial)
+        for w in written.warnings:
+            warn(w)
+        commit_saying(outputs, f"wrote {written.points:,} points to {args.output} (COPC: {written.levels} levels, "
+                               f"{written.nodes:,} nodes)")
     return 0
 
 
@@ -615,7 +653,7 @@ def build_parser() -> Parser:
     view.add_argument("--out", type=path_arg, default="progressive-view.png", help="PNG written when there is no display")
     view.set_defaults(func=cmd_view)
 
-    convert = sub.add_parser("convert", help="write the fast GPU-layout format")
+    convert = sub.add_parser("convert", help=f"write the fast GPU-layout format, or COPC where OUT ends in {COPC_SUFFIX}")
     convert.add_argument("inputs", nargs="+", type=path_arg, metavar="IN")
     convert.add_argument("output", type=path_arg, metavar="OUT")
     convert.add_argument("--attribute", help="attribute stored in the 4-byte word (default as render)")

@@ -1,7 +1,9 @@
 """How many points fit on the GPU: the cloud's 16 bytes a point plus the per-pixel
 and staging buffers, against what the driver reports free (NVX memory info) or a
 configured limit. When the cloud does not fit, the store keeps the points whose
-shuffled slot falls below its capacity: a uniform random subset, by the shuffle."""
+shuffled slot falls below its capacity: a uniform random subset, by the shuffle. COPC
+files are cut first, by level of detail, to what fits in a configured limit
+(points_within; loaders/copc.py): every point of the octree's upper levels."""
 
 from __future__ import annotations
 
@@ -45,9 +47,15 @@ def plan(points: int, caps: Capabilities, pixels: int, limit_bytes: int | None =
         available, source = limit_bytes, "configured limit"
     if available is None:
         return MemoryPlan(points, points, None, source)
+    return MemoryPlan(points, min(points, points_within(available, pixels, extra_bytes_per_point)), available, source)
+
+
+def points_within(available_bytes: int, pixels: int, extra_bytes_per_point: int = 0) -> int:
+    """Points that fit in `available_bytes` beside the per-pixel and staging buffers. The
+    loader asks it of the configured limit before the GL context (and the driver's
+    figure) exists, to choose a COPC file's levels."""
     overhead = pixels * PIXEL_BYTES + BATCH_POINTS * RECORD_BYTES
-    capacity = max(0, min(points, (available - overhead) // (RECORD_BYTES + extra_bytes_per_point)))
-    return MemoryPlan(points, capacity, available, source)
+    return max(0, (available_bytes - overhead) // (RECORD_BYTES + extra_bytes_per_point))
 
 
 def peak_rss_bytes() -> int:

@@ -293,10 +293,11 @@ class ReprojectingLoader:
         self.close()
 
 
-def open_loader(paths, *, partial: bool = False, reproject=None):
-    """The loader of a cloud: reprojected into `reproject` (a pyproj CRS) where given."""
+def open_loader(paths, *, partial: bool = False, reproject=None, point_budget: int | None = None):
+    """The loader of a cloud: reprojected into `reproject` (a pyproj CRS) where given;
+    point_budget: see open_sources (COPC levels; not with reprojection)."""
     if reproject is None:
-        return CloudLoader(paths, partial=partial)
+        return CloudLoader(paths, partial=partial, point_budget=point_budget)
     return ReprojectingLoader(paths, reproject, partial=partial)
 
 

@@ -100,7 +100,9 @@ class Session:
         self.options = options
         self.opened = time.perf_counter()
         self.target = target_crs(options.reproject) if options.reproject else None
-        self.loader = open_loader(paths, partial=options.partial, reproject=self.target)
+        budget = None if options.gpu_memory_limit is None else memory.points_within(
+            options.gpu_memory_limit, options.width * options.height, CLASS_BYTES if options.class_filter else 0)
+        self.loader = open_loader(paths, partial=options.partial, reproject=self.target, point_budget=budget)
         self._given_range = options.value_range
         self._early: list = []
         self._notes: list[str] = []

@@ -1,0 +1,318 @@
+"""COPC (Cloud Optimized Point Cloud) input: the octree hierarchy of a LAZ 1.4 file and
+reading it by level of detail.
+
+A COPC file is a LAZ whose every chunk is one octree node; the hierarchy (an EVLR, in
+pages) says where each node's chunk is and how many points it holds. A child does not
+repeat its parent's points, so the nodes of levels 0..d are a set of points without
+duplicates, spread over the whole cloud: where the cloud does not fit in the GPU memory
+limit, keeping the deepest such set that fits shows every part of the cloud at an even
+density instead of a uniform random subset.
+
+Read in full, a COPC source is its LAZ: the same points in the same order. Read down to
+a level, the cloud holds the kept nodes' points in file order, numbered from 0; its
+FileInfo.runs say which points of the file those are (picks read them back).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import struct
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import lazrs
+import numpy as np
+
+from progressive.errors import InputError
+from progressive.loaders.las import LasSource, is_decode_error, open_las, selection
+from progressive.loaders.laz import TABLE_OFFSET_BYTES
+from progressive.loaders.validate import fail, one_line, open_binary, shown
+
+HEADER_14 = 375                          # bytes of a LAS 1.4 header
+VLR_HEADER = 54
+EVLR_HEADER = 60
+USER_ID = b"copc"
+INFO_RECORD = 1                          # the COPC info VLR: first after the header
+HIERARCHY_RECORD = 1000                  # the hierarchy EVLR
+INFO = struct.Struct("<3dddQQdd88x")     # center, halfsize, spacing, root page offset and size, GPS min and max
+ENTRY = np.dtype([("level", "<i4"), ("x", "<i4"), ("y", "<i4"), ("z", "<i4"),
+                  ("offset", "<u8"), ("byte_size", "<i4"), ("point_count", "<i4")])
+"""One hierarchy entry: a node's key, then its chunk (point_count > 0), a child page
+(point_count -1) or nothing (0)."""
+PAGE = -1
+MAX_LEVEL = 30                           # keys are int32: deeper levels cannot be addressed
+READ_POINTS = 1 << 20
+"""Points of kept nodes decoded in one lazrs call (several chunks, decoded on every core)."""
+
+
+def is_copc(path: str | os.PathLike) -> bool:
+    """A LAS 1.4 file whose first VLR is the COPC info VLR (as the specification requires)."""
+    try:
+        with open_binary(path) as stream:
+            head = stream.read(HEADER_14 + VLR_HEADER)
+    except (OSError, InputError):
+        return False
+    if len(head) < HEADER_14 + VLR_HEADER or head[:4] != b"LASF" or head[24:26] != b"\x01\x04":
+        return False
+    (header_size,) = struct.unpack_from("<H", head, 94)
+    if header_size != HEADER_14:
+        return False
+    vlr = head[HEADER_14:]
+    user, record = vlr[2:18].rstrip(b"\0"), struct.unpack_from("<H", vlr, 18)[0]
+    return user == USER_ID and record == INFO_RECORD
+
+
+@dataclass(frozen=True)
+class CopcInfo:
+    """The COPC info VLR: the root node's cube and the root spacing between points."""
+
+    center: tuple[float, float, float]
+    halfsize: float
+    spacing: float
+    root_offset: int
+    root_size: int
+    gps_min: float
+    gps_max: float
+
+    @classmethod
+    def parse(cls, data: bytes) -> CopcInfo:
+        cx, cy, cz, half, spacing, offset, size, gmin, gmax = INFO.unpack(data[:INFO.size])
+        return cls((cx, cy, cz), half, spacing, offset, size, gmin, gmax)
+
+    def pack(self) -> bytes:
+        return INFO.pack(*self.center, self.halfsize, self.spacing, self.root_offset, self.root_size,
+                         self.gps_min, self.gps_max)
+
+
+@dataclass(frozen=True)
+class Hierarchy:
+    """Every node that holds points, in file order (by chunk offset), with the file-order
+    index of its first point."""
+
+    info: CopcInfo
+    nodes: np.ndarray            # ENTRY rows
+    first: np.ndarray            # int64 file-order index of each node's first point
+
+    @property
+    def levels(self) -> int:
+        return int(self.nodes["level"].max()) + 1 if self.nodes.size else 0
+
+    def per_level(self) -> list[tuple[int, int]]:
+        """(nodes, points) of each level from the root down."""
+        level = self.nodes["level"]
+        counts = self.nodes["point_count"].astype(np.int64)
+        return [(int(np.count_nonzero(level == d)), int(counts[level == d].sum())) for d in range(self.levels)]
+
+    def points_through(self, depth: int) -> int:
+        return int(self.nodes["point_count"][self.nodes["level"] <= depth].astype(np.int64).sum())
+
+    def summary(self) -> dict:
+        """What `info` reports of the hierarchy."""
+        return {"levels": self.levels, "nodes": int(self.nodes.size),
+                "per_level": [{"level": d, "nodes": n, "points": p} for d, (n, p) in enumerate(self.per_level())],
+                "center": list(self.info.center), "halfsize": self.info.halfsize, "spacing": self.info.spacing}
+
+
+def read_hierarchy(path: str, point_data: int, points: int) -> Hierarchy:
+    """The hierarchy of a COPC file, every page followed, checked: pages inside the file,
+    none read twice, node keys inside the octree, node chunks tiling the LAZ chunk data
+    from its start in file order, and their points adding up to the header's `points`.
+    InputError naming what is wrong otherwise."""
+    with open_binary(path) as stream:
+        size = os.fstat(stream.fileno()).st_size
+        stream.seek(HEADER_14 + VLR_HEADER)
+        raw = stream.read(INFO.size)
+        if len(raw) < INFO.size:
+            raise fail(path, "COPC info VLR is cut short")
+        info = CopcInfo.parse(raw)
+        if not (np.isfinite(info.halfsize) and info.halfsize > 0 and all(np.isfinite(info.center))):
+            raise fail(path, f"COPC info VLR: invalid octree cube (centre {info.center}, halfsize {info.halfsize})")
+        pages, seen, found = [(info.root_offset, info.root_size)], set(), []
+        while pages:
+            offset, length = pages.pop()
+            if offset in seen:
+                raise fail(path, f"COPC hierarchy page at {offset} is referenced twice")
+            seen.add(offset)
+            if length <= 0 or length % ENTRY.itemsize or offset + length > size or offset < HEADER_14:
+                raise fail(path, f"COPC hierarchy page at {offset} of {length} bytes is outside the file "
+                                 f"or not a whole number of {ENTRY.itemsize}-byte entries")
+            stream.seek(offset)
+            page = np.frombuffer(stream.read(length), ENTRY)
+            children = page[page["point_count"] == PAGE]
+            pages += [(int(e["offset"]), int(e["byte_size"])) for e in children]
+            found.append(page[page["point_count"] != PAGE])
+    entries = np.concatenate(found)
+    return _checked(path, info, entries, point_data, points)
+
+
+def _checked(path: str, info: CopcInfo, entries: np.ndarray, point_data: int, points: int) -> Hierarchy:
+    level = entries["level"]
+    if np.any((level < 0) | (level > MAX_LEVEL)):
+        raise fail(path, f"COPC hierarchy has a node of level {int(level[(level < 0) | (level > MAX_LEVEL)][0])}")
+    span = np.left_shift(1, level.astype(np.int64))
+    for axis in "xyz":
+        if np.any((entries[axis] < 0) | (entries[axis] >= span)):
+            raise fail(path, f"COPC hierarchy has a node key outside the octree ({axis} out of range for its level)")
+    if np.any(entries["point_count"] < 0):
+        raise fail(path, "COPC hierarchy has a node with a negative point count")
+    keys = entries[["level", "x", "y", "z"]]
+    if np.unique(keys).size != keys.size:
+        raise fail(path, "COPC hierarchy lists a node twice")
+    nodes = entries[entries["point_count"] > 0]
+    nodes = nodes[np.argsort(nodes["offset"], kind="stable")]
+    ends = nodes["offset"] + nodes["byte_size"].astype(np.uint64)
+    starts = np.r_[np.uint64(point_data + TABLE_OFFSET_BYTES), ends[:-1]].astype(np.uint64)
+    if np.any(nodes["byte_size"] <= 0) or not np.array_equal(nodes["offset"], starts):
+        raise fail(path, "COPC hierarchy does not match the LAZ chunks (node chunks must follow one another "
+                         "from the start of the point data)")
+    counts = nodes["point_count"].astype(np.int64)
+    if int(counts.sum()) != points:
+        raise fail(path, f"COPC hierarchy holds {int(counts.sum()):,} points, the header {points:,}")
+    return Hierarchy(info, nodes, np.r_[0, np.cumsum(counts)[:-1]].astype(np.int64))
+
+
+@dataclass(frozen=True)
+class CopcSource(LasSource):
+    """A COPC file: its LAZ source, its hierarchy (None where it could not be used: the
+    file is then read as the plain LAZ it also is) and the deepest level kept (None: all)."""
+
+    hierarchy: Hierarchy | None = None
+    depth: int | None = None
+    problem: str | None = None              # why the hierarchy cannot be used
+
+    def chunks(self, batch_points: int, *, salvage: bool = False,
+               names: tuple[str, ...] | None = None) -> Iterator[np.ndarray]:
+        if self.depth is None:
+            return super().chunks(batch_points, salvage=salvage, names=names)
+        return self._node_chunks(batch_points, None if names is None else selection(names))
+
+    def kept_nodes(self) -> np.ndarray:
+        """Indices (into hierarchy.nodes, so in file order) of the nodes read."""
+        level = self.hierarchy.nodes["level"]
+        return np.arange(level.size) if self.depth is None else np.nonzero(level <= self.depth)[0]
+
+    def _node_chunks(self, batch_points: int, chosen) -> Iterator[np.ndarray]:
+        """The kept nodes' records in file order, in pieces of at most batch_points;
+        READ_POINTS at a time are read (adjacent chunks in one read) and decoded by lazrs
+        on every core."""
+        nodes = self.hierarchy.nodes
+        kept = self.kept_nodes()
+        dtype = self.records.dtype
+        with open_binary(self.info.path) as stream:
+            at = 0
+            while at < kept.size:
+                group, total, end = [], 0, at
+                while end < kept.size and (not group or total + int(nodes["point_count"][kept[end]]) <= READ_POINTS):
+                    group.append(kept[end])
+                    total += int(nodes["point_count"][kept[end]])
+                    end += 1
+                records = self._decode(stream, nodes[group], total, dtype, chosen)
+                for first in range(0, total, batch_points):
+                    yield records[first:first + batch_points]
+                at = end
+
+    def _decode(self, stream, group: np.ndarray, total: int, dtype: np.dtype, chosen) -> np.ndarray:
+        compressed = bytearray(int(group["byte_size"].astype(np.int64).sum()))
+        view, filled = memoryview(compressed), 0
+        for offset, n in zip(group["offset"].tolist(), group["byte_size"].tolist()):
+            stream.seek(offset)
+            if stream.readinto(view[filled:filled + n]) != n:
+                raise fail(self.info.path, "the file ends inside a COPC node's chunk")
+            filled += n
+        records = np.empty(total, dtype)
+        table = list(zip(group["point_count"].tolist(), group["byte_size"].tolist()))
+        try:
+            lazrs.decompress_points_with_chunk_table(compressed, self.laz.vlr_data, memoryview(records).cast("B"),
+                                                     table, chosen)
+        except BaseException as exc:
+            if not is_decode_error(exc):
+                raise
+            first = group[0]
+            raise fail(self.info.path, f"COPC nodes from level {first['level']} key ({first['x']}, {first['y']}, "
+                                       f"{first['z']}) on do not decode ({one_line(exc)})") from None
+        return records
+
+    def through(self, depth: int, budget: int) -> CopcSource:
+        """This source read down to level `depth` (every node of it and above), with the
+        warning that says so."""
+        if depth >= self.hierarchy.levels - 1:
+            return self
+        kept = dataclasses.replace(self, depth=depth)
+        nodes = self.hierarchy.nodes[kept.kept_nodes()]
+        first = self.hierarchy.first[kept.kept_nodes()]
+        count = int(nodes["point_count"].astype(np.int64).sum())
+        note = (f"{shown(self.info.path)}: the cloud's points do not fit in the GPU memory limit (room for "
+                f"{budget:,}): showing this COPC file's octree levels 0-{depth} of 0-{self.hierarchy.levels - 1}, "
+                f"{count:,} of its {self.info.points:,} points (every point of those levels)")
+        info = dataclasses.replace(self.info, points=count, runs=_runs(first, nodes["point_count"]))
+        return dataclasses.replace(kept, info=info, warnings=(*self.warnings, note))
+
+
+def _runs(first: np.ndarray, counts: np.ndarray) -> tuple[tuple[int, int], ...]:
+    """(first, count) runs of file-order indices, adjacent nodes merged."""
+    runs: list[list[int]] = []
+    for f, n in zip(first.tolist(), counts.tolist()):
+        if runs and runs[-1][0] + runs[-1][1] == f:
+            runs[-1][1] += n
+        else:
+            runs.append([f, n])
+    return tuple((f, n) for f, n in runs)
+
+
+def open_copc(path: str | os.PathLike, *, partial: bool = False) -> CopcSource:
+    """A COPC file checked as LAS/LAZ, with its hierarchy; a hierarchy that cannot be used
+    is a warning, and the file is read in full as LAZ."""
+    source = open_las(path, partial=partial)
+    fields = {f.name: getattr(source, f.name) for f in dataclasses.fields(LasSource)}
+    hierarchy = problem = None
+    if source.laz is None:
+        problem = f"{shown(source.info.path)}: has a COPC info VLR but is not compressed"
+    else:
+        try:
+            hierarchy = read_hierarchy(source.info.path, source.laz.point_data, source.info.points)
+        except InputError as exc:
+            problem = one_line(exc)
+    warnings = source.warnings + ((f"{problem}; read as plain LAS/LAZ (every point, no levels of detail)",)
+                                  if problem else ())
+    return CopcSource(**{**fields, "warnings": warnings}, hierarchy=hierarchy, problem=problem)
+
+
+def keep_levels(sources: tuple, point_budget: int | None) -> tuple:
+    """Where the cloud has more points than `point_budget` (what fits on the GPU), its
+    COPC files read down to the deepest level at which the whole cloud fits (at least the
+    root: the store then keeps a uniform random subset of what is left); other sources
+    as they are."""
+    total = sum(s.info.points for s in sources)
+    copc = [s for s in sources if isinstance(s, CopcSource) and s.hierarchy is not None]
+    if point_budget is None or total <= point_budget or not copc:
+        return sources
+    fixed = total - sum(s.info.points for s in copc)
+    deepest = max(s.hierarchy.levels for s in copc) - 1
+    depth = 0
+    for d in range(1, deepest + 1):
+        if fixed + sum(s.hierarchy.points_through(d) for s in copc) <= point_budget:
+            depth = d
+    return tuple(s.through(depth, point_budget) if s in copc else s for s in sources)
+
+
+def describe_hierarchy(path: str | os.PathLike) -> dict | None:
+    """The hierarchy summary of a COPC file for `info` (None for other files), or
+    {"error": ...} where it cannot be used."""
+    if not is_copc(path):
+        return None
+    source = open_copc(path)
+    if source.hierarchy is None:
+        return {"error": source.problem}
+    return source.hierarchy.summary()
+
+
+def format_hierarchy(path: str, summary: dict) -> str:
+    """describe_hierarchy's result as text."""
+    if "error" in summary:
+        return f"COPC hierarchy of {path}: {summary['error']}"
+    lines = [f"COPC hierarchy of {path}: {summary['levels']} levels, {summary['nodes']:,} nodes, "
+             f"root spacing {summary['spacing']:.6g}",
+             f"  {'level':<7}{'nodes':>10}{'points':>14}"]
+    lines += [f"  {row['level']:<7}{row['nodes']:>10,}{row['points']:>14,}" for row in summary["per_level"]]
+    return "\n".join(lines)

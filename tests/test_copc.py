@@ -1,0 +1,387 @@
+"""COPC: `convert` writes it (every point and attribute back through laspy's CopcReader,
+a hierarchy laspy walks node by node), and a cloud larger than the GPU memory limit
+keeps whole octree levels from the root down (against laspy's level queries)."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import struct
+
+import laspy
+import numpy as np
+import pytest
+from laspy.copc import load_octree_for_query
+
+from conftest import SAMPLE, shared_file
+from progressive import memory
+from progressive.camera import Camera
+from progressive.cli import main
+from progressive.loaders import CloudLoader
+from progressive.loaders.copc import ENTRY, is_copc, keep_levels, open_copc
+from progressive.packing import RECORD_BYTES
+from progressive.permutation import LAYOUT, Permutation
+from progressive.reference import subset_reference_ids
+
+W, H = 160, 120
+SMALL = ["--width", str(W), "--height", str(H)]
+WAVEFORM = {"wavepacket_index", "wavepacket_offset", "wavepacket_size", "return_point_wave_location",
+            "x_t", "y_t", "z_t"}
+SCAN_STEP = 0.006
+
+
+def limit_for(points: int) -> int:
+    """A --gpu-memory-limit with room for exactly `points` points at W x H."""
+    return W * H * memory.PIXEL_BYTES + memory.BATCH_POINTS * RECORD_BYTES + points * RECORD_BYTES
+
+
+def nodes_of(path) -> list:
+    """laspy's walk of the whole hierarchy: every node it reaches from the root."""
+    with laspy.CopcReader.open(path) as reader:
+        return load_octree_for_query(reader.source, reader.copc_info, reader.root_page)
+
+
+def convert(tmp_path, *inputs, name="out.copc.laz", capsys=None) -> os.PathLike:
+    out = tmp_path / name
+    code = main(["convert", *map(str, inputs), str(out)])
+    captured = capsys.readouterr() if capsys else None
+    assert code == 0, captured.err if captured else code
+    return out
+
+
+def columns(points, names) -> np.ndarray:
+    """The named dimensions as float64 columns (scan angles in degrees), one row a point."""
+    cols = []
+    for n in names:
+        if n == "scan_angle_rank":
+            cols.append(np.asarray(points[n], np.float64))
+        elif n == "scan_angle":
+            cols.append(np.asarray(points[n], np.float64) * SCAN_STEP)
+        else:
+            v = np.asarray(points[n], np.float64)
+            cols.extend(v.reshape(len(v), -1).T)
+    return np.stack(cols, axis=1)
+
+
+def sorted_rows(rows: np.ndarray) -> np.ndarray:
+    return rows[np.lexsort(rows.T[::-1])]
+
+
+def expected_names(source: laspy.LasData) -> list[str]:
+    """The input's dimensions the COPC file must hold (waveform fields are not in 6-8)."""
+    return [n for n in source.point_format.dimension_names if n not in WAVEFORM]
+
+
+def assert_same_points(source_paths, out) -> None:
+    """Every input point, with every attribute, is in the COPC file as laspy's CopcReader
+    reads it (as a multiset: the file is in octree order); scan angles in whole degrees
+    within half a 0.006° step."""
+    sources = [laspy.read(p) for p in source_paths]
+    names = expected_names(sources[0])
+    with laspy.CopcReader.open(out) as reader:
+        back = reader.query()
+        assert reader.header.point_format.id in (6, 7, 8)
+    out_names = ["scan_angle" if n == "scan_angle_rank" else n for n in names]
+    for n in out_names:
+        assert n in back.point_format.dimension_names, n
+    want = sorted_rows(np.concatenate([columns(s.points, names) for s in sources]))
+    got = sorted_rows(columns(back, out_names))
+    assert got.shape == want.shape
+    angle = [i for i, n in enumerate(names) if n == "scan_angle_rank"]
+    exact = [i for i in range(want.shape[1]) if i not in angle]
+    # sorting puts the angles' rounding inside rows whose other columns are equal first
+    np.testing.assert_array_equal(got[:, exact], want[:, exact])
+    if angle:
+        assert np.abs(got[:, angle] - want[:, angle]).max() <= SCAN_STEP / 2 + 1e-9
+
+
+def assert_valid_hierarchy(out) -> None:
+    """laspy reaches every node from the root; each node's points lie in its cube; the
+    points of the nodes add up to the header's count; the info VLR's cube holds the
+    bounds; and the file read as plain LAZ holds the nodes' points in file order."""
+    nodes = nodes_of(out)
+    plain = laspy.read(out)
+    with laspy.CopcReader.open(out) as reader:
+        info, header = reader.copc_info, reader.header
+        assert type(header.vlrs[0]).__name__ == "CopcInfoVlr"
+        assert sum(n.point_count for n in nodes) == header.point_count == len(plain.points)
+        lo, hi = info.center - info.halfsize, info.center + info.halfsize
+        assert np.all(lo <= header.mins) and np.all(header.maxs <= hi) and info.spacing > 0
+        for node in nodes:
+            pts = reader._fetch_and_decompress_points_of_nodes([node])
+            assert len(pts) == node.point_count > 0
+            xyz = np.stack([pts.x, pts.y, pts.z], axis=1)
+            b = node.key.bounds(laspy.copc.Bounds(lo, hi))
+            slack = header.scales
+            assert np.all(xyz >= b.mins - slack) and np.all(xyz <= b.maxs + slack), node
+        ordered = sorted(nodes, key=lambda n: n.offset)
+        back = reader._fetch_and_decompress_points_of_nodes(ordered)
+    np.testing.assert_array_equal(back.array, plain.points.array)
+    levels = {n.key.level for n in nodes}
+    assert levels == set(range(len(levels)))
+
+
+ROUND_TRIPS = ["autzen_trim.las", "extrabytes.las", "las_with_several_extra_byte_bloc.laz", "fullwave.laz",
+               "lion_takanawa.copc.laz", "TO_core_last_zoom.laz", "pine_plot.laz", "vegetation_1_3.las"]
+
+
+@pytest.mark.parametrize("name", ROUND_TRIPS)
+def test_convert_round_trips_every_point_and_attribute(tmp_path, capsys, name):
+    path = SAMPLE if name == "autzen_trim.las" else shared_file(name)
+    out = convert(tmp_path, path, capsys=capsys)
+    assert is_copc(out)
+    assert_same_points([path], out)
+    assert_valid_hierarchy(out)
+    source, back = laspy.read(path), laspy.read(out)
+    np.testing.assert_array_equal(back.header.scales, source.header.scales)
+    np.testing.assert_array_equal(back.header.offsets, source.header.offsets)
+    np.testing.assert_array_equal(back.header.mins, np.array([source.x.min(), source.y.min(), source.z.min()]))
+    np.testing.assert_array_equal(back.header.maxs, np.array([source.x.max(), source.y.max(), source.z.max()]))
+    returns = np.bincount(np.asarray(source.return_number), minlength=16)[1:16]
+    np.testing.assert_array_equal(back.header.number_of_points_by_return, returns)
+    if source.header.parse_crs() is not None:
+        assert back.header.parse_crs() == source.header.parse_crs()
+
+
+def test_convert_several_files_and_a_large_one(tmp_path, capsys):
+    """wires (1.7 M points) and the sample: one cloud, a hierarchy of several levels."""
+    wires = shared_file("wires.laz")
+    out = convert(tmp_path, wires, capsys=capsys)
+    assert_same_points([wires], out)
+    assert_valid_hierarchy(out)
+    assert len({n.key.level for n in nodes_of(out)}) >= 3
+    two = convert(tmp_path, SAMPLE, shared_file("extrabytes.las"), name="two.copc.laz", capsys=capsys)
+    assert_same_points([SAMPLE, shared_file("extrabytes.las")], two)
+
+
+def test_level_queries_are_even_samples(tmp_path, capsys):
+    """Each level holds a point per occupied cell of its grid at most (the octree by
+    spacing): no two points of a level closer than its cells, counted by laspy."""
+    out = convert(tmp_path, SAMPLE, capsys=capsys)
+    with laspy.CopcReader.open(out) as reader:
+        info = reader.copc_info
+        root = reader.query(level=0)
+        lo = info.center - info.halfsize
+        cells = np.floor((np.stack([root.x, root.y, root.z], axis=1) - lo) / info.spacing).astype(np.int64)
+    assert np.unique(cells, axis=0).shape[0] == len(root)       # one point a cell
+    assert len(root) < laspy.open(out).header.point_count
+
+
+def bad_convert(tmp_path, capsys, *args) -> str:
+    before = set(os.listdir(tmp_path))
+    code = main(["convert", *map(str, args)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and err.startswith("progressive: error: "), err
+    assert set(os.listdir(tmp_path)) == before          # nothing written, no temporary left
+    return err
+
+
+def test_convert_bad_input(tmp_path, capsys):
+    out = tmp_path / "out.copc.laz"
+    e57 = shared_file("bunnyDouble.e57")
+    assert "COPC is written from LAS/LAZ" in bad_convert(tmp_path, capsys, SAMPLE, e57, out)
+    cut = tmp_path / "cut.laz"
+    data = shared_file("TO_core_last_zoom.laz").read_bytes()
+    cut.write_bytes(data[: len(data) // 2])
+    bad_convert(tmp_path, capsys, cut, out)
+    assert "--attribute" in bad_convert(tmp_path, capsys, SAMPLE, out, "--attribute", "intensity")
+    assert "missing.las" in bad_convert(tmp_path, capsys, tmp_path / "missing.las", out)
+    mine = convert(tmp_path, SAMPLE, name="mine.copc.laz", capsys=capsys)
+    assert "is the input" in bad_convert(tmp_path, capsys, mine, mine)
+
+
+def test_hierarchy_equals_laspy(tmp_path):
+    """Every node of the real COPC files (from PDAL and Potree) as laspy walks them."""
+    for name in ("lone-star.copc.laz", "lion_takanawa.copc.laz"):
+        path = shared_file(name)
+        source = open_copc(path)
+        mine = {(int(e["level"]), int(e["x"]), int(e["y"]), int(e["z"])): (int(e["offset"]), int(e["byte_size"]),
+                int(e["point_count"])) for e in source.hierarchy.nodes}
+        theirs = {(n.key.level, n.key.x, n.key.y, n.key.z): (n.offset, n.byte_size, n.point_count)
+                  for n in nodes_of(path) if n.point_count > 0}
+        assert mine == theirs
+        per_level = source.hierarchy.per_level()
+        for d, (count, points) in enumerate(per_level):
+            with laspy.CopcReader.open(path) as reader:
+                assert len(reader.query(level=d)) == points
+            assert count == sum(1 for k in theirs if k[0] == d)
+
+
+def level_cases():
+    cases = [("sample", None)]
+    for name in ("lone-star.copc.laz", "lion_takanawa.copc.laz"):
+        cases.append((name, name))
+    return cases
+
+
+@pytest.fixture(scope="module")
+def sample_copc(tmp_path_factory):
+    out = tmp_path_factory.mktemp("copc") / "sample.copc.laz"
+    assert main(["convert", str(SAMPLE), str(out)]) == 0
+    return out
+
+
+def copc_path(case, sample_copc):
+    return sample_copc if case is None else shared_file(case)
+
+
+@pytest.mark.parametrize("case", [c for _, c in level_cases()])
+def test_budget_keeps_whole_levels(case, sample_copc):
+    """For a budget between two levels' totals, the loader holds exactly the points of
+    levels 0..d, those of laspy's level query in the same (file) order, and each cloud
+    index maps back to its point in the file."""
+    path = copc_path(case, sample_copc)
+    source = open_copc(path)
+    levels = source.hierarchy.per_level()
+    assert len(levels) >= 2
+    full = laspy.read(path)
+    xyz = np.stack([full.x, full.y, full.z], axis=1)
+    for depth in range(len(levels) - 1):
+        kept = sum(p for _, p in levels[: depth + 1])
+        budget = kept + levels[depth + 1][1] - 1          # one point short of the next level
+        with CloudLoader([path], point_budget=budget) as loader:
+            info = loader.info
+            batches = sorted(loader, key=lambda b: b.start)
+            warnings = loader.warnings
+        assert info.points == kept and sum(b.count for b in batches) == kept
+        assert any(f"levels 0-{depth} of 0-{len(levels) - 1}" in w for w in warnings)
+        with laspy.CopcReader.open(path) as reader:
+            expect = reader.query(level=range(0, depth + 1))
+        positions = np.concatenate([b.positions for b in batches])
+        want = (np.stack([expect.x, expect.y, expect.z], axis=1) - info.origin).astype(np.float32)
+        np.testing.assert_array_equal(positions, want)
+        index = np.array([info.files[0].file_index(i) for i in range(kept)])
+        np.testing.assert_array_equal(xyz[index], np.stack([expect.x, expect.y, expect.z], axis=1))
+    with CloudLoader([path], point_budget=len(full.points)) as loader:
+        assert loader.info.points == len(full.points) and not loader.info.files[0].runs and not loader.warnings
+
+
+def test_budget_below_the_root_keeps_the_root(sample_copc):
+    source = open_copc(sample_copc)
+    (cut,) = keep_levels((source,), 10)
+    assert cut.info.points == source.hierarchy.per_level()[0][1] and cut.depth == 0
+
+
+def plain_copy(path, tmp_path):
+    """The file with its COPC info VLR renamed: the same bytes read as plain LAZ."""
+    data = bytearray(path.read_bytes())
+    assert data[375 + 2:375 + 6] == b"copc"
+    data[375 + 2:375 + 6] = b"cop_"
+    out = tmp_path / "plain.laz"
+    out.write_bytes(bytes(data))
+    assert not is_copc(out)
+    return out
+
+
+@pytest.mark.parametrize("case", [None, "lone-star.copc.laz"])
+def test_no_limit_ids_equal_plain_laz(case, sample_copc, tmp_path, capsys):
+    path = copc_path(case, sample_copc)
+    ids = []
+    for p in (path, plain_copy(path, tmp_path)):
+        out = tmp_path / f"{p.name}.npy"
+        assert main(["render", *SMALL, str(p), "--ids", str(out), "--color-by", "intensity"]) == 0, \
+            capsys.readouterr().err
+        ids.append(np.load(out))
+    np.testing.assert_array_equal(ids[0], ids[1])
+    assert (ids[0] != 0xFFFFFFFF).sum() > 1000
+
+
+@pytest.mark.parametrize("case", [None, "lone-star.copc.laz"])
+def test_limit_renders_the_kept_levels_exactly(case, sample_copc, tmp_path, capsys):
+    """Under a limit between levels: the warning, every kept point on the GPU (no random
+    subset), ids equal to the float64 reference over laspy's points of the kept levels,
+    and a pick reading its point back from the file."""
+    path = copc_path(case, sample_copc)
+    levels = open_copc(path).hierarchy.per_level()
+    depth = len(levels) - 2
+    kept = sum(p for _, p in levels[: depth + 1])
+    limit = str(limit_for(kept + levels[depth + 1][1] // 2))
+    ids_path, stats, cam_path = tmp_path / "ids.npy", tmp_path / "s.json", tmp_path / "c.json"
+    code = main(["render", *SMALL, str(path), "--gpu-memory-limit", limit, "--ids", str(ids_path),
+                 "--stats", str(stats), "--save-camera", str(cam_path), "--color-by", "intensity"])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert f"levels 0-{depth} of 0-{depth + 1}" in err and "uniform random subset" not in err
+    assert err.startswith("progressive: warning:")
+    s = json.loads(stats.read_text())
+    assert s["points"] == s["points_on_gpu"] == kept
+    with laspy.CopcReader.open(path) as reader:
+        expect = reader.query(level=range(0, depth + 1))
+    xyz = np.stack([expect.x, expect.y, expect.z], axis=1)
+    cam = Camera.from_json(cam_path.read_text())
+    slots = Permutation.for_count(kept, order=LAYOUT).forward(np.arange(kept)).astype(np.int64)
+    ids = np.load(ids_path)
+    assert np.mean(ids == subset_reference_ids(xyz, np.arange(kept), cam, W, H, slots)) >= 0.999
+    assert (ids != 0xFFFFFFFF).sum() > 500
+    shown = np.argwhere(ids != 0xFFFFFFFF)
+    row, col = shown[len(shown) // 2]
+    code = main(["render", *SMALL, str(path), "--gpu-memory-limit", limit, "--camera", str(cam_path),
+                 "--pick", f"{col},{row}", "--color-by", "intensity"])
+    out = capsys.readouterr().out
+    assert code == 0
+    picked = json.loads(out)
+    cloud_index = picked["cloud_index"]
+    assert picked["found"] and cloud_index == ids[row, col] and cloud_index < kept
+    assert (picked["x"], picked["y"], picked["z"]) == pytest.approx(tuple(xyz[cloud_index]), abs=1e-6)
+    assert laspy.read(path).intensity[picked["index"]] == expect.intensity[cloud_index]
+
+
+def test_info_reports_the_hierarchy(sample_copc, capsys):
+    levels = [(len([n for n in nodes_of(sample_copc) if n.key.level == d]),
+               sum(n.point_count for n in nodes_of(sample_copc) if n.key.level == d))
+              for d in range(max(n.key.level for n in nodes_of(sample_copc)) + 1)]
+    assert main(["info", "--json", str(sample_copc), str(SAMPLE)]) == 0
+    desc = json.loads(capsys.readouterr().out)
+    copc, plain = desc["files"][0]["copc"], desc["files"][1]["copc"]
+    assert plain is None and copc["levels"] == len(levels) and copc["nodes"] == sum(n for n, _ in levels)
+    assert [(r["nodes"], r["points"]) for r in copc["per_level"]] == levels
+    assert main(["info", str(sample_copc)]) == 0
+    text = capsys.readouterr().out
+    assert f"COPC hierarchy of {sample_copc}: {len(levels)} levels" in text
+    for d, (n, p) in enumerate(levels):
+        assert f"  {d:<7}{n:>10,}{p:>14,}" in text
+
+
+def test_damaged_hierarchy_is_read_as_plain_laz(sample_copc, tmp_path, capsys):
+    """A hierarchy whose counts disagree with the header: a warning, every point loaded
+    (a limit then falls back to the uniform subset); info names the problem."""
+    data = bytearray(sample_copc.read_bytes())
+    with laspy.CopcReader.open(sample_copc) as reader:
+        at = reader.copc_info.hierarchy_root_offset
+    count_at = at + ENTRY.fields["point_count"][1]
+    (count,) = struct.unpack_from("<i", data, count_at)
+    struct.pack_into("<i", data, count_at, count + 1)
+    bad = tmp_path / "bad.copc.laz"
+    bad.write_bytes(bytes(data))
+    source = open_copc(bad)
+    assert source.hierarchy is None and "holds" in source.problem
+    with CloudLoader([bad], point_budget=1000) as loader:
+        assert loader.info.points == laspy.open(SAMPLE).header.point_count
+        assert any("read as plain LAS/LAZ" in w for w in loader.warnings)
+    assert main(["info", "--json", str(bad)]) == 0
+    assert "holds" in json.loads(capsys.readouterr().out)["files"][0]["copc"]["error"]
+
+
+def test_copc_written_root_first(sample_copc):
+    """convert writes nodes level by level, so a level-limited read is one run of the file."""
+    source = open_copc(sample_copc)
+    (cut,) = keep_levels((source,), source.hierarchy.per_level()[0][1])
+    assert cut.info.runs == ((0, cut.info.points),)
+    shutil.copy(sample_copc, sample_copc.with_name("copy.laz"))
+    assert is_copc(sample_copc.with_name("copy.laz"))        # told by content, not by name
+
+
+def test_points_read_back_from_variable_size_chunks():
+    """A pick reads its point back from the file: in a COPC file (chunks of variable size,
+    where laspy's seek lands on other points) every probed index gives laspy's point."""
+    from progressive.loaders import open_cloud
+    from progressive.loaders.lookup import read_record
+
+    path = shared_file("lone-star.copc.laz")
+    info, full = open_cloud([path]), laspy.read(path)
+    for index in map(int, np.linspace(0, len(full.points) - 1, 9)):
+        record = read_record(info, int(index))
+        assert record["index"] == index and record["attributes"]["intensity"] == full.intensity[index]
+        assert (record["x"], record["y"], record["z"]) == pytest.approx(
+            (full.x[index], full.y[index], full.z[index]), abs=1e-6)
