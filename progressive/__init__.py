@@ -5,8 +5,9 @@ from progressive.camera import Camera
 from progressive.colors import Colormap
 from progressive.effects import Effects, EyeDome
 from progressive.frame_loop import ProgressiveOptions
+from progressive.notebook import show
 from progressive.renderer import Raster
 from progressive.session import Method, Session, SessionOptions, open
 
 __all__ = ["BudgetParams", "Camera", "Colormap", "Effects", "EyeDome", "Method", "ProgressiveOptions", "Raster", "Session",
-           "SessionOptions", "open"]
+           "SessionOptions", "open", "show"]
