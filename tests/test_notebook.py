@@ -320,8 +320,15 @@ def test_drag_in_a_real_browser(jupyter_server, tmp_path):
             return float((image.max(axis=2) > 40).mean())
 
         until(lambda: lit(canvas_image(canvas)) > 0.05, deadline, "the canvas does not show the cloud")
-        time.sleep(1.0)                  # let it converge and the lossless frame arrive
-        before = canvas_image(canvas)
+        shots = [canvas_image(canvas)]
+
+        def steady() -> bool:        # converged, and jupyter-rfb's lossless frame arrived: two shots alike
+            time.sleep(0.5)
+            shots.append(canvas_image(canvas))
+            return np.array_equal(shots[-1], shots[-2])
+
+        until(steady, deadline, "the canvas never came to rest", step=0)
+        before = shots[-1]
         ActionChains(driver).move_to_element(canvas).click_and_hold().move_by_offset(60, 25).move_by_offset(40, 10) \
             .release().perform()
         until(lambda: np.abs(canvas_image(canvas) - before).max(axis=2).mean() > 5, deadline,
