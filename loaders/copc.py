@@ -42,8 +42,13 @@ ENTRY = np.dtype([("level", "<i4"), ("x", "<i4"), ("y", "<i4"), ("z", "<i4"),
 (point_count -1) or nothing (0)."""
 PAGE = -1
 MAX_LEVEL = 30                           # keys are int32: deeper levels cannot be addressed
-READ_POINTS = 1 << 20
-"""Points of kept nodes decoded in one lazrs call (several chunks, decoded on every core)."""
+READ_POINTS = 1 << 17
+"""Points of kept nodes decoded in one lazrs call (several chunks, decoded on every core;
+at least one node). lazrs holds the GIL while it decodes: a short call lets the parser
+threads and the render loop run between calls."""
+FIRST_READ_POINTS = 1 << 16
+"""The first call decodes only the first nodes up to this many points: the first image
+comes sooner."""
 
 
 def is_copc(path: str | os.PathLike) -> bool:
@@ -193,9 +198,9 @@ class CopcSource(LasSource):
         return np.arange(level.size) if self.depth is None else np.nonzero(level <= self.depth)[0]
 
     def _node_chunks(self, batch_points: int, chosen) -> Iterator[np.ndarray]:
-        """The kept nodes' records in file order, in pieces of at most batch_points;
-        READ_POINTS at a time are read (adjacent chunks in one read) and decoded by lazrs
-        on every core."""
+        """The kept nodes' records in file order, in pieces of at most batch_points; up to
+        READ_POINTS at a time (FIRST_READ_POINTS first) are read and decoded by lazrs on
+        every core."""
         nodes = self.hierarchy.nodes
         kept = self.kept_nodes()
         dtype = self.records.dtype
@@ -203,7 +208,8 @@ class CopcSource(LasSource):
             at = 0
             while at < kept.size:
                 group, total, end = [], 0, at
-                while end < kept.size and (not group or total + int(nodes["point_count"][kept[end]]) <= READ_POINTS):
+                most = FIRST_READ_POINTS if at == 0 else READ_POINTS
+                while end < kept.size and (not group or total + int(nodes["point_count"][kept[end]]) <= most):
                     group.append(kept[end])
                     total += int(nodes["point_count"][kept[end]])
                     end += 1

@@ -35,7 +35,16 @@ from laspy.vlrs.known import (
 
 from progressive.errors import InputError
 from progressive.loaders.copc import ENTRY, EVLR_HEADER, HIERARCHY_RECORD, INFO, INFO_RECORD, USER_ID, CopcInfo
-from progressive.loaders.las import HEADER_PREFIX, SCAN_ANGLE_STEP, LasSource, RawHeader, Span, read_span, text_patches
+from progressive.loaders.las import (
+    HEADER_PREFIX,
+    SCAN_ANGLE_STEP,
+    LasSource,
+    RawHeader,
+    Span,
+    TruncatedInput,
+    read_span,
+    text_patches,
+)
 from progressive.loaders.laz import open_patched
 from progressive.loaders.pipeline import open_sources
 from progressive.loaders.types import BATCH_POINTS
@@ -181,33 +190,44 @@ def _add_crs(header: laspy.LasHeader, first: laspy.LasHeader, path: str, warning
 
 def _records(sources, header: laspy.LasHeader, partial: bool, warnings: list[str]) -> np.ndarray:
     """Every input point as a record of the output's format, on the output's scale grid."""
-    pf = header.point_format
     parts = []
     requantized = False
     for s in sources:
         records = s.records
         same_grid = np.array_equal(records.scales, header.scales) and np.array_equal(records.offsets, header.offsets)
         requantized |= not same_grid
-        for chunk in s.chunks(BATCH_POINTS, salvage=partial):
-            if isinstance(chunk, Span):
-                chunk = read_span(s.info.path, records, chunk, s.info.points)
-            out = laspy.PackedPointRecord.from_point_record(laspy.PackedPointRecord(chunk, records.point_format), pf).array
-            if "scan_angle_rank" in chunk.dtype.names:
-                out["scan_angle"] = np.rint(chunk["scan_angle_rank"] / SCAN_ANGLE_STEP).astype(np.int16)
-            if not same_grid:
-                for axis, name in enumerate("XYZ"):
-                    grid = np.rint((records.coordinates(chunk, axis) - header.offsets[axis]) / header.scales[axis])
-                    if np.any(np.abs(grid) > 2**31 - 1):
-                        raise fail(s.info.path, f"its {name.lower()} coordinates cannot be written on the first "
-                                                f"input's scale and offset (they overflow 32 bits)")
-                    out[name] = grid.astype(np.int32)
-            parts.append(out)
+        try:
+            for chunk in s.chunks(BATCH_POINTS, salvage=partial):
+                if isinstance(chunk, Span):
+                    chunk = read_span(s.info.path, records, chunk, s.info.points)
+                parts.append(_converted(s.info.path, chunk, records, header, same_grid))
+        except TruncatedInput as exc:         # with partial: what decoded before the damage, and a warning
+            if not partial:
+                raise
+            warnings.append(str(exc))
     if requantized:
         warnings.append("the inputs' scales or offsets differ: coordinates were put on the first input's grid "
                         "(to the nearest step)")
     if any("scan_angle_rank" in s.records.dtype.names for s in sources):
         warnings.append(f"scan angles in whole degrees were written in {SCAN_ANGLE_STEP}° steps (to the nearest step)")
     return np.concatenate(parts)
+
+
+def _converted(path: str, chunk: np.ndarray, records, header: laspy.LasHeader, same_grid: bool) -> np.ndarray:
+    """A chunk of input records as records of the output's point format (laspy copies the
+    fields by name), on the output's scale grid."""
+    out = laspy.PackedPointRecord.from_point_record(laspy.PackedPointRecord(chunk, records.point_format),
+                                                    header.point_format).array
+    if "scan_angle_rank" in chunk.dtype.names:
+        out["scan_angle"] = np.rint(chunk["scan_angle_rank"] / SCAN_ANGLE_STEP).astype(np.int16)
+    if not same_grid:
+        for axis, name in enumerate("XYZ"):
+            grid = np.rint((records.coordinates(chunk, axis) - header.offsets[axis]) / header.scales[axis])
+            if np.any(np.abs(grid) > 2**31 - 1):
+                raise fail(path, f"its {name.lower()} coordinates cannot be written on the first input's scale "
+                                 f"and offset (they overflow 32 bits)")
+            out[name] = grid.astype(np.int32)
+    return out
 
 
 def _cube(header_or_bounds) -> CopcInfo:
