@@ -385,3 +385,23 @@ def test_points_read_back_from_variable_size_chunks():
         assert record["index"] == index and record["attributes"]["intensity"] == full.intensity[index]
         assert (record["x"], record["y"], record["z"]) == pytest.approx(
             (full.x[index], full.y[index], full.z[index]), abs=1e-6)
+
+
+def test_budget_over_several_files(sample_copc):
+    """A COPC file beside a plain one: the plain file is kept whole, the COPC file cut to
+    the levels that fit beside it, and cloud indices past the cut file map to the plain
+    file's own points."""
+    from progressive.loaders.lookup import locate
+
+    plain = laspy.open(SAMPLE).header.point_count
+    root = open_copc(sample_copc).hierarchy.per_level()[0][1]
+    with CloudLoader([sample_copc, SAMPLE], point_budget=plain + root) as loader:
+        info = loader.info
+        batches = sorted(loader, key=lambda b: b.start)
+    assert [f.points for f in info.files] == [root, plain] and info.points == root + plain
+    assert sum(b.count for b in batches) == root + plain
+    file, index = locate(info, root + 5)
+    assert file.path == str(SAMPLE) and index == 5
+    last = (np.concatenate([b.positions for b in batches])[root:] + info.origin).astype(np.float64)
+    sample = laspy.read(SAMPLE)
+    np.testing.assert_allclose(last, np.stack([sample.x, sample.y, sample.z], axis=1), atol=1e-2)
