@@ -75,6 +75,12 @@ def raster_lines(raster: dict) -> list[str]:
                        f"shuffle of the whole cloud {shuffled['ms']:.2f} ms (median of "
                        f"{', '.join(f'{t:.1f}' for t in shuffled['ms_all'])}): **{_x(shuffled['ms'] / r['ms'])}** "
                        f"(`{raster['_file']}`).")
+        slot_records = (row(f"{layout}, records in slot order", r["raster"], groups=r.get("batch_groups", False))
+                        if layout == "batched" else None)
+        if slot_records:
+            out.append(f"- Brute force, {where}, {r['raster']}, {layout} store: each batch's records together "
+                       f"{r['ms']:.2f} ms against records in slot order {slot_records['ms']:.2f} ms: "
+                       f"**{_x(slot_records['ms'] / r['ms'])}** (`{raster['_file']}`).")
         slots = row(layout, r["raster"], groups=False) if r.get("batch_groups") else None
         if slots:
             out.append(f"- Brute force, {where}, {r['raster']}, {layout} store: one work group a batch "

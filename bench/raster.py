@@ -25,6 +25,7 @@ from progressive.gpu import grid
 from progressive.packing import RECORD_BYTES
 from progressive.passes.raster_compute import ComputeTuning, subgroup_reduction_available
 from progressive.permutation import FillOrder
+from progressive.pointstore import RecordOrder
 from progressive.renderer import Raster, Renderer
 from progressive.timing import Timestamps
 
@@ -36,11 +37,14 @@ class Layout:
     label: str
     order: Order
     fill: FillOrder
+    records: RecordOrder = RecordOrder.BATCHES
 
 
 LAYOUTS = (Layout("file order", Order.FILE, FillOrder.FILE), Layout("Morton order", Order.MORTON, FillOrder.FILE),
            Layout("scan order", Order.SCAN, FillOrder.FILE), Layout("shuffled", Order.FILE, FillOrder.SHUFFLED),
-           Layout("batched", Order.FILE, FillOrder.BATCHED), Layout("batched, scan order", Order.SCAN, FillOrder.BATCHED))
+           Layout("batched", Order.FILE, FillOrder.BATCHED),
+           Layout("batched, records in slot order", Order.FILE, FillOrder.BATCHED, RecordOrder.SLOTS),
+           Layout("batched, scan order", Order.SCAN, FillOrder.BATCHED))
 
 
 def copy_bandwidth(glc: GLContext, nbytes: int, repeats: int) -> dict[str, float]:
@@ -105,7 +109,7 @@ def views(cloud: TiledCloud, aspect: float) -> dict[str, Camera]:
 def measure(glc: GLContext, cloud: TiledCloud, layouts, sizes, repeats: int) -> list[dict]:
     rows = []
     for layout in layouts:
-        scene, upload_s = load(glc, cloud, layout.order, layout.fill)
+        scene, upload_s = load(glc, cloud, layout.order, layout.fill, layout.records)
         for width, height in sizes:
             for view, cam in views(cloud, width / height).items():
                 culled = (1.0 - float(np.mean(batches.in_view(scene.store.boxes, view_uniforms(
@@ -170,7 +174,8 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
         f"; the share is of the faster, {copy / 1e9:.1f} GB/s. × GL_POINTS = GL_POINTS ms / this ms, "
         "same cloud, size and order. Store order: file/Morton/scan = points in the buffer in that file order "
         "(FillOrder.FILE); shuffled = the paper's permutation of the whole file order; batched = the renderer's "
-        "layout (shuffled inside batches of 10,240 consecutive points, slices of 256 interleaved). Scan order: a scanner station "
+        "layout (shuffled inside batches of 10,240 consecutive points, slices of 256 interleaved in slot order, each "
+        "batch's records stored together; 'records in slot order' stores them slice by slice as the slots run). Scan order: a scanner station "
         "per tile, vertical scan lines by azimuth (bench/synthetic.py). Views: overview = the auto camera on the "
         "whole cloud; close-up = one corner tile from above at 45° (GL_POINTS not run); batches culled = share of "
         "the store's batches the culling test leaves out (batched layouts only); × overview = overview ms / this "

@@ -21,6 +21,7 @@ from progressive.loaders import CloudLoader
 from progressive.loaders.types import AttributeInfo, Batch, CloudInfo
 from progressive.packing import pack_records
 from progressive.permutation import LAYOUT, FillOrder
+from progressive.pointstore import RecordOrder
 from progressive.scene import Scene
 
 SAMPLE = Path(__file__).resolve().parents[1] / "progressive" / "data" / "autzen_trim.las"
@@ -129,10 +130,10 @@ def tiled(path: str, points: int, attribute: str | None = None) -> TiledCloud:
 
 
 def load(glc: GLContext, cloud: TiledCloud, order: Order = Order.FILE,
-         fill: FillOrder = LAYOUT) -> tuple[Scene, float]:
+         fill: FillOrder = LAYOUT, records: RecordOrder = RecordOrder.BATCHES) -> tuple[Scene, float]:
     """The tiled cloud on the GPU once, shared by every run; seconds to upload it."""
     t0 = time.perf_counter()
-    scene = Scene(glc, cloud.info, cloud.attribute, order=fill)
+    scene = Scene(glc, cloud.info, cloud.attribute, order=fill, records=records)
     for start, rec in cloud.batches(order):
         scene.add_batch(Batch(start=start, positions=rec[:, :3].view(np.float32), records=rec))
     glc.ctx.finish()

@@ -45,5 +45,12 @@ class Binding(enum.IntEnum):
         return cls(cls.POINTS_0 + chunk)
 
 
+class UniformBinding(enum.IntEnum):
+    """Uniform block binding points (a namespace of their own in GL)."""
+
+    STORE_LAYOUT = 0        # where each slot's record lives (pointstore.py StoreLayout)
+
+
 def glsl_defines() -> str:
-    return "".join(f"#define BINDING_{b.name} {int(b)}\n" for b in Binding)
+    return ("".join(f"#define BINDING_{b.name} {int(b)}\n" for b in Binding)
+            + "".join(f"#define UNIFORM_{b.name} {int(b)}\n" for b in UniformBinding))

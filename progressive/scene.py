@@ -19,7 +19,7 @@ from progressive.packing import attribute_word, pack_records
 from progressive.passes.distribute import DistributePass
 from progressive.passes.percentile import PercentilePass
 from progressive.permutation import LAYOUT, FillOrder
-from progressive.pointstore import PointStore
+from progressive.pointstore import PointStore, RecordOrder
 
 RANGE_GROWTH = 2
 """While loading, the colour range is taken anew each time the loaded points have
@@ -54,18 +54,19 @@ class AttributeSwitch:
 class Scene:
     def __init__(self, glc: GLContext, info: CloudInfo, attribute: AttributeInfo, *, chunk_points: int | None = None,
                  capacity: int | None = None, keep_batches: bool = False, order: FillOrder = LAYOUT,
-                 class_filter: bool = False):
+                 class_filter: bool = False, records: RecordOrder = RecordOrder.BATCHES):
         """capacity: points kept on the GPU (default all; see progressive/memory.py).
         keep_batches: keep the loaded attributes in host memory to switch attributes.
         order: FILE stores points in file order (the unshuffled baseline, for benchmarks).
         class_filter: keep every point's class and return flags on the GPU, so hidden classes
         and return filters apply whatever attribute is shown (the cloud must have
-        classification)."""
+        classification). records: where the batched layout's records live (the slot
+        order is the benchmarks' baseline)."""
         self.glc, self.info, self.attribute = glc, info, attribute
         if class_filter and CLASSIFICATION not in {a.name for a in info.attributes}:
             raise ProgressiveError("this cloud has no classification to filter by")
         self.store = PointStore(glc, info.points, capacity=capacity, chunk_points=chunk_points, order=order,
-                                classes=class_filter)
+                                classes=class_filter, records=records)
         self.distribute = DistributePass(glc, self.store)
         self.loaded = 0
         self.skipped = 0            # points never drawn: non-finite coordinates or shown value

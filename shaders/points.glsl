@@ -1,5 +1,6 @@
 // The shuffled point buffer: POINT_CHUNKS storage blocks of CHUNK_POINTS 16-byte
-// records each (xyz float bits relative to the origin, one attribute word).
+// records each (xyz float bits relative to the origin, one attribute word), and
+// where each slot's record lives (progressive/pointstore.py StoreLayout).
 
 layout(std430, binding = BINDING_POINTS_0) buffer Points0 { uvec4 points0[]; };
 #if POINT_CHUNKS > 1
@@ -24,9 +25,11 @@ layout(std430, binding = BINDING_POINTS_6) buffer Points6 { uvec4 points6[]; };
 layout(std430, binding = BINDING_POINTS_7) buffer Points7 { uvec4 points7[]; };
 #endif
 
-uvec4 load_point(uint slot) {
-    uint c = slot / uint(CHUNK_POINTS);
-    uint j = slot - c * uint(CHUNK_POINTS);
+#include "records.glsl"
+
+uvec4 load_record(uint index) {
+    uint c = index / uint(CHUNK_POINTS);
+    uint j = index - c * uint(CHUNK_POINTS);
     switch (c) {
     case 0u: return points0[j];
 #if POINT_CHUNKS > 1
@@ -54,10 +57,15 @@ uvec4 load_point(uint slot) {
     return uvec4(EMPTY);
 }
 
+uvec4 load_point(uint slot) {
+    return load_record(record_index(slot));
+}
+
 // Writes the whole record (component < 0) or one word of it.
 void store_point(uint slot, uvec4 record, int component) {
-    uint c = slot / uint(CHUNK_POINTS);
-    uint j = slot - c * uint(CHUNK_POINTS);
+    uint index = record_index(slot);
+    uint c = index / uint(CHUNK_POINTS);
+    uint j = index - c * uint(CHUNK_POINTS);
 #define STORE(buf) if (component < 0) buf[j] = record; else buf[j][component] = record[component]
     switch (c) {
     case 0u: STORE(points0); break;

@@ -69,7 +69,8 @@ void raster(uint i, uint slot, uvec4 record) {
 // piece): the batch's slices are SLICE_POINTS consecutive slots every
 // u_batches·SLICE_POINTS (progressive/permutation.py), and the group walks those in
 // the range in turn, so the few pixels a compact batch covers stay in cache while
-// its points go through, and a culled batch costs its group one read. Each
+// its points go through (from one contiguous block of records where the store keeps
+// batches together), and a culled batch costs its group one read. Each
 // invocation loads PREFETCH records before it draws them, so that many reads are in
 // flight while the atomics wait.
 const uint ROUNDS = BATCH_SLOTS / SLICE_POINTS;
@@ -89,17 +90,20 @@ void main() {
 #endif
     uint stride = u_batches * SLICE_POINTS;
     uint base = b * SLICE_POINTS + gl_LocalInvocationID.x;
+    // The batch's records: one contiguous block (RecordOrder.BATCHES), else in slot order.
+    uint records = store_batches == 0u ? base : batch_record(b) + gl_LocalInvocationID.x;
+    uint record_stride = store_batches == 0u ? stride : SLICE_POINTS;
     uint last = first + (count - 1u);
     uint k = first > base ? (first - base + stride - 1u) / stride : 0u;
     for (; k < ROUNDS && base + k * stride <= last; k += PREFETCH) {
         uint slots[PREFETCH];
-        uvec4 records[PREFETCH];
+        uvec4 loaded[PREFETCH];
         for (uint j = 0u; j < PREFETCH; ++j) {
             // k + j < ROUNDS first: past the last round the product could wrap around.
             slots[j] = k + j < ROUNDS ? base + (k + j) * stride : EMPTY;
-            records[j] = slots[j] <= last ? load_point(slots[j]) : uvec4(EMPTY);
+            loaded[j] = slots[j] <= last ? load_record(records + (k + j) * record_stride) : uvec4(EMPTY);
         }
-        for (uint j = 0u; j < PREFETCH; ++j) raster(slots[j], slots[j], records[j]);
+        for (uint j = 0u; j < PREFETCH; ++j) raster(slots[j], slots[j], loaded[j]);
     }
 }
 #else

@@ -1,19 +1,13 @@
 // The paper's baseline: GL_POINTS with a hardware depth test. The pixel comes from
 // the same project() as the compute rasterizer and the vertex sits at its centre, so
 // sub-pixel snapping cannot move a point across a pixel edge; depth is linear in
-// [near, far]. Rejected points are placed outside the clip volume. Brute force reads
-// vertex attributes from one store chunk; progressive frames (VERTEX_PULLING) read
-// their points from the same sources as the compute rasterizer, by gl_VertexID.
+// [near, far]. Rejected points are placed outside the clip volume. Every draw pulls
+// its points from the same sources as the compute rasterizer, by gl_VertexID in slot
+// order, so the depth test's first-drawn wins is the contract's least slot.
 #define VERTEX_STAGE 1
 #include "common.glsl"
-#if VERTEX_PULLING
 #include "points.glsl"
 #include "sources.glsl"
-#else
-in vec3 a_position;
-in uint a_word;
-uniform uint u_chunk_base;   // slot of the chunk's first record
-#endif
 #include "camera.glsl"
 #include "classes.glsl"
 
@@ -23,15 +17,10 @@ flat out uint v_depth_bits;
 void main() {
     gl_PointSize = 1.0;
     gl_Position = vec4(2.0, 2.0, 2.0, 1.0);
-#if VERTEX_PULLING
     uint i = uint(gl_VertexID);
     if (i >= source_count()) return;
     v_slot = source_slot(i);
     uvec4 record = source_record(i, v_slot);
-#else
-    v_slot = u_chunk_base + uint(gl_VertexID);
-    uvec4 record = uvec4(floatBitsToUint(a_position), a_word);
-#endif
     uint pixel;
     float depth;
     if (!finite_position(record) || !flags_shown(point_flags(v_slot, record.w)) || !clip_keeps(uintBitsToFloat(record.xyz))

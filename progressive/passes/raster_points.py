@@ -13,23 +13,23 @@ from progressive.gpu import grid_2d, set_view
 from progressive.passes.handles import EMPTY, FillPieces, Meta, Reprojection, Source, StateWord, Visibility
 from progressive.pointstore import PointStore
 
+DRAW_POINTS = 2**30
+"""Vertices a draw call takes at most (its count is a signed 32-bit integer)."""
+
 
 class PointsRaster:
-    """`passes` is 1. A frame is begin_frame(view), draws, end_frame(); draw() is a whole
-    brute-force frame from vertex buffers, as in the paper."""
+    """`passes` is 1. A frame is begin_frame(view), draws, end_frame(); every draw pulls
+    its points from the store by gl_VertexID in slot order, so the depth test keeps the
+    least slot among equal depths (the render contract's tie rule)."""
 
     passes = 1
 
     def __init__(self, glc: GLContext, store: PointStore, vis: Visibility):
         self.glc, self.store, self.vis = glc, store, vis
         ctx = glc.ctx
-        self.program = self._program({"VERTEX_PULLING": 0, "CLASS_FILTER": int(store.has_classes)}, "raster points")
-        # With the classes kept, the shown word is not read (the linker drops a_word).
-        layout = ("3f4 u4", "a_position", "a_word") if "a_word" in self.program else ("3f4 4x", "a_position")
-        self.vaos = [ctx.vertex_array(self.program, [(buf, *layout)]) for buf in store.buffers]
-        defines = dict(store.defines, **StateWord.defines(), **Meta.defines(), VERTEX_PULLING=1)
+        defines = dict(store.defines, **StateWord.defines(), **Meta.defines())
         self.pulling = {s: self._program(dict(defines, **Source.defines(s)), f"raster points {s.name.lower()}")
-                        for s in (Source.PIECE, Source.LIST)}
+                        for s in Source}
         self.empty_vaos = {s: ctx.vertex_array(p, []) for s, p in self.pulling.items()}
         self.gather = shaderlib.compute(ctx, "points_gather.comp", label="points gather")
         self.size = (0, 0)
@@ -90,13 +90,15 @@ class PointsRaster:
         ctx.memory_barrier()
 
     def draw(self, view: ViewUniforms, first: int, count: int) -> None:
-        """A whole frame of slots [first, first+count) from vertex buffers, chunk by chunk."""
+        """A whole frame of slots [first, first+count), in draws of at most DRAW_POINTS."""
         self.begin_frame(view)
-        set_view(self.program, view)
-        self.store.bind()           # the class bytes, where the store keeps them
-        for chunk, local_first, n in self.store.chunk_ranges(first, count):
-            self.program["u_chunk_base"] = chunk * self.store.chunk_points
-            self.vaos[chunk].render(moderngl.POINTS, vertices=n, first=local_first)
+        program = self.pulling[Source.RANGE]
+        set_view(program, view)
+        self.store.bind()
+        for start in range(first, first + count, DRAW_POINTS):
+            program["u_first"] = start
+            program["u_count"] = n = min(DRAW_POINTS, first + count - start)
+            self.empty_vaos[Source.RANGE].render(moderngl.POINTS, vertices=n)
         self.end_frame(view)
 
     def _pull(self, source: Source, view: ViewUniforms, args_buffer, offset: int) -> None:
@@ -117,5 +119,5 @@ class PointsRaster:
         self._pull(Source.LIST, view, reprojection.meta, reprojection.draw_offset)
 
     def release(self) -> None:
-        for obj in [*self._targets, *self.vaos, *self.empty_vaos.values(), self.program, *self.pulling.values(), self.gather]:
+        for obj in [*self._targets, *self.empty_vaos.values(), *self.pulling.values(), self.gather]:
             obj.release()
