@@ -190,11 +190,14 @@ def main(argv=None) -> int:
     ap.add_argument("--points", type=int, nargs="+", default=[1_000_000])
     ap.add_argument("--size", nargs="+", default=["1920x1080"])
     ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--layouts", nargs="+", choices=[layout.label for layout in LAYOUTS])
+    ap.add_argument("--copy-mib", type=int, default=64, help="bytes for the copy-bandwidth reference")
     ap.add_argument("--out", default="bench/results/local")
     args = ap.parse_args(argv)
     glc = create_context()
     sizes = [tuple(int(v) for v in s.split("x")) for s in args.size]
-    table = run(glc, args.points, sizes, args.repeats, 64 << 20)
+    layouts = [x for x in LAYOUTS if not args.layouts or x.label in args.layouts]
+    table = run(glc, args.points, sizes, args.repeats, args.copy_mib << 20, layouts)
     table.write(Path(args.out), RunInfo.from_caps(glc.caps, "raster only"))
     print(table.markdown(RunInfo.from_caps(glc.caps, "raster only")))
     return 0
