@@ -141,16 +141,19 @@ def floats_arg(count: int, what: str):
 
 
 def clip_from(args):
-    """The clip box of --clip-box and --clip-z (both: their intersection), file coordinates."""
-    from progressive.camera import NO_CLIP, CameraError, Clip
+    """The clip of --clip-box, --clip-z and --clip-section (all given: their
+    intersection), file coordinates."""
+    from progressive.camera import NO_CLIP, CameraError, Clip, Section
 
     try:
         box = Clip(args.clip_box[:3], args.clip_box[3:]) if args.clip_box else NO_CLIP
         slab = Clip((-np.inf, -np.inf, args.clip_z[0]), (np.inf, np.inf, args.clip_z[1])) if args.clip_z else NO_CLIP
+        s = args.clip_section
+        section = Clip(section=Section(start=(s[0], s[1]), end=(s[2], s[3]), width=s[4])) if s else NO_CLIP
     except CameraError as exc:
         raise UsageError(str(exc)) from None
     try:
-        return box.intersect(slab)
+        return box.intersect(slab).intersect(section)
     except CameraError:
         raise UsageError("--clip-box and --clip-z do not overlap: nothing would be drawn") from None
 
@@ -221,6 +224,9 @@ def add_look_args(parser) -> None:
     parser.add_argument("--clip-box", type=floats_arg(6, "xmin,ymin,zmin,xmax,ymax,zmax"),
                         help="draw only points inside this box (file coordinates, sides included)")
     parser.add_argument("--clip-z", type=floats_arg(2, "zmin,zmax"), help="draw only points between these heights")
+    parser.add_argument("--clip-section", type=floats_arg(5, "x0,y0,x1,y1,width"),
+                        help="draw only points within width/2 of the segment (x0,y0)-(x1,y1) in XY, between its "
+                             "ends: a vertical slab for profiles")
 
 
 def one_line(text: str) -> str:
@@ -460,7 +466,9 @@ def _stats(session, camera, frames: int, converged_at: int | None, clip) -> dict
         "color_range": session.color_range(),
         "batches": session.batch_counts(camera, clip),
         "clip": {"min": [v if np.isfinite(v) else None for v in clip.lo],
-                 "max": [v if np.isfinite(v) else None for v in clip.hi]},
+                 "max": [v if np.isfinite(v) else None for v in clip.hi],
+                 "section": None if clip.section is None else {
+                     "start": list(clip.section.start), "end": list(clip.section.end), "width": clip.section.width}},
         "peak_rss_bytes": memory.peak_rss_bytes(),
         "camera": camera.to_dict(),
         "frames_rendered": frames,

@@ -310,7 +310,7 @@ def test_cli_clip_options(tmp_path, capsys):
     assert main(["render", "--width", str(W), "--height", str(H), "--clip-z", "420,440",
                  "--clip-box=-1e9,-1e9,-1e9,1e9,1e9,430", "--stats", str(stats)]) == 0
     clip = json.loads(stats.read_text())["clip"]
-    assert clip == {"min": [-1e9, -1e9, 420.0], "max": [1e9, 1e9, 430.0]}
+    assert clip == {"min": [-1e9, -1e9, 420.0], "max": [1e9, 1e9, 430.0], "section": None}
     for bad in (["--clip-z", "5"], ["--clip-z", "5,nan"], ["--clip-box", "1,2,3,0,5,6"], ["--clip-z", "9,1"],
                 ["--clip-box", "0,0,0,1,1,1", "--clip-z", "5,6"]):
         capsys.readouterr()
@@ -379,3 +379,33 @@ def test_clip_box_on_screen_and_its_drag():
     slab = Clip((-math.inf, -math.inf, 1.0), (math.inf, math.inf, 2.0))
     shown_lo, shown_hi = clipbox.shown_box(slab, lo, hi)
     assert tuple(shown_lo) == (0.0, 0.0, 1.0) and tuple(shown_hi) == (10.0, 20.0, 2.0)
+
+
+def test_cli_clip_section(tmp_path, capsys, las_xyz):
+    """render --clip-section draws the float64 contract of the points in the section
+    (with --clip-z too), reports it in --stats, and bad sections are one line."""
+    from progressive.camera import Camera
+    from progressive.loaders import open_cloud
+    from progressive.permutation import LAYOUT, Permutation
+
+    info = open_cloud([str(SAMPLE)])
+    section = sections(info)["diagonal"]
+    spec = ",".join(repr(float(v)) for v in (*section.start, *section.end, section.width))
+    ids, stats, cam = tmp_path / "ids.npy", tmp_path / "s.json", tmp_path / "cam.json"
+    z = f"{float(info.bounds_min[2] + 0.1 * (info.bounds_max[2] - info.bounds_min[2]))!r},{float(info.bounds_max[2])!r}"
+    assert main(["render", "--width", str(W), "--height", str(H), f"--clip-section={spec}", "--clip-z", z,
+                 "--ids", str(ids), "--stats", str(stats), "--save-camera", str(cam)]) == 0
+    clip = Clip((-math.inf, -math.inf, float(z.split(",")[0])), (math.inf, math.inf, float(z.split(",")[1])),
+                section)
+    slots = Permutation.for_count(info.points, order=LAYOUT).forward(np.arange(info.points)).astype(np.int64)
+    expected = clipped_reference_ids(las_xyz, clip, Camera.from_json(cam.read_text()), W, H, slots)
+    got = np.load(ids)
+    assert (got != EMPTY).sum() > 100 and np.mean(got == expected) >= 0.999
+    reported = json.loads(stats.read_text())["clip"]["section"]
+    assert reported == {"start": list(section.start), "end": list(section.end), "width": section.width}
+    for bad in ("1,2,3,4", "1,2,1,2,5", "0,0,10,0,0", "0,0,10,0,nan"):
+        capsys.readouterr()
+        assert main(["render", "--out", str(tmp_path / "x.png"), f"--clip-section={bad}"]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("progressive: error: ") and err.count("\n") == 1
+    assert not (tmp_path / "x.png").exists()
