@@ -489,8 +489,8 @@ def widget_classes():
         def close(self) -> None:
             self.canvas.close()
             super().close()
-            if self._owned and self.interaction.session.renderer is not None:
-                self.interaction.session.close()
+            if self._owned:
+                self.interaction.session.close()      # closing twice is harmless
 
     return Canvas, View
 
