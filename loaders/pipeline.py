@@ -149,7 +149,42 @@ def _as_input_error(path: str, exc: BaseException) -> InputError:
     return fail(path, f"cannot be loaded: {type(exc).__name__}: {exc}")
 
 
-class CloudLoader:
+class BatchQueue:
+    """Polling and iterating the batches worker threads put on `_results`: what every
+    loader shares. A subclass sets `_results` and `_stop`, and defines start(), `done`,
+    _take(item, batches) and _raise_failure()."""
+
+    def poll(self, max_batches: int | None = None) -> list[Batch]:
+        """The batches ready now, without waiting."""
+        self.start()
+        batches: list[Batch] = []
+        while not self.done and (max_batches is None or len(batches) < max_batches):
+            self._raise_failure()
+            try:
+                item = self._results.get_nowait()
+            except queue.Empty:
+                break
+            self._take(item, batches)
+        self._raise_failure()
+        return batches
+
+    def __iter__(self) -> Iterator[Batch]:
+        self.start()
+        while not self.done:
+            self._raise_failure()
+            if self._stop.is_set():
+                return
+            try:
+                item = self._results.get(timeout=WAIT_S)
+            except queue.Empty:
+                continue
+            batches: list[Batch] = []
+            self._take(item, batches)
+            yield from batches
+
+
+
+class CloudLoader(BatchQueue):
     """Loads a cloud in the background; poll() from a render loop or iterate to block.
 
     Batches arrive in any order, each with its global file-order `start`. Of the batches
@@ -205,34 +240,6 @@ class CloudLoader:
             for thread in self._threads:
                 thread.start()
         return self
-
-    def poll(self, max_batches: int | None = None) -> list[Batch]:
-        """The batches ready now, without waiting."""
-        self.start()
-        batches: list[Batch] = []
-        while not self.done and (max_batches is None or len(batches) < max_batches):
-            self._raise_failure()
-            try:
-                item = self._results.get_nowait()
-            except queue.Empty:
-                break
-            self._take(item, batches)
-        self._raise_failure()
-        return batches
-
-    def __iter__(self) -> Iterator[Batch]:
-        self.start()
-        while not self.done:
-            self._raise_failure()
-            if self._stop.is_set():
-                return
-            try:
-                item = self._results.get(timeout=WAIT_S)
-            except queue.Empty:
-                continue
-            batches: list[Batch] = []
-            self._take(item, batches)
-            yield from batches
 
     def close(self) -> None:
         """Stop the threads; they notice within WAIT_S or after the chunk being decoded."""

@@ -15,7 +15,6 @@ from __future__ import annotations
 import queue
 import re
 import threading
-from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from functools import cached_property
 
@@ -25,7 +24,7 @@ from progressive.errors import ProgressiveError
 from progressive.loaders import CloudLoader
 from progressive.loaders.crs import epsg_code, file_crs
 from progressive.loaders.lookup import locate, read_point
-from progressive.loaders.pipeline import JOIN_S, WAIT_S
+from progressive.loaders.pipeline import JOIN_S, WAIT_S, BatchQueue
 from progressive.loaders.types import AttributeInfo, Batch, CloudInfo, FileInfo, nonfinite_rows
 from progressive.loaders.validate import check_addressable, fail, shown
 
@@ -116,7 +115,7 @@ class Transform:
         return np.array([x0, y0, z[0]]), np.array([x1, y1, z[1]])
 
 
-class ReprojectingLoader:
+class ReprojectingLoader(BatchQueue):
     """CloudLoader's interface over files in any CRSs, as one cloud in `target`: one
     loader a file, run in turn (so host memory stays what one loader holds, plus
     READY_BATCHES), reprojected on a thread of its own."""
@@ -138,7 +137,7 @@ class ReprojectingLoader:
         check_addressable(files[-1].path, self.info.points)
         self._starts = np.cumsum([0] + [f.points for f in files])[:-1].tolist()
         self.loaded = 0
-        self._ready: queue.Queue = queue.Queue(maxsize=READY_BATCHES)
+        self._results: queue.Queue = queue.Queue(maxsize=READY_BATCHES)
         self._error: BaseException | None = None
         self._finished = False
 
@@ -231,7 +230,7 @@ class ReprojectingLoader:
     def _put(self, item) -> bool:
         while not self._stop.is_set():
             try:
-                self._ready.put(item, timeout=WAIT_S)
+                self._results.put(item, timeout=WAIT_S)
                 return True
             except queue.Full:
                 pass
@@ -250,33 +249,6 @@ class ReprojectingLoader:
             error, self._error = self._error, None
             self.close()
             raise error
-
-    def poll(self, max_batches: int | None = None) -> list[Batch]:
-        """The batches ready now, without waiting."""
-        self.start()
-        out: list[Batch] = []
-        while not self._finished and (max_batches is None or len(out) < max_batches):
-            try:
-                item = self._ready.get_nowait()
-            except queue.Empty:
-                break
-            self._take(item, out)
-        self._raise_failure()
-        return out
-
-    def __iter__(self) -> Iterator[Batch]:
-        self.start()
-        while not self._finished:
-            self._raise_failure()
-            if self._stop.is_set():
-                return
-            try:
-                item = self._ready.get(timeout=WAIT_S)
-            except queue.Empty:
-                continue
-            out: list[Batch] = []
-            self._take(item, out)
-            yield from out
 
     def close(self) -> None:
         """Stop the thread and every file's loader."""
