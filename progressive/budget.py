@@ -64,11 +64,12 @@ def elapsed(later: int, earlier: int) -> int | None:
 
 
 def step(t_frame: int, t_fill: int, t_first: int, prev_frame_ns: int | None, first_points: int,
-         state: BudgetState, params: BudgetParams) -> tuple[int, BudgetState]:
+         state: BudgetState, params: BudgetParams, prev_after_ns: int | None = None) -> tuple[int, BudgetState]:
     """Points to fill after the first fill, and the state for the next frame.
 
     t_frame, t_fill, t_first: timestamps at frame start, fill start, first fill end.
-    prev_frame_ns: the previous frame's GPU time (None when unknown)."""
+    prev_frame_ns: the previous frame's GPU time; prev_after_ns: its time from the end
+    of its fill to its end (prepare, resolve, effects); None when unknown."""
     if params.fixed is not None:
         return 0, state
     fill_ns = elapsed(t_first, t_fill)
@@ -81,7 +82,8 @@ def step(t_frame: int, t_fill: int, t_first: int, prev_frame_ns: int | None, fir
         gain = min(max(state.gain_q10 * half_step // GAIN_ONE, GAIN_MIN), GAIN_MAX)
         state = replace(state, gain_q10=gain)
     spent = elapsed(t_first, t_frame)
-    left = goal - spent if spent is not None and spent < goal else 0
+    reserved = prev_after_ns if prev_after_ns is not None and 0 <= prev_after_ns < VALID_NS else 0
+    left = goal - spent - reserved if spent is not None and spent + reserved < goal else 0
     if state.rate_ns == 0:
         budget = params.min_budget
     else:

@@ -97,9 +97,12 @@ void main() {
             uint64_t gain = clamp64(uint64_t(state[STATE_GAIN]) * half_step / 1024ul, 128ul, 8192ul);
             state[STATE_GAIN] = uint(gain);
         }
+        // the previous frame's time after its fill (prepare, resolve, effects) is reserved
+        uint64_t reserved = 0ul;
+        if (!(u_have_prev && elapsed(stamps[prev_base + TS_END], stamps[prev_base + TS_FILL_END], reserved))) reserved = 0ul;
         uint64_t spent;
         bool valid = elapsed(stamps[base + TS_FIRST_END], stamps[base + TS_FRAME], spent);
-        uint64_t left = valid && spent < goal ? goal - spent : 0ul;
+        uint64_t left = valid && spent + reserved < goal ? goal - spent - reserved : 0ul;
         uint64_t raw = uint64_t(u_min_budget);
         if (state[STATE_RATE_NS] != 0u) {
             raw = clamp64(uint64_t(state[STATE_RATE_POINTS]) * left / uint64_t(state[STATE_RATE_NS]), 0ul, 281474976710656ul);

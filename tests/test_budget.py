@@ -90,17 +90,21 @@ def test_split_ring_covers_each_slot_once(n):
         assert nxt == (offset + min(count, n)) % n
 
 
-def simulate(rate_per_ms, overhead_ms, target_ms, frames=300, first=100_000):
-    """GPU time = overhead + points / true rate; the first fill sees only part of the
-    overhead (as on a real GPU, where prepare and resolve come later)."""
+def simulate(rate_per_ms, overhead_ms, target_ms, frames=300, first=100_000, effects_ms=lambda frame: 0.0,
+             reserve=True):
+    """GPU time = overhead + points / true rate + the effects; a third of the overhead
+    comes before the fill, the rest and the effects after it (prepare, resolve, effects
+    on a real GPU), which the next frame sees as the previous frame's time after its fill
+    (reserve=False: the budget is not told)."""
     p = BudgetParams(target_ns=int(target_ms * MS), margin_q10=0, first_fill=first)
-    state, prev, times = BudgetState(), None, []
-    for _ in range(frames):
+    state, prev, prev_after, times = BudgetState(), None, None, []
+    for frame in range(frames):
         t_fill = int(overhead_ms / 3 * MS)
         t_first = t_fill + int(first / rate_per_ms * MS)
-        budget, state = step(0, t_fill, t_first, prev, first, state, p)
-        total = overhead_ms + (first + budget) / rate_per_ms
-        prev = int(total * MS)
+        budget, state = step(0, t_fill, t_first, prev, first, state, p, prev_after if reserve else None)
+        after = overhead_ms * 2 / 3 + effects_ms(frame)
+        total = overhead_ms / 3 + (first + budget) / rate_per_ms + after
+        prev, prev_after = int(total * MS), int(after * MS)
         times.append(total)
     return np.array(times), p
 
@@ -115,6 +119,37 @@ def test_converges_to_target_without_oscillation(rate, overhead):
     assert np.count_nonzero(errors) <= 2
 
 
+@pytest.mark.parametrize("share", [0.3, 0.6, 0.9])
+@pytest.mark.parametrize("rate,overhead", [(10_000, 2.0), (100_000, 6.0)])
+def test_effects_switched_on_hold_the_target_from_the_next_frame(rate, overhead, share):
+    """Eye-dome lighting and point size cost GPU time that does not grow with the fill
+    (here `share` of what the overhead and first fill leave of the target): switched on
+    at frame 100 the frame goes over once (it could not know), then no frame is over the
+    target by more than 0.5 ms and ten frames later all are within 0.5 ms of it. Switched
+    off at 200, the gain's reaction to the short frame overshoots by less than 1.5 ms and
+    settles as fast."""
+    first = 10_000
+    effects = share * (16.0 - overhead - first / rate)
+    on = range(100, 200)
+    times, p = simulate(rate, overhead, 16.0, first=first, effects_ms=lambda f: effects if f in on else 0.0)
+    assert times[100] > 16.0 + effects / 2
+    assert np.all(times[101:200] < 16.5) and np.all(np.abs(times[110:200] - 16.0) < 0.5), times[100:200]
+    assert np.all(times[201:] < 17.5) and np.all(np.abs(times[210:] - 16.0) < 0.5), times[200:]
+    without, _ = simulate(rate, overhead, 16.0, first=first, effects_ms=lambda f: effects if f in on else 0.0,
+                          reserve=False)
+    assert np.count_nonzero(without[101:200] > 16.5) > np.count_nonzero(times[101:200] > 16.5), \
+        "the gain alone absorbed the effects as fast: the reservation tests nothing"
+    _, state = step(0, 0, MS, 16 * MS, 1000, BudgetState(1000, MS), p, 13 * MS)
+    assert step(0, 0, MS, 16 * MS, 1000, BudgetState(1000, MS), p, 13 * MS)[0] == 2_000   # 16 - 1 - 13 ms at 1 pt/us
+    assert state.gain_q10 == GAIN_ONE
+
+
+def test_effects_longer_than_the_goal_leave_only_the_first_fill():
+    p = BudgetParams(target_ns=16 * MS, margin_q10=0, min_budget=0)
+    assert step(0, 0, MS, None, 1000, BudgetState(1000, MS), p, 20 * MS)[0] == 0
+    assert step(0, 0, MS, None, 1000, BudgetState(1000, MS), p, None)[0] == 15_000
+
+
 def test_grows_when_under_and_shrinks_when_over():
     p = BudgetParams(target_ns=16 * MS, margin_q10=0, first_fill=1000)
     state = BudgetState(rate_points=1000, rate_ns=MS)
@@ -126,13 +161,14 @@ def test_grows_when_under_and_shrinks_when_over():
 
 
 CASES = [
-    # t_frame, t_fill, t_first, prev_frame_start, prev_frame_end, first, state(rate_pts, rate_ns, gain)
-    (0, 2 * MS, 3 * MS, None, None, 1000, (0, 0, 1024)),
-    (10, 2 * MS, 2 * MS, 0, 20 * MS, 1000, (500, MS, 1024)),
-    (U64 - 100, 50, 7000, U64 - 30 * MS, U64 - 200, 70, (0, 0, 2000)),
-    (0, 5 * MS, 4 * MS, 0, 8 * MS, 1000, (3000, 2 * MS, 900)),
-    (123456789, 123456789 + 10**6, 123456789 + 25 * 10**6, 0, 9 * MS, 1_000_000, (0, 0, 1024)),
-    (0, 1, 2, 5, 4, 4_000_000_000, (7, 3, 8192)),
+    # t_frame, t_fill, t_first, prev_frame_start, prev_fill_end, prev_frame_end, first, state(rate_pts, rate_ns, gain)
+    (0, 2 * MS, 3 * MS, None, None, None, 1000, (0, 0, 1024)),
+    (10, 2 * MS, 2 * MS, 0, 12 * MS, 20 * MS, 1000, (500, MS, 1024)),
+    (U64 - 100, 50, 7000, U64 - 30 * MS, U64 - 10 * MS, U64 - 200, 70, (0, 0, 2000)),
+    (0, 5 * MS, 4 * MS, 0, 9 * MS, 8 * MS, 1000, (3000, 2 * MS, 900)),
+    (123456789, 123456789 + 10**6, 123456789 + 25 * 10**6, 0, 8 * MS, 9 * MS, 1_000_000, (0, 0, 1024)),
+    (0, MS, 2 * MS, 0, 4 * MS, 20 * MS, 1000, (1000, MS, 1024)),
+    (0, 1, 2, 5, 3, 4, 4_000_000_000, (7, 3, 8192)),
 ]
 
 
@@ -141,7 +177,7 @@ CASES = [
 def test_gpu_budget_equals_pure_function(gl, case, points):
     from progressive.passes.budget import TIMESTAMP_SLOTS, BudgetPass, Stamp, StateWord
 
-    t_frame, t_fill, t_first, prev_start, prev_end, first, (rp, rn, gain) = case
+    t_frame, t_fill, t_first, prev_start, prev_fill_end, prev_end, first, (rp, rn, gain) = case
     params = BudgetParams(target_ns=16_666_667, first_fill=first, min_budget=100, max_budget=50_000_000)
     batches = max(1, points // 10_240)
     bp = BudgetPass(gl, points, params, batches)
@@ -154,6 +190,7 @@ def test_gpu_budget_equals_pure_function(gl, case, points):
     stamps[[Stamp.FRAME, Stamp.FILL, Stamp.FIRST_END]] = [t_frame, t_fill, t_first]
     if prev_start is not None:
         stamps[TIMESTAMP_SLOTS + Stamp.FRAME] = prev_start
+        stamps[TIMESTAMP_SLOTS + Stamp.FILL_END] = prev_fill_end
         stamps[TIMESTAMP_SLOTS + Stamp.END] = prev_end
     bp.stamps.write(stamps.tobytes())
     bp.have_prev = prev_start is not None
@@ -162,7 +199,8 @@ def test_gpu_budget_equals_pure_function(gl, case, points):
     got = np.frombuffer(bp.state.read(), dtype=np.uint32)
     first_points = params.first(points)
     prev_ns = elapsed(prev_end, prev_start) if prev_start is not None else None
-    budget, state = step(t_frame, t_fill, t_first, prev_ns, first_points, BudgetState(rp, rn, gain), params)
+    after_ns = elapsed(prev_end, prev_fill_end) if prev_start is not None else None
+    budget, state = step(t_frame, t_fill, t_first, prev_ns, first_points, BudgetState(rp, rn, gain), params, after_ns)
     budget = frame_fill(budget, first_points, points)
     assert got[StateWord.BUDGET] == budget
     assert (got[StateWord.RATE_POINTS], got[StateWord.RATE_NS], got[StateWord.GAIN], got[StateWord.NEXT_FIRST]) == \
