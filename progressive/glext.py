@@ -3,13 +3,16 @@
 moderngl has no glQueryCounter, GL_QUERY_BUFFER or glClearBufferSubData; buffer
 clears must stay on the GPU (moderngl's Buffer.clear fills from the CPU). Nor has it
 GL_ARB_get_program_binary: ProgramFunctions builds and loads compute programs itself
-(progressive/programs.py)."""
+(progressive/programs.py). Nor GL_ARB_buffer_storage: BufferStorage makes the
+persistently mapped staging buffers uploads are packed into (passes/distribute.py)."""
 
 from __future__ import annotations
 
 import ctypes
 from collections.abc import Callable
 from dataclasses import dataclass
+
+import numpy as np
 
 GL_R32UI = 0x8236
 GL_RED_INTEGER = 0x8D94
@@ -37,6 +40,12 @@ GL_NUM_PROGRAM_BINARY_FORMATS = 0x87FE
 GL_DISPATCH_INDIRECT_BUFFER = 0x90EE
 GL_PROGRAM = 0x82E2
 GL_NO_ERROR = 0
+GL_MAP_WRITE_BIT = 0x0002
+GL_MAP_PERSISTENT_BIT = 0x0040
+GL_MAP_COHERENT_BIT = 0x0080
+GL_SHADER_STORAGE_BUFFER_OFFSET_ALIGNMENT = 0x90DF
+BUFFER_STORAGE_VERSION = 440
+"""GL_ARB_buffer_storage is core from OpenGL 4.4."""
 
 ProcLoader = Callable[[str], int]
 
@@ -80,6 +89,9 @@ class GLFunctions:
     use_program: Callable
     bind_vertex_array: Callable
     draw_arrays_indirect: Callable
+    storage: BufferStorage | None
+    """Persistently mapped buffers; None: uploads copy (a context built with storage=None
+    stands for a driver without GL_ARB_buffer_storage)."""
 
     @classmethod
     def load(cls, loader: ProcLoader) -> GLFunctions:
@@ -103,6 +115,7 @@ class GLFunctions:
             use_program=fn("glUseProgram", _u),
             bind_vertex_array=fn("glBindVertexArray", _u),
             draw_arrays_indirect=fn("glDrawArraysIndirect", _u, _vp),
+            storage=BufferStorage.load(loader),
         )
 
     def clear_u32(self, glo: int, value: int, offset: int = 0, size: int | None = None, *, total: int) -> None:
@@ -147,6 +160,66 @@ class GLFunctions:
 _cp = ctypes.c_char_p
 _uptr = ctypes.POINTER(_u)
 _ip = ctypes.POINTER(_i)
+
+
+@dataclass(frozen=True)
+class MappedBuffer:
+    """A buffer whose storage stays mapped for writing while the GPU reads it:
+    `words` is a numpy view on the mapping (valid until release)."""
+
+    glo: int
+    size: int
+    words: np.ndarray
+
+
+@dataclass(frozen=True)
+class BufferStorage:
+    """Immutable buffer storage, persistently mapped (GL_ARB_buffer_storage)."""
+
+    create_buffers: Callable
+    named_buffer_storage: Callable
+    map_named_buffer_range: Callable
+    unmap_named_buffer: Callable
+    delete_buffers: Callable
+
+    @classmethod
+    def load(cls, loader: ProcLoader) -> BufferStorage | None:
+        """None where an entry point is missing."""
+        try:
+            return cls(
+                create_buffers=_entry(loader, "glCreateBuffers", _i, _uptr),
+                named_buffer_storage=_entry(loader, "glNamedBufferStorage", _u, _iptr, _vp, _u),
+                map_named_buffer_range=_entry(loader, "glMapNamedBufferRange", _u, _iptr, _iptr, _u, restype=_vp),
+                unmap_named_buffer=_entry(loader, "glUnmapNamedBuffer", _u, restype=ctypes.c_ubyte),
+                delete_buffers=_entry(loader, "glDeleteBuffers", _i, _uptr),
+            )
+        except RuntimeError:
+            return None
+
+    @staticmethod
+    def offered(version_code: int, extensions: set[str]) -> bool:
+        """The context has buffer storage (loaders hand out entry points whatever the
+        context offers, so only the version and extensions tell)."""
+        return version_code >= BUFFER_STORAGE_VERSION or "GL_ARB_buffer_storage" in extensions
+
+    def mapped(self, size: int) -> MappedBuffer:
+        """`size` bytes (a multiple of 4), mapped persistent and coherent: what the CPU
+        writes is visible to GL commands issued after it, with no flush or copy."""
+        name = _u(0)
+        self.create_buffers(1, ctypes.byref(name))
+        flags = GL_MAP_WRITE_BIT | GL_MAP_PERSISTENT_BIT | GL_MAP_COHERENT_BIT
+        self.named_buffer_storage(name.value, size, None, flags)
+        address = self.map_named_buffer_range(name.value, 0, size, flags)
+        if not address:
+            self.delete_buffers(1, ctypes.byref(name))
+            raise RuntimeError(f"could not map a {size}-byte staging buffer")
+        words = np.ctypeslib.as_array(ctypes.cast(address, ctypes.POINTER(ctypes.c_uint32)), shape=(size // 4,))
+        return MappedBuffer(int(name.value), size, words)
+
+    def release(self, buffer: MappedBuffer) -> None:
+        name = _u(buffer.glo)
+        self.unmap_named_buffer(name)
+        self.delete_buffers(1, ctypes.byref(name))
 
 
 @dataclass(frozen=True)

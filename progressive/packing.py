@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from progressive.loaders.types import AttributeInfo, AttributeKind, Batch
+from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, nonfinite_records, nonfinite_rows
 
 RECORD_BYTES = 16
 ELEVATION = "elevation"
@@ -55,3 +55,37 @@ def pack_records(batch: Batch, attr: AttributeInfo, origin_z: float) -> np.ndarr
         out[bad, :3] = NAN_WORD
     return out
 
+
+
+def batch_words(batch: Batch, attr: AttributeInfo, origin_z: float) -> np.ndarray:
+    """Every point's attribute word as pack_records gives it, before non-finite values
+    hide their points (a fast-format batch's stored word)."""
+    return batch.records[:, 3] if batch.records is not None else attribute_word(batch, attr, origin_z)
+
+
+def pack_into(out: np.ndarray, batch: Batch, attr: AttributeInfo, words: np.ndarray, lo: int, hi: int) -> int:
+    """Records [lo, hi) of pack_records(batch, attr, ...) written straight into `out`
+    ((hi - lo, 4) uint32, e.g. a mapped staging slot: written once, never read back, as
+    reading mapped memory may be slow); `words` from batch_words. Returns how many of
+    them have non-finite coordinates (what shaders/common.glsl finite_position skips),
+    counted from the batch's own arrays."""
+    w = words[lo:hi]
+    if batch.records is not None:
+        src = batch.records[lo:hi]
+        out[...] = src
+        hidden = nonfinite_records(src)[0]
+        xyz = src[:, :3].view(np.float32)
+        hides = bool(batch.nonfinite_values.get(attr.name))
+    else:
+        xyz = np.ascontiguousarray(batch.positions[lo:hi], dtype=np.float32)
+        out[:, :3] = xyz.view(np.uint32)
+        out[:, 3] = w
+        hidden = nonfinite_rows(xyz)
+        hides = True
+    if attr.kind is not AttributeKind.SCALAR or not hides:
+        return hidden
+    bad = (w & EXPONENT) == EXPONENT
+    if not bad.any():
+        return hidden
+    out[bad, :3] = NAN_WORD
+    return int(np.count_nonzero(bad | ~np.isfinite(xyz).all(axis=1))) if hidden else int(np.count_nonzero(bad))

@@ -14,8 +14,8 @@ from progressive.camera import Returns
 from progressive.colors import DEFAULT_PALETTE, NO_RANGE, Colormap, ColorMode, ColorStyle, Palette
 from progressive.context import GLContext
 from progressive.errors import ProgressiveError
-from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, CloudInfo, nonfinite_records
-from progressive.packing import attribute_word, pack_records
+from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, CloudInfo
+from progressive.packing import attribute_word, batch_words, pack_into
 from progressive.passes.distribute import DistributePass
 from progressive.passes.percentile import PercentilePass
 from progressive.permutation import LAYOUT, FillOrder
@@ -85,9 +85,7 @@ class Scene:
 
     def add_batch(self, batch: Batch) -> None:
         t0 = time.perf_counter()
-        records = pack_records(batch, self.attribute, float(self.info.origin[2]))
-        self.skipped += nonfinite_records(records)[0]     # what shaders/common.glsl finite_position skips
-        self.distribute.upload(records, batch.start)
+        self.skipped += self._upload_records(batch, self.attribute)
         if self.store.has_classes:
             self.distribute.upload_classes(point_flags(batch), batch.start)
         self.store.add_boxes(batch.positions, batch.start)
@@ -95,6 +93,13 @@ class Scene:
             self.batches.append(batch)
         self.loaded += batch.count
         self.upload_seconds += time.perf_counter() - t0
+
+    def _upload_records(self, batch: Batch, attribute: AttributeInfo) -> int:
+        """Pack the batch's records straight into the distribute pass's staging memory
+        and scatter them; the points never drawn (non-finite coordinates or value)."""
+        words = batch_words(batch, attribute, float(self.info.origin[2]))
+        return self.distribute.upload_packed(lambda out, lo, hi: pack_into(out, batch, attribute, words, lo, hi),
+                                             batch.count, batch.start)
 
     def begin_switch(self, attribute: AttributeInfo) -> AttributeSwitch:
         """Show `attribute` from now on: batches loaded later are packed with it, and
@@ -125,10 +130,7 @@ class Scene:
         while not sw.done and (sw.next_batch == first or time.perf_counter() - t0 < seconds):
             batch = self.batches[sw.next_batch]
             if any(_hides_points(batch, a) for a in (*sw.previous, sw.attribute)):
-                records = pack_records(batch, sw.attribute, origin_z)
-                self.distribute.upload(records, batch.start)
-                words = records[:, 3]
-                self.skipped += nonfinite_records(records)[0]
+                self.skipped += self._upload_records(batch, sw.attribute)
                 sw.records += 1
             else:
                 words = attribute_word(batch, sw.attribute, origin_z)

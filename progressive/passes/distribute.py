@@ -1,25 +1,116 @@
-"""Distribute: staged batches scattered to their permuted slots (paper 3.1, 3.3)."""
+"""Distribute: staged batches scattered to their permuted slots (paper 3.1, 3.3).
+
+Batches are staged in a ring of persistently mapped slots (GL_ARB_buffer_storage):
+the CPU packs a piece straight into a free slot, the scatter reads it there, and a
+fence per slot tells, without waiting, when the GPU is done with it. So no upload
+waits for the GPU and no Python copy is made. Where the ring is missing (no buffer
+storage) or every slot is still being read, a piece is copied through an orphaned
+buffer, which never waits either."""
 
 from __future__ import annotations
+
+import enum
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
 from progressive import shaderlib
 from progressive.bindings import Binding
 from progressive.context import GLContext
+from progressive.glext import GL_SHADER_STORAGE_BUFFER_OFFSET_ALIGNMENT, BufferStorage
 from progressive.gpu import grid
 from progressive.loaders.types import BATCH_POINTS
 from progressive.packing import RECORD_BYTES
 from progressive.pointstore import PointStore
 
+RING_SLOTS = 4
+"""Pieces the GPU may still be reading while the CPU packs the next: a frame's batches
+and the one after (a piece finding its slot busy is copied instead)."""
+RECORD_WORDS = RECORD_BYTES // 4
+
+Fill = Callable[[np.ndarray, int, int], int]
+"""fill(out, lo, hi) writes items [lo, hi) into `out` ((hi - lo, width) uint32, maybe
+mapped memory: written, never read) and returns a count the caller sums (hidden points)."""
+
+
+class Staging(enum.Enum):
+    RING = "persistently mapped ring"
+    COPY = "orphaned buffer, copied"
+
+
+@dataclass
+class StagingStats:
+    ring: int = 0       # pieces packed straight into a ring slot
+    copied: int = 0     # pieces copied through the orphaned buffer (no ring, or every slot busy)
+
+
+class StagingRing:
+    """`slots` slots of `slot_bytes` in one persistently mapped, coherent buffer, used
+    in turn; a slot is handed out again only once the fence after its scatter has
+    signalled (glClientWaitSync with timeout 0: asking never blocks)."""
+
+    def __init__(self, glc: GLContext, storage: BufferStorage, slot_bytes: int, slots: int = RING_SLOTS):
+        align = max(RECORD_BYTES, glc.gl.integer(GL_SHADER_STORAGE_BUFFER_OFFSET_ALIGNMENT))
+        self.slot_bytes = -(-slot_bytes // align) * align
+        self.glc, self.storage = glc, storage
+        self.mapped = storage.mapped(self.slot_bytes * slots)
+        self.buffer = glc.ctx.external_buffer(self.mapped.glo, self.mapped.size)
+        self.fences: list[int | None] = [None] * slots
+        self.next = 0
+
+    @property
+    def slots(self) -> int:
+        return len(self.fences)
+
+    def acquire(self) -> int | None:
+        """The next slot if the GPU has finished reading it, else None (slots are read in
+        the order they are handed out, so the others are not free either)."""
+        k = self.next
+        fence = self.fences[k]
+        if fence is not None:
+            if not self.glc.gl.signaled(fence):
+                return None
+            self.glc.gl.delete_sync(fence)
+            self.fences[k] = None
+        self.next = (k + 1) % self.slots
+        return k
+
+    def view(self, slot: int, count: int, width: int) -> np.ndarray:
+        """(count, width) uint32 of the mapping at the slot's start."""
+        first = slot * self.slot_bytes // 4
+        return self.mapped.words[first: first + count * width].reshape(count, width)
+
+    def bind(self, slot: int, size: int) -> None:
+        self.buffer.bind_to_storage_buffer(Binding.DISTRIBUTE, offset=slot * self.slot_bytes, size=size)
+
+    def read(self, slot: int) -> None:
+        """The commands reading the slot are issued: fence them."""
+        self.fences[slot] = self.glc.gl.fence()
+
+    def release(self) -> None:
+        for fence in self.fences:
+            if fence is not None:
+                self.glc.gl.delete_sync(fence)
+        self.fences = [None] * self.slots
+        self.storage.release(self.mapped)     # the GPU keeps deleted storage until its commands finish
+
 
 class DistributePass:
-    def __init__(self, glc: GLContext, store: PointStore, batch_points: int = BATCH_POINTS):
+    def __init__(self, glc: GLContext, store: PointStore, batch_points: int = BATCH_POINTS,
+                 ring_slots: int = RING_SLOTS):
+        """ring_slots: staging slots of batch_points records each (where the context has
+        buffer storage; its GLFunctions.storage None stands for a driver without)."""
         self.glc = glc
         self.store = store
         self.batch_points = batch_points
-        self.stage = glc.ctx.buffer(reserve=batch_points * RECORD_BYTES)
-        self.stage.label = "distribute stage"
+        storage = glc.gl.storage
+        offered = storage is not None and BufferStorage.offered(glc.ctx.version_code, glc.ctx.extensions)
+        self.staging = Staging.RING if offered and ring_slots > 0 else Staging.COPY
+        self.ring = StagingRing(glc, storage, batch_points * RECORD_BYTES, ring_slots) \
+            if self.staging is Staging.RING else None
+        self._stage = None      # the copy path's buffer: made when first needed
+        self.stats = StagingStats()
         int64 = glc.caps.shader_int64
         defines = dict(store.defines, PERMUTE_INT64=1) if int64 else dict(store.defines)
         ext = ("GL_ARB_gpu_shader_int64",) if int64 else ()
@@ -30,21 +121,32 @@ class DistributePass:
         self.classes = self._build(0, "distribute classes", 1) if store.has_classes else None
         self.points_distributed = 0
 
+    @property
+    def stage(self):
+        if self._stage is None:
+            self._stage = self.glc.ctx.buffer(reserve=self.batch_points * RECORD_BYTES)
+            self._stage.label = "distribute stage"
+        return self._stage
+
     def upload(self, records: np.ndarray, start: int) -> None:
         """Scatter (n, 4) uint32 records whose first has file-order index `start`."""
-        self._scatter(self.records, np.ascontiguousarray(records, dtype=np.uint32), start)
+        self._scatter(self.records, _copy(records, RECORD_WORDS), records.shape[0], RECORD_WORDS, start)
+
+    def upload_packed(self, fill: Fill, count: int, start: int) -> int:
+        """Scatter `count` records that `fill` packs piece by piece straight into the
+        staging memory; the sum of what it returns."""
+        return self._scatter(self.records, fill, count, RECORD_WORDS, start)
 
     def upload_words(self, words: np.ndarray, start: int) -> None:
         """Replace only the attribute word of n points (attribute switching, paper 3.5)."""
         self.words = self.words or self._build(1, "distribute words")
-        self._scatter(self.words, np.ascontiguousarray(words, dtype=np.uint32), start)
+        self._scatter(self.words, _copy(words, 1), words.shape[0], 1, start)
 
     def upload_classes(self, codes: np.ndarray, start: int) -> None:
         """Set the class byte of n points (stores that keep classes)."""
-        self._scatter(self.classes, np.ascontiguousarray(codes, dtype=np.uint32), start)
+        self._scatter(self.classes, _copy(codes, 1), codes.shape[0], 1, start)
 
-    def _scatter(self, program, data: np.ndarray, start: int) -> None:
-        n = data.shape[0]
+    def _scatter(self, program, fill: Fill, n: int, width: int, start: int) -> int:
         if start < 0 or start + n > self.store.count:
             raise ValueError(f"batch [{start}, {start + n}) outside the cloud of {self.store.count} points")
         perm = self.store.permutation
@@ -53,18 +155,45 @@ class DistributePass:
         program["u_batches"] = perm.batches
         program["u_capacity"] = self.store.capacity
         self.store.bind()
-        self.stage.bind_to_storage_buffer(Binding.DISTRIBUTE)
-        for off in range(0, n, self.batch_points):
-            part = data[off: off + self.batch_points]
-            self.stage.orphan()   # fresh storage: no wait for the previous scatter to finish reading
-            self.stage.write(part.tobytes())
-            program["u_start"] = start + off
-            program["u_count"] = part.shape[0]
-            program.run(*grid(part.shape[0]))
+        total = 0
+        for lo in range(0, n, self.batch_points):
+            hi = min(n, lo + self.batch_points)
+            slot = self.ring.acquire() if self.ring is not None else None
+            if slot is not None:
+                total += fill(self.ring.view(slot, hi - lo, width), lo, hi)
+                self.ring.bind(slot, (hi - lo) * width * 4)
+                self.stats.ring += 1
+            else:
+                part = np.empty((hi - lo, width), dtype=np.uint32)
+                total += fill(part, lo, hi)
+                self.stage.orphan()   # fresh storage: no wait for the previous scatter to finish reading
+                self.stage.write(part)
+                self.stage.bind_to_storage_buffer(Binding.DISTRIBUTE)
+                self.stats.copied += 1
+            program["u_start"] = start + lo
+            program["u_count"] = hi - lo
+            program.run(*grid(hi - lo))
+            if slot is not None:
+                self.ring.read(slot)
             self.glc.ctx.memory_barrier()
         self.points_distributed += n
+        return total
 
     def release(self) -> None:
-        for obj in (self.stage, self.records, self.words, self.classes):
+        if self.ring is not None:
+            self.ring.release()
+            self.ring = None
+        for obj in (self._stage, self.records, self.words, self.classes):
             if obj is not None:
                 obj.release()
+
+
+def _copy(data: np.ndarray, width: int) -> Fill:
+    """A fill that copies rows of an array already made."""
+    rows = np.asarray(data, dtype=np.uint32).reshape(-1, width)
+
+    def fill(out: np.ndarray, lo: int, hi: int) -> int:
+        out[...] = rows[lo:hi]
+        return 0
+
+    return fill

@@ -1,0 +1,224 @@
+"""Uploads through the ring of persistently mapped staging slots: the store after a
+load equals the packed records (numpy's placement by the permutation) for whole,
+partial and memory-limited loads, through the ring and through the copy fallback;
+slots are handed out again only once their fence has signalled; packing straight
+into staging memory equals pack_records, hidden points included."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from progressive.attributes import default_attribute
+from progressive.glext import GL_ALREADY_SIGNALED
+from progressive.loaders.types import Batch, nonfinite_records
+from progressive.packing import batch_words, pack_into, pack_records
+from progressive.passes.distribute import DistributePass, Staging
+from progressive.pointstore import EMPTY_WORD
+from progressive.scene import Scene, point_flags
+
+GL_TIMEOUT_EXPIRED = 0x911B
+
+
+def without_storage(gl):
+    """The context as a driver without GL_ARB_buffer_storage offers it."""
+    return dataclasses.replace(gl, gl=dataclasses.replace(gl.gl, storage=None))
+
+
+def expected_store(scene: Scene, batches: list[Batch]) -> np.ndarray:
+    """The store in slot order as numpy places pack_records' rows: slot = forward(file index)."""
+    out = np.full((scene.store.capacity, 4), EMPTY_WORD, dtype=np.uint32)
+    for b in batches:
+        rec = pack_records(dataclasses.replace(b, records=None if b.records is None else b.records.copy()),
+                           scene.attribute, float(scene.info.origin[2]))
+        slots = scene.store.permutation.forward(np.arange(b.start, b.start + b.count))
+        keep = slots < scene.store.capacity
+        out[slots[keep]] = rec[keep]
+    return out
+
+
+def expected_flags(scene: Scene, batches: list[Batch]) -> np.ndarray:
+    out = np.zeros(scene.store.capacity, dtype=np.uint16)
+    for b in batches:
+        slots = scene.store.permutation.forward(np.arange(b.start, b.start + b.count))
+        keep = slots < scene.store.capacity
+        out[slots[keep]] = point_flags(b)[keep]
+    return out
+
+
+def hidden(scene: Scene, batches: list[Batch]) -> int:
+    return sum(nonfinite_records(pack_records(dataclasses.replace(b, records=None if b.records is None
+                                                                  else b.records.copy()),
+                                              scene.attribute, float(scene.info.origin[2])))[0] for b in batches)
+
+
+def hostile(batches: list[Batch], info, every: int = 97) -> list[Batch]:
+    """The batches with some coordinates and intensities NaN or infinite (overlapping)."""
+    out = []
+    for b in batches:
+        pos = b.positions.copy()
+        pos[::every, 1] = np.nan
+        values = b.attributes["intensity"].astype(np.float64)
+        values[3::every // 2] = np.inf
+        values[::every * 3] = np.nan
+        out.append(dataclasses.replace(b, positions=pos, attributes={**b.attributes, "intensity": values},
+                                       nonfinite_positions=int(np.count_nonzero(np.isnan(pos[:, 1]))),
+                                       nonfinite_values={"intensity": int(np.count_nonzero(~np.isfinite(values)))}))
+    return out
+
+
+def fast(batches: list[Batch], info, attribute) -> list[Batch]:
+    """The same points as fast-format batches: records as stored (scalars not yet hidden)."""
+    origin_z = float(info.origin[2])
+    out = []
+    for b in batches:
+        rec = np.empty((b.count, 4), dtype=np.uint32)
+        rec[:, :3] = b.positions.view(np.uint32)
+        rec[:, 3] = batch_words(b, attribute, origin_z)
+        out.append(dataclasses.replace(b, attributes={}, records=rec))
+    return out
+
+
+@pytest.mark.parametrize("staging", list(Staging))
+@pytest.mark.parametrize("load", ["whole", "partial", "limited"])
+def test_store_equals_packed_records(gl, sample_batches, staging, load):
+    info, batches = sample_batches
+    ctx = gl if staging is Staging.RING else without_storage(gl)
+    capacity = 45_000 if load == "limited" else None
+    loaded = batches[:3] if load == "partial" else batches
+    scene = Scene(ctx, info, default_attribute(info), capacity=capacity, class_filter=True)
+    assert scene.distribute.staging is staging
+    for b in loaded:
+        scene.add_batch(b)
+    gl.check()
+    assert np.array_equal(scene.store.read_records(), expected_store(scene, loaded))
+    flags = np.frombuffer(scene.store.class_buffer.read(), dtype=np.uint16)[: scene.store.capacity]
+    assert np.array_equal(flags, expected_flags(scene, loaded))
+    stats = scene.distribute.stats
+    pieces = 2 * len(loaded)        # records and flags, one piece each
+    assert (stats.ring, stats.copied) == ((pieces, 0) if staging is Staging.RING else (0, pieces))
+    scene.release()
+
+
+@pytest.mark.parametrize("staging", list(Staging))
+@pytest.mark.parametrize("source", ["las", "fast"])
+def test_hidden_points_through_staging(gl, sample_batches, staging, source):
+    """Non-finite coordinates and shown values: the same records and the same count of
+    points never drawn as pack_records and nonfinite_records give."""
+    info, batches = sample_batches
+    attribute = info.attribute("intensity")
+    bad = hostile(batches, info)
+    loaded = fast(bad, info, attribute) if source == "fast" else bad
+    scene = Scene(gl if staging is Staging.RING else without_storage(gl), info, attribute)
+    for b in loaded:
+        scene.add_batch(b)
+    assert np.array_equal(scene.store.read_records(), expected_store(scene, loaded))
+    assert scene.skipped == hidden(scene, loaded) > 0
+    scene.release()
+
+
+@pytest.mark.parametrize("source", ["las", "fast"])
+def test_pack_into_pieces_equals_pack_records(sample_batches, source):
+    info, batches = sample_batches
+    attribute = info.attribute("intensity")
+    b = hostile(batches, info, every=13)[1]
+    b = fast([b], info, attribute)[0] if source == "fast" else b
+    reference = pack_records(dataclasses.replace(b, records=None if b.records is None else b.records.copy()),
+                             attribute, float(info.origin[2]))
+    words = batch_words(b, attribute, float(info.origin[2]))
+    out = np.zeros((b.count, 4), dtype=np.uint32)
+    edges = [0, 1, 777, 5000, b.count]
+    count = sum(pack_into(out[lo:hi], b, attribute, words, lo, hi) for lo, hi in zip(edges, edges[1:]))
+    assert np.array_equal(out, reference)
+    assert count == nonfinite_records(reference)[0] > 0
+
+
+class Fences:
+    """Fences that signal only when the test says (after glFinish, so the GPU truly is
+    done): glClientWaitSync with timeout 0 reports them pending until then."""
+
+    def __init__(self):
+        self.made, self.signalled, self.deleted = 0, set(), set()
+
+    def fence_sync(self, condition, flags):
+        self.made += 1
+        return self.made
+
+    def client_wait_sync(self, sync, flags, timeout):
+        assert timeout == 0, "the ring must never block"
+        return GL_ALREADY_SIGNALED if sync in self.signalled else GL_TIMEOUT_EXPIRED
+
+    def delete_sync(self, sync):
+        self.deleted.add(sync)
+
+
+def small_ring(ctx, info, attribute, piece: int, slots: int) -> Scene:
+    scene = Scene(ctx, info, attribute)
+    scene.distribute.release()
+    scene.distribute = DistributePass(ctx, scene.store, batch_points=piece, ring_slots=slots)
+    return scene
+
+
+def test_slots_reused_only_after_their_fence(gl, sample_batches):
+    """Many batches through a ring of 3 slots: each piece goes to the next slot in turn
+    if that slot's last fence has signalled, else it is copied; never to a busy slot."""
+    info, batches = sample_batches
+    fences = Fences()
+    ctx = dataclasses.replace(gl, gl=dataclasses.replace(gl.gl, fence_sync=fences.fence_sync,
+                                                         client_wait_sync=fences.client_wait_sync,
+                                                         delete_sync=fences.delete_sync))
+    scene = small_ring(ctx, info, default_attribute(info), piece=7_000, slots=3)
+    ring = scene.distribute.ring
+    written, last, view, read = [], {}, ring.view, ring.read
+
+    def spied_view(slot, count, width):
+        assert last.get(slot) in (None, *fences.signalled), f"slot {slot} handed out before its fence signalled"
+        written.append(slot)
+        return view(slot, count, width)
+
+    def spied_read(slot):
+        read(slot)
+        last[slot] = ring.fences[slot]
+
+    ring.view, ring.read = spied_view, spied_read
+    rng = np.random.default_rng(5)
+    pieces = 0
+    for b in batches * 3:
+        scene.add_batch(b)
+        pieces += -(-b.count // 7_000)
+        if rng.random() < 0.6:          # the GPU catches up on some batches, not on others
+            gl.ctx.finish()
+            fences.signalled.update(f for f in ring.fences if f is not None)
+    assert written == [k % 3 for k in range(len(written))], "slots are used in turn"
+    stats = scene.distribute.stats
+    assert stats.ring == len(written) > 3 * 3 and stats.copied > 0 and stats.ring + stats.copied == pieces
+    assert fences.deleted == set(range(1, fences.made + 1)) - {f for f in ring.fences if f is not None}
+    assert np.array_equal(scene.store.read_records(), expected_store(scene, batches))
+    scene.release()
+
+
+def test_real_fences_free_every_slot(gl, sample_batches):
+    """With the GPU's own fences, and the GPU finished between batches, every piece of
+    every batch goes through the ring (wrapping around it many times)."""
+    info, batches = sample_batches
+    scene = small_ring(gl, info, default_attribute(info), piece=8_192, slots=3)
+    for b in batches:
+        scene.add_batch(b)
+        gl.ctx.finish()
+    pieces = sum(-(-b.count // 8_192) for b in batches)
+    assert scene.distribute.stats.ring == pieces > 3 and scene.distribute.stats.copied == 0
+    assert np.array_equal(scene.store.read_records(), expected_store(scene, batches))
+    scene.release()
+
+
+def test_no_ring_slots_is_the_copy_path(gl, sample_batches):
+    info, batches = sample_batches
+    scene = small_ring(gl, info, default_attribute(info), piece=20_000, slots=0)
+    assert scene.distribute.staging is Staging.COPY and scene.distribute.ring is None
+    for b in batches:
+        scene.add_batch(b)
+    assert np.array_equal(scene.store.read_records(), expected_store(scene, batches))
+    scene.release()
+
