@@ -204,10 +204,7 @@ class CloudLoader(BatchQueue):
         if batch_points < 1 or parser_threads < 1:
             raise ValueError("batch_points and parser_threads must be at least 1")
         self.info, self._sources = open_sources(paths, partial=partial, point_budget=point_budget)
-        known = tuple(a.name for a in self.info.attributes)
-        if unknown := sorted(set(attributes or ()) - set(known)):
-            raise ValueError(f"the cloud has no attribute {', '.join(unknown)}")
-        self.attributes = known if attributes is None else tuple(n for n in known if n in attributes)
+        self.attributes = self._chosen(attributes)
         check_addressable(self.info.files[-1].path, self.info.points)
         self.batch_points = batch_points
         self.parser_threads = parser_threads
@@ -222,6 +219,19 @@ class CloudLoader(BatchQueue):
         self._stop = threading.Event()
         self._error: InputError | None = None
         self._threads: list[threading.Thread] = []
+
+    def _chosen(self, attributes: tuple[str, ...] | None) -> tuple[str, ...]:
+        known = tuple(a.name for a in self.info.attributes)
+        if unknown := sorted(set(attributes or ()) - set(known)):
+            raise ValueError(f"the cloud has no attribute {', '.join(unknown)}")
+        return known if attributes is None else tuple(n for n in known if n in attributes)
+
+    def keep_only(self, attributes: tuple[str, ...]) -> None:
+        """Before start(): batches carry only these attributes (as `attributes` at
+        construction), once the caller knows from `info` what it will show."""
+        if self._threads:
+            raise RuntimeError("keep_only() after the loader started")
+        self.attributes = self._chosen(attributes)
 
     @property
     def total(self) -> int:

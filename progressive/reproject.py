@@ -205,6 +205,13 @@ class ReprojectingLoader(BatchQueue):
     def warnings(self) -> list[str]:
         return [w for loader in self._loaders for w in loader.warnings]
 
+    def keep_only(self, attributes: tuple[str, ...]) -> None:
+        """Before start(): batches carry only these attributes (CloudLoader.keep_only)."""
+        if self._thread is not None:
+            raise RuntimeError("keep_only() after the loader started")
+        for loader in self._loaders:
+            loader.keep_only(attributes)
+
     def start(self) -> ReprojectingLoader:
         """The files load in turn on one thread that reprojects as they come (pyproj
         releases the GIL), so a render loop polling batches does not wait for it."""

@@ -28,7 +28,7 @@ from progressive.effects import Effects
 from progressive.frame_loop import FrameStats, ProgressiveOptions, ProgressiveRenderer
 from progressive.loaders.crs import file_crs
 from progressive.loaders.lookup import read_record
-from progressive.loaders.types import AttributeKind
+from progressive.loaders.types import AttributeInfo, AttributeKind
 from progressive.packing import attribute_word
 from progressive.passes.visibility import EMPTY
 from progressive.pointstore import CLASS_BYTES, GPUMemoryError
@@ -97,6 +97,8 @@ class SessionOptions:
 
 class Session:
     def __init__(self, paths, options: SessionOptions = SessionOptions(), glc: GLContext | None = None):
+        """With `color_by` and not `switchable`, the loader reads only what is shown and
+        what the filters test, so a LAZ of point formats 6-10 decodes only those layers."""
         self.options = options
         self.opened = time.perf_counter()
         self.target = target_crs(options.reproject) if options.reproject else None
@@ -114,10 +116,13 @@ class Session:
         try:
             self.info = self.loader.info
             self.geography = Geography(self.info, self.target)
-            self.loader.start()
             if options.color_by:
                 self.attribute = find_attribute(self.info, options.color_by)
+                if not options.switchable:
+                    self.loader.keep_only(self._needed(self.attribute, options.class_filter))
+                self.loader.start()
             else:
+                self.loader.start()
                 self._early = self._first_batches()
                 self.attribute, note = default_choice(self.info, self._early[0] if self._early else None)
                 self._notes += [note] if note else []
@@ -163,6 +168,13 @@ class Session:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+    def _needed(self, attribute: AttributeInfo, class_filter: bool) -> tuple[str, ...]:
+        """The attributes batches must carry: the shown one, and the class and return
+        numbers where the filters test them."""
+        filters = (CLASSIFICATION, "return_number", "number_of_returns") if class_filter else ()
+        known = {a.name for a in self.info.attributes}
+        return (attribute.name, *(n for n in filters if n in known))
 
     @property
     def progressive(self) -> bool:

@@ -139,3 +139,26 @@ def test_resolve_colours_rgb_from_the_file(gl):
     assert np.array_equal(frame.image[hit][:, :3], rgb8[frame.ids[hit]].astype(np.uint8))
     assert np.all(frame.image[~hit][:, :3] == (1, 2, 3))
     r.release()
+
+
+@pytest.mark.parametrize("name, color_by, hide", [("lone-star.copc.laz", "intensity", False),
+                                                   ("lone-star.copc.laz", "gps_time", True),
+                                                   ("autzen_trim.las", "intensity", True)])
+def test_a_session_colouring_by_one_attribute_reads_only_it(gl, name, color_by, hide):
+    """With color_by and not switchable the loader keeps the shown attribute (and the
+    class and returns where filters need them); the image and ids equal those of a
+    session that reads every attribute."""
+    from progressive.session import Method, Session, SessionOptions
+
+    path = SAMPLE if name == "autzen_trim.las" else shared_file(name)
+    shown = {}
+    for switchable in (False, True):
+        options = SessionOptions(width=W, height=H, color_by=color_by, switchable=switchable, class_filter=hide,
+                                 method=Method.BRUTE)
+        with Session([str(path)], options, glc=gl) as s:
+            wanted = {color_by, *(("classification", "return_number", "number_of_returns") if hide else ())}
+            assert (set(s.loader.attributes) <= wanted) != switchable
+            s.frame(s.auto_camera(), hidden=frozenset({2}) if hide else frozenset())
+            shown[switchable] = (s.ids().copy(), s.image().copy())
+    assert np.array_equal(shown[False][0], shown[True][0]) and (shown[False][0] != EMPTY).any()
+    assert np.array_equal(shown[False][1], shown[True][1])
