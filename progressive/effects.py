@@ -38,3 +38,10 @@ def footprint(point_size: int) -> tuple[int, float]:
         return 0, 0.0
     radius2 = (point_size / 2.0) ** 2
     return int(math.floor(math.sqrt(radius2))), radius2
+
+
+def footprint_pixels(point_size: int) -> int:
+    """Pixels a point of this size covers (the disc of footprint())."""
+    reach, radius2 = footprint(point_size)
+    d = range(-reach, reach + 1)
+    return sum(1 for dx in d for dy in d if dx * dx + dy * dy <= radius2)

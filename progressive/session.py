@@ -407,6 +407,17 @@ class Session:
     def ids(self) -> np.ndarray:
         return self.renderer.read_ids() if self.progressive else self._last.ids
 
+    def covered(self) -> np.ndarray:
+        """(H, W) bool: pixels the last frame drew a point in, before the point-size pass."""
+        slots = self.renderer.read_slots() if self.progressive else self._last.slots
+        return slots != EMPTY
+
+    def effect_cost_ms(self, effects: Effects, repeats: int = 3) -> dict[str, float]:
+        """GPU milliseconds of each screen-space pass `effects` asks for ("dilate",
+        "eye_dome") at the current size, on the last frame; the image shown stays. Blocks."""
+        words = self.renderer.prepare.pixel_words if self.progressive else None
+        return self.renderer.shading.cost_ms(effects, words, repeats)
+
     @property
     def last_frame(self) -> Frame | None:
         return self._last

@@ -28,9 +28,7 @@ class Shading:
         passes = []
         self.shown = self.vis
         if effects.point_size > 1:
-            if self.dilate is None:
-                self.dilate = DilatePass(self.glc, pixel_words=self.pixel_words)
-                self.dilated = VisibilityBuffer(self.glc, self.vis.width, self.vis.height, label="dilated visibility")
+            self._make_dilate()
             self.dilated.resize(self.vis.width, self.vis.height)
             self.dilate.run(self.vis, self.dilated, effects.point_size, words)
             self.shown = self.dilated
@@ -43,6 +41,39 @@ class Shading:
             self.eye_dome.run(self.shown, self.resolve.image, effects.eye_dome)
             passes.append("eye_dome")
         return passes
+
+    def _make_dilate(self) -> None:
+        if self.dilate is None:
+            self.dilate = DilatePass(self.glc, pixel_words=self.pixel_words)
+            self.dilated = VisibilityBuffer(self.glc, self.vis.width, self.vis.height, label="dilated visibility")
+
+    def cost_ms(self, effects: Effects, words=None, repeats: int = 3) -> dict[str, float]:
+        """GPU milliseconds of each effect pass `effects` asks for ("dilate", "eye_dome"),
+        timed on the last frame's visibility at its size into scratch buffers, so the
+        shown image and buffers stay as they are. Blocks on the GPU: for a probe, not a frame."""
+        from progressive.timing import Timestamps
+
+        vis, out = self.vis, {}
+        stamps = Timestamps(self.glc, capacity=4)
+        scratch = VisibilityBuffer(self.glc, vis.width, vis.height, label="probe visibility")
+        image = self.glc.ctx.buffer(reserve=vis.pixels * 4)
+        try:
+            stamps.stamp("start")
+            if effects.point_size > 1:
+                self._make_dilate()
+                for _ in range(repeats):
+                    self.dilate.run(vis, scratch, effects.point_size, words)
+                stamps.stamp("dilate")
+            if effects.eye_dome is not None:
+                self.eye_dome = self.eye_dome or EyeDomePass(self.glc)
+                for _ in range(repeats):
+                    self.eye_dome.run(vis, image, effects.eye_dome)
+                stamps.stamp("eye_dome")
+            out = {name: ms / repeats for name, ms in stamps.durations_ms().items()}
+        finally:
+            for obj in (stamps, scratch, image):
+                obj.release()
+        return out
 
     def read(self):
         """(H, W, 4) uint8 RGBA of the last run, row 0 at the top."""

@@ -56,7 +56,7 @@ def display():
 def viewer(display, tmp_path):
     from progressive.viewer.app import Viewer, ViewerOptions
 
-    v = Viewer([str(SAMPLE)], ViewerOptions(SessionOptions(width=W, height=H), screenshot_dir=tmp_path))
+    v = Viewer([str(SAMPLE)], ViewerOptions(SessionOptions(width=W, height=H), screenshot_dir=tmp_path, automatic=False))
     yield v
     v.close()
 
@@ -630,10 +630,13 @@ def test_section_along_the_measured_line_and_its_profile_view(viewer):
     no_gl_error(viewer)
 
 
-def open_viewer(paths, width=W, height=H, **session):
+def open_viewer(paths, width=W, height=H, automatic=False, **session):
+    """automatic: the point size and eye-dome lighting rules choose (the cases that
+    compare exact 1-pixel images leave them off)."""
     from progressive.viewer.app import Viewer, ViewerOptions
 
-    return Viewer([str(p) for p in paths], ViewerOptions(SessionOptions(width=width, height=height, **session)))
+    return Viewer([str(p) for p in paths], ViewerOptions(SessionOptions(width=width, height=height, **session),
+                                                         automatic=automatic))
 
 
 def corners(lo, hi) -> np.ndarray:
@@ -882,5 +885,86 @@ def test_files_in_two_crs_refused_then_reprojected(display, two_crs_files):
         lines = v.panel.picked_lines
         assert any(line.startswith("in the file: ") for line in lines) and f"CRS: {p['crs']}" in lines
         no_gl_error(v)
+    finally:
+        v.close()
+
+
+def projected_coverage(v) -> np.ndarray:
+    """(H, W) bool: pixels a laspy point of the sample projects into (float64, the
+    camera's own projection), the independent 1-pixel coverage of the view."""
+    las = laspy.read(SAMPLE)
+    w, h = v.session.size
+    xy, depth = screen_points(v.camera, np.stack([las.x, las.y, las.z], axis=1), w, h)
+    ok = (depth > 0) & np.isfinite(xy).all(axis=1)
+    col, row = np.floor(xy[ok]).astype(np.int64).T
+    inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
+    mask = np.zeros((h, w), bool)
+    mask[row[inside], col[inside]] = True
+    return mask
+
+
+def test_default_point_size_and_lighting_follow_their_rules_and_say_why(display):
+    """With nothing asked for, the converged sample gets the point size viewer/defaults.py
+    derives from the laspy points' coverage of the view, eye-dome lighting off for RGB
+    and, coloured by elevation, on exactly when its measured cost fits its share of the
+    frame goal; the panel gives each reason. A key press makes it the user's choice,
+    which a new view keeps; the panel's button gives it back to the rules."""
+    from progressive.viewer import defaults
+
+    v = open_viewer([SAMPLE], 640, 360, automatic=True)
+    try:
+        settle(v)
+        v.step()
+        reference = projected_coverage(v)
+        covered = v.session.covered()
+        assert (covered != reference).mean() < 0.002          # the GPU's coverage is the view's
+        expected = defaults.point_size(reference)
+        assert v.settings.point_size == expected.value == defaults.point_size(covered).value
+        assert 1 < v.settings.point_size <= defaults.AUTO_POINT_SIZE_MAX  # the sample is sparse at 1 px
+        assert not v.settings.eye_dome and v.eye_dome_cost is None
+        assert v.panel.effect_lines[0] == v.point_size_choice.reason and f"point size {expected.value}:" in \
+            v.panel.effect_lines[0]
+        assert "RGB" in v.panel.effect_lines[1]
+        v.switch_attribute("elevation")
+        settle(v)
+        v.step()
+        (size, cost) = v.eye_dome_cost
+        assert size == (640, 360) and cost > 0
+        goal = v.goal_ms
+        assert goal == pytest.approx(1e3 / v.settings.target_fps * (1024 - 154) / 1024, rel=1e-6)
+        assert v.settings.eye_dome == (cost <= defaults.EFFECT_SHARE * goal)
+        assert f"{cost:.1f} ms" in v.panel.effect_lines[1]
+        # the user's choice stays through a new view
+        was = v.settings.eye_dome
+        v.act(Action.EYE_DOME)
+        v.act(Action.POINT_BIGGER)
+        chosen = v.settings.point_size
+        v.orbit = v.navigator.orbit(v.orbit, 30, -10)
+        settle(v)
+        v.step()
+        assert v.settings.eye_dome == (not was) and v.settings.point_size == chosen
+        assert v.panel.effect_lines[0].startswith(f"point size {chosen}: your choice")
+        assert v.panel.effect_lines[1].startswith("eye-dome lighting " + ("off" if was else "on") + ": your choice")
+        v.automatic_effects()
+        settle(v)
+        v.step()
+        assert v.settings.point_size == defaults.point_size(projected_coverage(v)).value
+        assert v.settings.eye_dome == was
+        no_gl_error(v)
+    finally:
+        v.close()
+
+
+def test_options_given_are_not_overridden(display):
+    """--point-size 3 and --eye-dome (ViewerOptions.effects) stay what they are."""
+    from progressive.effects import Effects, EyeDome
+    from progressive.viewer.app import Viewer, ViewerOptions
+
+    v = Viewer([str(SAMPLE)], ViewerOptions(SessionOptions(width=W, height=H), effects=Effects(3, EyeDome())))
+    try:
+        settle(v)
+        v.step()
+        assert (v.settings.point_size, v.settings.eye_dome) == (3, True)
+        assert "your choice" in v.panel.effect_lines[0] and "your choice" in v.panel.effect_lines[1]
     finally:
         v.close()

@@ -18,11 +18,12 @@ from progressive.colors import Colormap
 from progressive.context import Backend, GLContext, create_context
 from progressive.effects import Effects, EyeDome
 from progressive.errors import ProgressiveError
+from progressive.loaders.types import AttributeKind
 from progressive.measure import Measurement
 from progressive.output import write_png
 from progressive.passes.present import PresentPass
 from progressive.session import Session, SessionOptions
-from progressive.viewer import clipbox
+from progressive.viewer import clipbox, defaults
 from progressive.viewer.controls import SECTION_WIDTH_SHARE, VIEW_ACTIONS, Action, BudgetMode, ViewSettings, cycle
 from progressive.viewer.navigation import Navigator, Orbit
 
@@ -56,6 +57,7 @@ FLY_KEYS: dict[int, tuple[float, float, float]] = {
 class ViewerOptions:
     session: SessionOptions = SessionOptions()   # size, colouring, loading, memory (size: the window's first)
     effects: Effects = Effects()        # the first point size and eye-dome lighting
+    automatic: bool = True              # a point size of 1 and no eye-dome lighting here: viewer/defaults.py chooses
     hidden_classes: frozenset[int] = frozenset()
     clip: Clip = NO_CLIP                # the first clip box (file coordinates)
     returns: Returns = Returns.ALL      # the first return filter
@@ -108,6 +110,15 @@ class Viewer:
         edl = options.effects.eye_dome
         self.settings = ViewSettings(target_fps=display_refresh_hz(), point_size=options.effects.point_size,
                                      eye_dome=edl is not None, eye_dome_params=edl or EyeDome())
+        # the rules of viewer/defaults.py choose what the options leave at its default,
+        # until the user changes it (keys, panel); each choice keeps its reason
+        self.auto_point_size = options.automatic and options.effects.point_size == 1
+        self.auto_eye_dome = options.automatic and edl is None
+        self.point_size_choice: defaults.Choice | None = None
+        self.eye_dome_choice: defaults.Choice | None = None
+        self.eye_dome_cost: tuple[tuple[int, int], float] | None = None   # (size, ms) measured
+        self._applied = (self.settings.point_size, self.settings.eye_dome)
+        self._defaults_key: tuple | None = None
         self.session: Session | None = None
         self.paths: list[str] = []
         self.navigator: Navigator | None = None
@@ -158,6 +169,7 @@ class Viewer:
         self.navigator = Navigator.for_bounds(session.info.bounds_min, session.info.bounds_max, width / height)
         self.orbit, self.pasted = self.navigator.framed((width, height), self.free_area), None
         self._colormaps, self._histogram = {}, None
+        self._defaults_key, self.eye_dome_cost = None, None
         self.settings = replace(self.settings, attribute=session.attribute.name, value_range=None,
                                 colormap=options.colormap,
                                 hidden_classes=self.options.hidden_classes if not add else frozenset(),
@@ -386,6 +398,7 @@ class Viewer:
             if size != self.session.size:
                 self.session.resize(*size)
             self._frame()
+            self.choose_defaults()
             self.present.run(self.session.image_buffer, self.session.size, size)
         else:
             self.glc.ctx.screen.use()
@@ -404,6 +417,42 @@ class Viewer:
         except ProgressiveError as exc:
             self.fail(f"{exc} (showing the {s.status().loaded:,} points read before)")
             s.stop_loading()
+
+    @property
+    def goal_ms(self) -> float:
+        """The adaptive budget's frame goal at the target rate (the effects' yardstick)."""
+        return BudgetParams(target_ns=int(1e9 / self.settings.target_fps)).goal_ns / 1e6
+
+    def automatic_effects(self) -> None:
+        """Point size and eye-dome lighting back to the rules' choices (the panel's button)."""
+        self.auto_point_size = self.auto_eye_dome = True
+        self._applied, self._defaults_key = (self.settings.point_size, self.settings.eye_dome), None
+
+    def choose_defaults(self) -> None:
+        """Once a view has converged, apply the rules of viewer/defaults.py to what the
+        user has not changed: point size from the 1-pixel coverage, eye-dome lighting from
+        the colouring and its measured cost at this size (measured once a size)."""
+        s, v = self.session, self.settings
+        if v.point_size != self._applied[0]:
+            self.auto_point_size = False
+        if v.eye_dome != self._applied[1]:
+            self.auto_eye_dome = False
+        if s is None or not (self.auto_point_size or self.auto_eye_dome) or not s.converged:
+            return
+        key = (self.camera, s.size, s.attribute.name, v.clip, v.hidden_classes, v.returns, v.target_fps)
+        if key == self._defaults_key:
+            return
+        self._defaults_key = key
+        if self.auto_point_size:
+            self.point_size_choice = defaults.point_size(s.covered())
+            v = replace(v, point_size=int(self.point_size_choice.value))
+        if self.auto_eye_dome:
+            rgb = s.attribute.kind is AttributeKind.RGB
+            if not rgb and (self.eye_dome_cost is None or self.eye_dome_cost[0] != s.size):
+                self.eye_dome_cost = (s.size, s.effect_cost_ms(Effects(1, v.eye_dome_params))["eye_dome"])
+            self.eye_dome_choice = defaults.eye_dome(rgb, None if rgb else self.eye_dome_cost[1], self.goal_ms)
+            v = replace(v, eye_dome=bool(self.eye_dome_choice.value))
+        self.settings, self._applied = v, (v.point_size, v.eye_dome)
 
     def run(self) -> None:
         while self.running:

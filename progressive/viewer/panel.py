@@ -58,6 +58,7 @@ class Panel:
         self.histogram: np.ndarray | None = None                  # the counts the last frame's histogram drew
         self.legend: list[tuple[int, str, tuple[int, int, int]]] = []   # the classes it listed
         self.picked_lines: list[str] = []                         # the picked point's lines
+        self.effect_lines: tuple[str, str] = ("", "")             # why this point size, why EDL on/off
         self.gizmo: dict[str, tuple[float, float]] = {}           # axis -> screen end (framebuffer pixels)
         self.gizmo_centre: tuple[float, float] = (0.0, 0.0)
         self.scale_bar: tuple[float, float, str] | None = None    # length, pixels, label
@@ -229,9 +230,14 @@ class Panel:
         changed, size = imgui.slider_int("point size (+ -)", v.settings.point_size, 1, MAX_POINT_SIZE)
         if changed:
             v.settings = replace(v.settings, point_size=size)
+        self.effect_lines = effect_lines(v)
+        imgui.text_wrapped(self.effect_lines[0])
         changed, on = imgui.checkbox("eye-dome lighting (E)", v.settings.eye_dome)
         if changed:
             v.settings = replace(v.settings, eye_dome=on)
+        imgui.text_wrapped(self.effect_lines[1])
+        if not (v.auto_point_size and v.auto_eye_dome) and imgui.button("automatic point size and lighting"):
+            v.automatic_effects()
         if v.settings.eye_dome:
             p = v.settings.eye_dome_params
             c1, strength = imgui.slider_float("strength", p.strength, 0.0, 5.0)
@@ -412,6 +418,7 @@ class Panel:
         measured = next((h for h in reversed(history) if h.gpu_ms), None)
         if measured is not None:
             imgui.text("GPU ms: " + "  ".join(f"{k} {measured.gpu_ms[k]:.2f}" for k in PASSES))
+            imgui.text("(resolve includes point size and eye-dome lighting; the budget reserves it)")
             imgui.text(f"budget {measured.budget:,} points; {measured.covered_pixels:,} pixels covered")
             kept = 1.0 - measured.gathered / measured.covered_pixels if measured.covered_pixels else 0.0
             imgui.text(f"{kept:.1%} of pixels kept their point from the frame before")
@@ -494,6 +501,22 @@ class Panel:
         imgui.set_current_context(self.context)
         self.renderer.shutdown()
         imgui.destroy_context(self.context)
+
+
+def effect_lines(viewer) -> tuple[str, str]:
+    """Why the point size and eye-dome lighting are what they are: the rule's reason
+    (viewer/defaults.py) while it chooses, else the user's choice beside it."""
+    v = viewer.settings
+    lines = []
+    for auto, choice, what, value in (
+            (viewer.auto_point_size, viewer.point_size_choice, "point size", str(v.point_size)),
+            (viewer.auto_eye_dome, viewer.eye_dome_choice, "eye-dome lighting", "on" if v.eye_dome else "off")):
+        if auto:
+            lines.append(choice.reason if choice is not None else f"{what} {value}: chosen once the view converges")
+        else:
+            rule = f"; the default rule says: {choice.reason}" if choice is not None else ""
+            lines.append(f"{what} {value}: your choice{rule}")
+    return lines[0], lines[1]
 
 
 def _word_colour(word: int) -> imgui.ImVec4:
