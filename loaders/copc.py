@@ -299,7 +299,8 @@ def keep_levels(sources: tuple, point_budget: int | None) -> tuple:
     for d in range(1, deepest + 1):
         if fixed + sum(s.hierarchy.points_through(d) for s in copc) <= point_budget:
             depth = d
-    return tuple(s.through(depth, point_budget) if s in copc else s for s in sources)
+    chosen = {id(s) for s in copc}     # by identity: sources hold arrays, and one file may come twice
+    return tuple(s.through(depth, point_budget) if id(s) in chosen else s for s in sources)
 
 
 def describe_hierarchy(path: str | os.PathLike) -> dict | None:

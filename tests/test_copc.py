@@ -405,3 +405,14 @@ def test_budget_over_several_files(sample_copc):
     last = (np.concatenate([b.positions for b in batches])[root:] + info.origin).astype(np.float64)
     sample = laspy.read(SAMPLE)
     np.testing.assert_allclose(last, np.stack([sample.x, sample.y, sample.z], axis=1), atol=1e-2)
+
+
+def test_budget_over_one_copc_file_twice(sample_copc):
+    """The same COPC file given twice (sources equal field by field, arrays included) is
+    cut to the same levels in both places, each its own source."""
+    levels = open_copc(sample_copc).hierarchy.per_level()
+    root = levels[0][1]
+    with CloudLoader([sample_copc, sample_copc], point_budget=2 * root) as loader:
+        info = loader.info
+        count = sum(b.count for b in loader)
+    assert [f.points for f in info.files] == [root, root] and info.points == count == 2 * root
