@@ -45,7 +45,7 @@ from progressive.loaders.las import (
     read_span,
     text_patches,
 )
-from progressive.loaders.laz import open_patched
+from progressive.loaders.laz import TABLE_OFFSET_BYTES, open_patched
 from progressive.loaders.pipeline import open_sources
 from progressive.loaders.types import BATCH_POINTS
 from progressive.loaders.validate import fail, open_binary, shown
@@ -115,7 +115,7 @@ def write_copc(stream, inputs: list[str], *, partial: bool = False) -> Written:
     entries = np.zeros(counts.size, ENTRY)
     entries["level"] = level[starts]
     entries["x"], entries["y"], entries["z"] = _key_xyz(key[starts])
-    entries["offset"] = point_data + 8 + np.r_[0, np.cumsum(sizes)[:-1]]
+    entries["offset"] = point_data + TABLE_OFFSET_BYTES + np.r_[0, np.cumsum(sizes)[:-1]]
     entries["byte_size"], entries["point_count"] = sizes, counts
     evlr_start = stream.seek(0, os.SEEK_END)
     body = entries.tobytes()
