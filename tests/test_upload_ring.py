@@ -15,16 +15,11 @@ from progressive.attributes import default_attribute
 from progressive.glext import GL_ALREADY_SIGNALED
 from progressive.loaders.types import Batch, nonfinite_records
 from progressive.packing import batch_words, pack_into, pack_records
-from progressive.passes.distribute import DistributePass, Staging
+from progressive.passes.distribute import DistributePass, Staging, without_buffer_storage
 from progressive.pointstore import EMPTY_WORD
 from progressive.scene import Scene, point_flags
 
 GL_TIMEOUT_EXPIRED = 0x911B
-
-
-def without_storage(gl):
-    """The context as a driver without GL_ARB_buffer_storage offers it."""
-    return dataclasses.replace(gl, gl=dataclasses.replace(gl.gl, storage=None))
 
 
 def expected_store(scene: Scene, batches: list[Batch]) -> np.ndarray:
@@ -85,7 +80,7 @@ def fast(batches: list[Batch], info, attribute) -> list[Batch]:
 @pytest.mark.parametrize("load", ["whole", "partial", "limited"])
 def test_store_equals_packed_records(gl, sample_batches, staging, load):
     info, batches = sample_batches
-    ctx = gl if staging is Staging.RING else without_storage(gl)
+    ctx = gl if staging is Staging.RING else without_buffer_storage(gl)
     capacity = 45_000 if load == "limited" else None
     loaded = batches[:3] if load == "partial" else batches
     scene = Scene(ctx, info, default_attribute(info), capacity=capacity, class_filter=True)
@@ -111,7 +106,7 @@ def test_hidden_points_through_staging(gl, sample_batches, staging, source):
     attribute = info.attribute("intensity")
     bad = hostile(batches, info)
     loaded = fast(bad, info, attribute) if source == "fast" else bad
-    scene = Scene(gl if staging is Staging.RING else without_storage(gl), info, attribute)
+    scene = Scene(gl if staging is Staging.RING else without_buffer_storage(gl), info, attribute)
     for b in loaded:
         scene.add_batch(b)
     assert np.array_equal(scene.store.read_records(), expected_store(scene, loaded))

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import enum
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -99,15 +99,18 @@ class StagingRing:
 class DistributePass:
     def __init__(self, glc: GLContext, store: PointStore, batch_points: int = BATCH_POINTS,
                  ring_slots: int = RING_SLOTS):
-        """ring_slots: staging slots of batch_points records each (where the context has
-        buffer storage; its GLFunctions.storage None stands for a driver without)."""
+        """ring_slots: staging slots of batch_points records each, fewer and smaller for a
+        smaller cloud (where the context has buffer storage; GLFunctions.storage None
+        stands for a driver without)."""
         self.glc = glc
         self.store = store
         self.batch_points = batch_points
         storage = glc.gl.storage
         offered = storage is not None and BufferStorage.offered(glc.ctx.version_code, glc.ctx.extensions)
         self.staging = Staging.RING if offered and ring_slots > 0 else Staging.COPY
-        self.ring = StagingRing(glc, storage, batch_points * RECORD_BYTES, ring_slots) \
+        slot_points = max(1, min(batch_points, store.count))    # a small cloud maps no more than it needs
+        slots = min(ring_slots, -(-store.count // slot_points))
+        self.ring = StagingRing(glc, storage, slot_points * RECORD_BYTES, max(1, slots)) \
             if self.staging is Staging.RING else None
         self._stage = None      # the copy path's buffer: made when first needed
         self.stats = StagingStats()
@@ -186,6 +189,12 @@ class DistributePass:
         for obj in (self._stage, self.records, self.words, self.classes):
             if obj is not None:
                 obj.release()
+
+
+def without_buffer_storage(glc: GLContext) -> GLContext:
+    """The context as a driver without GL_ARB_buffer_storage offers it: uploads copy
+    (the fallback, side by side with the ring in tests and benchmarks)."""
+    return replace(glc, gl=replace(glc.gl, storage=None))
 
 
 def _copy(data: np.ndarray, width: int) -> Fill:
