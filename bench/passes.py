@@ -61,7 +61,7 @@ def main(argv=None) -> int:
         timed("resolve", lambda: r.shading.resolve.run(style, r.prepare.pixel_words))
         for name, fx in EFFECTS.items():
             timed(f"resolve with {name}", lambda fx=fx: r.shading.run(style, fx, r.prepare.pixel_words))
-        timed("brute force", lambda: (r.vis.clear(), raster.draw(view, 0, r.store.count)))
+        timed("brute force", lambda: (r.vis.clear(), raster.draw(view, 0, r.store.capacity)))
         timed("empty", lambda: None)
     med = {k: float(np.median(v[1:])) for k, v in rows.items()}
     lines = [f"# Passes of a progressive frame, timed in isolation ({args.points:,} points, {width}x{height})", "",

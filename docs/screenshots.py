@@ -33,7 +33,8 @@ def shoot(viewer, name: str, **settings) -> None:
     for _ in range(400):
         viewer.step()
         viewer.session.stats()
-        if viewer.session.converged and not viewer.session.renderer.switching:
+        switch = viewer.session.status().switch
+        if viewer.session.converged and (switch is None or switch.done):
             break
     captured = []
     swap = glfw.swap_buffers

@@ -144,7 +144,7 @@ class _Image:
         self.path = path
 
     def __enter__(self):
-        from pye57 import libe57  # here, not at the top: importing it costs every start 30 ms
+        from pye57 import libe57  # here, not at the top: every other start would pay its import
 
         try:
             self.image = libe57.ImageFile(self.path, "r")

@@ -20,7 +20,7 @@ from functools import cached_property
 
 import numpy as np
 
-from progressive.errors import ProgressiveError
+from progressive.errors import InputError, ProgressiveError
 from progressive.loaders import CloudLoader
 from progressive.loaders.crs import epsg_code, file_crs
 from progressive.loaders.lookup import locate, read_point
@@ -125,16 +125,18 @@ class ReprojectingLoader(BatchQueue):
         self._loaders = []
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        if not paths:
+            raise InputError("no input files given")
         try:
             for path in paths:
                 self._loaders.append(CloudLoader([path], partial=partial))
             files = tuple(loader.info.files[0] for loader in self._loaders)
             self.transforms = tuple(self._transform(f) for f in files)
             self.info = self._cloud(files)
+            check_addressable(files[-1].path, self.info.points)
         except BaseException:
             self.close()
             raise
-        check_addressable(files[-1].path, self.info.points)
         self._starts = np.cumsum([0] + [f.points for f in files])[:-1].tolist()
         self.loaded = 0
         self._results: queue.Queue = queue.Queue(maxsize=READY_BATCHES)
