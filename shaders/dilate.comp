@@ -24,12 +24,15 @@ void main() {
     uint best_slot = EMPTY;
     uint best_depth = EMPTY;
     uint best_pixel = 0u;
-    for (int dy = -u_reach; dy <= u_reach; ++dy) {
-        for (int dx = -u_reach; dx <= u_reach; ++dx) {
-            ivec2 q = p + ivec2(dx, dy);
-            if (any(lessThan(q, ivec2(0))) || any(greaterThanEqual(q, size))) continue;
-            if (float(dx * dx + dy * dy) > u_radius2) continue;
-            uint qi = uint(q.y * size.x + q.x);
+    // Row by row: the disc's half-width in row dy (exactly the test dx² + dy² <=
+    // u_radius2 in float), cut to the image, so no tap is tested and skipped.
+    for (int dy = max(-u_reach, -p.y); dy <= min(u_reach, size.y - 1 - p.y); ++dy) {
+        int w = int(sqrt(max(u_radius2 - float(dy * dy), 0.0)));
+        while (float((w + 1) * (w + 1) + dy * dy) <= u_radius2) ++w;
+        while (w >= 0 && float(w * w + dy * dy) > u_radius2) --w;
+        uint row = uint((p.y + dy) * size.x);
+        for (int qx = max(p.x - w, 0); qx <= min(p.x + w, size.x - 1); ++qx) {
+            uint qi = row + uint(qx);
             uint slot = visibility[2u * qi];
             uint depth = visibility[2u * qi + 1u];
             if (slot != EMPTY && (depth < best_depth || (depth == best_depth && slot < best_slot))) {

@@ -154,7 +154,7 @@ def dilate_reference(vis: np.ndarray, size: int) -> np.ndarray:
     return np.stack([(best & np.uint64(0xFFFFFFFF)).astype(np.uint32), (best >> np.uint64(32)).astype(np.uint32)], -1)
 
 
-@pytest.mark.parametrize("size", [2, 3, 5])
+@pytest.mark.parametrize("size", [2, 3, 5, 8, 17, 32])
 def test_point_size_dilation_matches_numpy(gl, cloud, size):
     info, _ = cloud
     cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
