@@ -107,6 +107,9 @@ def views(cloud: TiledCloud, aspect: float) -> dict[str, Camera]:
 
 
 def measure(glc: GLContext, cloud: TiledCloud, layouts, sizes, repeats: int) -> list[dict]:
+    """Every variant of a layout, size and view is timed in turn, round after round
+    (after one warm-up round), so a clock or cache that drifts during the run is shared
+    by all of them instead of favouring whichever ran last."""
     rows = []
     for layout in layouts:
         scene, upload_s = load(glc, cloud, layout.order, layout.fill, layout.records)
@@ -114,23 +117,27 @@ def measure(glc: GLContext, cloud: TiledCloud, layouts, sizes, repeats: int) -> 
             for view, cam in views(cloud, width / height).items():
                 culled = (1.0 - float(np.mean(batches.in_view(scene.store.boxes, view_uniforms(
                     cam, cloud.info.origin, width, height))))) if scene.store.batched else 0.0
-                for raster, tuning in variants(glc, scene.store.batched):
-                    if raster is Raster.POINTS and view != "overview":
-                        continue
-                    r = Renderer(glc, cloud.info, cloud.attribute, raster=raster, width=width, height=height,
-                                 scene=scene, tuning=tuning)
-                    style = r.style()
-                    times = [r.render(cam, width, height, style).gpu_ms["raster"] for _ in range(repeats + 1)]
+                renderers = [Renderer(glc, cloud.info, cloud.attribute, raster=raster, width=width, height=height,
+                                      scene=scene, tuning=tuning)
+                             for raster, tuning in variants(glc, scene.store.batched)
+                             if raster is not Raster.POINTS or view == "overview"]
+                styles = [r.style() for r in renderers]
+                times = [[] for _ in renderers]
+                for _ in range(repeats + 1):
+                    for k, r in enumerate(renderers):
+                        times[k].append(r.render(cam, width, height, styles[k]).gpu_ms["raster"])
+                for r, style, t in zip(renderers, styles, times):
                     frame = r.render(cam, width, height, style)
-                    ms = statistics.median(times[1:])
+                    ms = statistics.median(t[1:])
                     rows.append({"points": cloud.points, "width": width, "height": height, "layout": layout.label,
-                                 "view": view, "raster": r.raster_path, "ms": ms, "ms_all": times[1:],
+                                 "view": view, "raster": r.raster_path, "ms": ms, "ms_all": t[1:],
                                  "subgroup_reduction": getattr(r.raster, "partitioned", False),
                                  "batch_groups": getattr(r.raster, "batch_groups", False),
                                  "passes": r.raster.passes, "points_per_s": cloud.points / (ms / 1e3),
                                  "bytes_per_s": cloud.points * RECORD_BYTES * r.raster.passes / (ms / 1e3),
                                  "batches_culled": culled, "covered_pixels": int((frame.slots != 0xFFFFFFFF).sum()),
                                  "upload_s": upload_s})
+                for r in renderers:
                     r.release()
         scene.release()
     return rows
