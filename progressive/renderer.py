@@ -13,6 +13,7 @@ from progressive.colors import Colormap, ColorStyle
 from progressive.context import GLContext
 from progressive.effects import Effects
 from progressive.loaders.types import AttributeInfo, Batch, CloudInfo
+from progressive.passes.cull import CullPass
 from progressive.passes.raster_compute import DEFAULT_TUNING, ComputeRaster, ComputeTuning
 from progressive.passes.raster_points import PointsRaster
 from progressive.passes.visibility import EMPTY, VisibilityBuffer
@@ -109,11 +110,12 @@ class Renderer:
 
 def make_raster(glc: GLContext, store: PointStore, vis: VisibilityBuffer, raster: Raster,
                 tuning: ComputeTuning = DEFAULT_TUNING):
-    """tuning: how a compute raster walks the store (GL_POINTS ignores it)."""
+    """tuning: how a compute raster walks the store (GL_POINTS ignores it). A compute
+    raster of the batched layout gets a cull pass: batches outside the view are skipped."""
     if raster is Raster.POINTS:
         return PointsRaster(glc, store, vis)
     return ComputeRaster(glc, store, vis, atomic64=raster is Raster.COMPUTE and glc.caps.atomic_int64,
-                         tuning=tuning)
+                         culling=CullPass(glc, store) if store.batched else None, tuning=tuning)
 
 
 def raster_path(kind: Raster, raster) -> str:

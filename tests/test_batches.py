@@ -11,6 +11,7 @@ import pytest
 from progressive import batches
 from progressive.attributes import find_attribute
 from progressive.camera import Camera, auto_camera, project, view_uniforms
+from progressive.passes.cull import CullPass
 from progressive.passes.raster_compute import ComputeRaster, ComputeTuning
 from progressive.passes.visibility import EMPTY
 from progressive.permutation import BATCH_POINTS, SLICE_POINTS
@@ -98,7 +99,7 @@ def test_culling_keeps_every_visible_point_on_the_gpu(gl, sample, name):
             scene.add_batch(b)
         culled = r.render(cam, W, H, r.style())
         assert r.raster.cull
-        plain = ComputeRaster(gl, scene.store, r.vis, atomic64=r.raster.atomic64, cull=False)
+        plain = ComputeRaster(gl, scene.store, r.vis, atomic64=r.raster.atomic64)
         r.raster.release()
         r.raster = plain
         unculled = r.render(cam, W, H, r.style())
@@ -176,7 +177,8 @@ def test_every_tuning_keeps_the_ids(gl, sample, atomic64, name):
         seen = {}
         for tuning in TUNINGS:
             r.raster.release()
-            r.raster = ComputeRaster(gl, scene.store, r.vis, atomic64=atomic64, tuning=tuning)
+            r.raster = ComputeRaster(gl, scene.store, r.vis, atomic64=atomic64, culling=CullPass(gl, scene.store),
+                                     tuning=tuning)
             if tuning.subgroup_reduction and not r.raster.partitioned:
                 continue
             assert r.raster.batch_groups == tuning.batch_groups

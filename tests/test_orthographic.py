@@ -94,7 +94,7 @@ def test_progressive_orthographic_converges_and_culling_keeps_points(gl):
                 pr.frame(cam, r.scene.style())
             pr.flush()
             assert pr.converged and np.array_equal(pr.read_ids(), expected)
-            plain = ComputeRaster(gl, r.store, r.vis, atomic64=r.raster.atomic64, cull=False)
+            plain = ComputeRaster(gl, r.store, r.vis, atomic64=r.raster.atomic64)
             culling, r.raster = r.raster, plain
             assert np.array_equal(r.render(cam, W, H, r.style()).ids, expected)
             r.raster, _ = culling, plain.release()

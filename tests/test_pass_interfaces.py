@@ -40,10 +40,6 @@ GL_ACTIVE_RESOURCES = 0x92F5
 GL_BUFFER_BINDING = 0x9302
 
 LEAVES = {"progressive.passes.handles"}
-COMPOSED = {"progressive.passes.raster_compute": {"progressive.passes.cull"}}
-"""A compute raster made alone (bench, tests) culls too, so it composes its cull pass."""
-
-
 class StorageBlocks:
     """Active shader storage blocks of a linked program and their binding points
     (glGetProgramResourceiv: neither moderngl nor ComputeProgram lists them)."""
@@ -322,7 +318,7 @@ def test_no_pass_imports_another_pass_except_the_compositions():
     renderer.py, shading.py) live outside progressive/passes/."""
     found = pass_imports()
     assert "progressive.passes.handles" in found["progressive.passes.raster_compute"]
-    leaks = {m: sorted(i - LEAVES - COMPOSED.get(m, set())) for m, i in found.items()}
+    leaks = {m: sorted(i - LEAVES) for m, i in found.items()}
     assert {m: i for m, i in leaks.items() if i} == {}
     assert found["progressive.passes.handles"] == set()
 

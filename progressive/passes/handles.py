@@ -163,3 +163,14 @@ class BatchFlags:
 
     def bind(self) -> None:
         self.buffer.bind_to_storage_buffer(Binding.BATCH_FLAGS)
+
+
+class Culling(Protocol):
+    """The cull pass as the compute raster uses it (passes/cull.py CullPass): run once a
+    frame, then its flags bound for the raster's programs; the raster releases it."""
+
+    batch_flags: BatchFlags
+
+    def run(self, view) -> None: ...
+
+    def release(self) -> None: ...

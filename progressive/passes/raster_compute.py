@@ -9,8 +9,7 @@ from progressive import shaderlib
 from progressive.camera import ViewUniforms
 from progressive.context import GLContext
 from progressive.gpu import grid, set_view
-from progressive.passes.cull import CullPass
-from progressive.passes.handles import FillPieces, Meta, Reprojection, Source, StateWord, Visibility
+from progressive.passes.handles import Culling, FillPieces, Meta, Reprojection, Source, StateWord, Visibility
 from progressive.pointstore import PointStore
 
 SUBGROUP_EXTENSIONS = ("GL_KHR_shader_subgroup", "GL_NV_shader_subgroup_partitioned")     # as the driver names them
@@ -51,17 +50,17 @@ class ComputeRaster:
     its sources before pass 1, so the index pass sees the final depths."""
 
     def __init__(self, glc: GLContext, store: PointStore, vis: Visibility, *, atomic64: bool,
-                 cull: bool = True, tuning: ComputeTuning = DEFAULT_TUNING):
-        """cull: skip batches whose box is outside the view (batched layout; ranges and
-        fill pieces, not the reprojection list, whose points were visible). The raster
-        composes its cull pass: a compute raster made alone (bench, tests) culls too."""
+                 culling: Culling | None = None, tuning: ComputeTuning = DEFAULT_TUNING):
+        """culling: the cull pass (made by the composition, released with the raster)
+        whose flags skip batches outside the view in ranges and fill pieces, not in the
+        reprojection list, whose points were visible; None draws every batch."""
         if atomic64 and not glc.caps.atomic_int64:
             raise ValueError("64-bit atomics requested but GL_NV_shader_atomic_int64 is missing")
         self.glc, self.store, self.vis = glc, store, vis
         self.atomic64 = atomic64
         self.partitioned = tuning.subgroup_reduction and subgroup_reduction_available(glc)
         self.batch_groups = tuning.batch_groups and store.batched
-        self.culling = CullPass(glc, store) if cull and store.batched else None
+        self.culling = culling if store.batched else None
         self.passes = 1 if atomic64 else 2
         self._programs: dict[tuple[Source, int], object] = {}
         for source in Source:
