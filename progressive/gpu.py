@@ -42,9 +42,10 @@ def filters_apply(view: ViewUniforms) -> bool:
 
 def set_view(program, view: ViewUniforms) -> None:
     """Camera uniforms (camera.glsl); a program may not use all of them."""
-    program["u_view_rotation"].write(view.rotation.T.tobytes())
-    program["u_view_translation"].write(view.translation.tobytes())
-    program["u_projection"].write(view.projection.tobytes())
+    for name, value in (("u_view_rotation", view.rotation.T), ("u_view_translation", view.translation),
+                        ("u_projection", view.projection)):
+        if name in program:
+            program[name].write(value.tobytes())
     if "u_perspective" in program:
         program["u_perspective"] = view.perspective
     if "u_size" in program:

@@ -36,3 +36,15 @@ def test_headline_goes_between_markers(tmp_path):
     readme.write_text("a\n<!-- bench:headline:m -->\nold\n<!-- /bench:headline:m -->\nb\n")
     headline.insert(readme, "m", "- new\n")
     assert readme.read_text() == "a\n<!-- bench:headline:m -->\n- new\n<!-- /bench:headline:m -->\nb\n"
+
+
+def test_kernel_section_times_every_read_pattern(gl):
+    """bench.kernel: each read pattern once; the raster stages where 64-bit atomics exist."""
+    from bench import kernel
+
+    table = kernel.run(gl, 30_000, (96, 64), 1)
+    reads = [r for r in table.rows if r[0] == "read"]
+    assert [r[1] for r in reads] == list(kernel.READS) and all(r[3] > 0 for r in reads)
+    stages = [r for r in table.rows if r[0] == "raster"]
+    assert len(stages) == (len(kernel.STAGES) * 2 if gl.caps.atomic_int64 else 0)
+    assert gl.ctx.error == "GL_NO_ERROR"

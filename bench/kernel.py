@@ -1,0 +1,173 @@
+"""Where the compute raster's time goes: the store read in plain patterns (the bytes a
+brute-force frame must read, no rasterization), and the 64-bit batch walk with its
+stages cut off one by one, on the same tiled cloud in one run.
+
+    python -m bench.kernel [--points 100000000] [--size 1920x1080] [--out DIR]
+
+Stages are cut by rewriting the raster shader's text here (the renderer's shader has
+no switches for them): "load" keeps only the record reads, "+ project" adds the
+filters and the projection, "+ read" the read-before-atomicMin, "atomic, no read"
+every atomic without the read before it, "full" is the renderer's own. 64-bit only
+(llvmpipe lacks the atomics: the section says so and times the reads alone).
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+from pathlib import Path
+
+from bench.report import RunInfo, Table
+from bench.synthetic import SAMPLE, load, tiled
+from progressive import shaderlib
+from progressive.camera import auto_camera
+from progressive.context import GLContext, create_context
+from progressive.packing import RECORD_BYTES
+from progressive.passes.cull import CullPass
+from progressive.passes.raster_compute import ComputeRaster
+from progressive.permutation import BATCH_SLOTS, SLICE_POINTS, FillOrder
+from progressive.pointstore import RecordOrder
+from progressive.renderer import Renderer
+from progressive.timing import Timestamps
+
+READS = {
+    "linear, a record an invocation":
+        "uint i = gl_GlobalInvocationID.x + gl_GlobalInvocationID.y * gl_NumWorkGroups.x * 256u;"
+        "if (i >= u_n) return; uvec4 a = p[i];",
+    "a group a batch, its records contiguous":
+        "uint b = gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x; if (b >= u_b) return;"
+        "uvec4 a = uvec4(0); for (uint k = 0u; k < ROUNDS; ++k) a ^= p[b * BATCH_SLOTS + k * SLICE_POINTS"
+        " + gl_LocalInvocationID.x];",
+    "a group a batch, its slices across the store":
+        "uint b = gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x; if (b >= u_b) return;"
+        "uvec4 a = uvec4(0); for (uint k = 0u; k < ROUNDS; ++k) a ^= p[(k * u_b + b) * SLICE_POINTS"
+        " + gl_LocalInvocationID.x];",
+}
+READ_SHADER = """#version 450
+layout(local_size_x = 256) in;
+layout(std430, binding = 0) readonly buffer P { uvec4 p[]; };
+layout(std430, binding = 1) writeonly buffer O { uint o[]; };
+uniform uint u_n;
+uniform uint u_b;
+const uint BATCH_SLOTS = %du, SLICE_POINTS = %du, ROUNDS = BATCH_SLOTS / SLICE_POINTS;
+void main() { %s if (a.x == 7u && a.y == 9u) o[0] = a.z; }
+"""
+
+DEPTH = "    uint depth_bits = floatBitsToUint(depth);\n"
+STAGES = {
+    "load": ("    if (!finite_position(record)) return;\n",
+             "    if (record.x == 0x7FC00001u && record.y == 1u) visibility[0] = uint64_t(0);\n    return;\n"),
+    "+ project": (DEPTH, DEPTH + "    if (pixel == 0xFFFFFFF0u) visibility[0] = uint64_t(depth_bits);\n    return;\n"),
+    "+ read": (DEPTH, DEPTH + "    uint64_t probe = (uint64_t(depth_bits) << 32) | uint64_t(slot);\n"
+               "    if (probe < visibility[pixel] && pixel == 0xFFFFFFF0u) visibility[0] = probe;\n    return;\n"),
+    "atomic, no read": (DEPTH, DEPTH + "    atomicMin(visibility[pixel], (uint64_t(depth_bits) << 32) | uint64_t(slot));\n"
+                        "    return;\n"),
+    "full": None,
+}
+
+
+def timed(glc: GLContext, run, repeats: int) -> float:
+    """Median GPU ms of `run` after one warm-up."""
+    t = Timestamps(glc)
+    ms = []
+    for _ in range(repeats + 1):
+        t.reset()
+        t.stamp("start")
+        run()
+        t.stamp("end")
+        ms.append(t.durations_ms()["end"])
+    t.release()
+    return statistics.median(ms[1:])
+
+
+def reads(glc: GLContext, points: int, repeats: int) -> list[tuple]:
+    batches = -(-points // BATCH_SLOTS)
+    slots = batches * BATCH_SLOTS
+    buf = glc.ctx.buffer(reserve=slots * RECORD_BYTES)
+    glc.gl.clear_u32(buf.glo, 0x3F800000, total=buf.size)
+    out = glc.ctx.buffer(reserve=16)
+    rows = []
+    for name, body in READS.items():
+        program = glc.ctx.compute_shader(READ_SHADER % (BATCH_SLOTS, SLICE_POINTS, body))
+        for uniform, value in (("u_n", slots), ("u_b", batches)):
+            if uniform in program:
+                program[uniform] = value
+        groups = -(-slots // 256) if name.startswith("linear") else batches
+        gx = min(groups, 65535)
+        buf.bind_to_storage_buffer(0)
+        out.bind_to_storage_buffer(1)
+        grid = (gx, -(-groups // gx), 1)
+        ms = timed(glc, lambda p=program, g=grid: p.run(*g), repeats)
+        rows.append(("read", name, "", ms, slots * RECORD_BYTES / (ms / 1e3) / 1e9, slots / (ms / 1e3) / 1e9))
+        program.release()
+    buf.release()
+    out.release()
+    return rows
+
+
+def stages(glc: GLContext, points: int, size: tuple[int, int], repeats: int) -> list[tuple]:
+    """The 64-bit batch walk over the whole store with stages cut, for both record orders."""
+    cloud = tiled(str(SAMPLE), points)
+    width, height = size
+    cam = auto_camera(cloud.info.bounds_min, cloud.info.bounds_max, width / height)
+    original = shaderlib.shader_text
+    rows = []
+    for records in RecordOrder:
+        scene, _ = load(glc, cloud, fill=FillOrder.BATCHED, records=records)
+        r = Renderer(glc, cloud.info, cloud.attribute, width=width, height=height, scene=scene)
+        style = r.style()
+        for stage, patch in STAGES.items():
+            def text(name, patch=patch):
+                source = original(name)
+                if name == "raster_compute.comp" and patch is not None:
+                    source = source.replace(patch[0], patch[1], 1)
+                return source
+            shaderlib.shader_text = text
+            try:
+                r.raster.release()
+                r.raster = ComputeRaster(glc, scene.store, r.vis, atomic64=True, culling=CullPass(glc, scene.store))
+            finally:
+                shaderlib.shader_text = original
+            ms = statistics.median([r.render(cam, width, height, style).gpu_ms["raster"] for _ in range(repeats + 1)][1:])
+            rows.append(("raster", stage, records.value, ms, points * RECORD_BYTES / (ms / 1e3) / 1e9,
+                         points / (ms / 1e3) / 1e9))
+        r.release()
+        scene.release()
+    return rows
+
+
+def run(glc: GLContext, points: int, size: tuple[int, int], repeats: int) -> Table:
+    rows = reads(glc, points, repeats)
+    notes = []
+    if glc.caps.atomic_int64:
+        rows += stages(glc, points, size, repeats)
+    else:
+        notes.append("Raster stages: not run, this GPU lacks GL_NV_shader_atomic_int64 (64-bit atomics).")
+    table = Table(f"kernel_{points}", "Where the compute raster's time goes", f"{SAMPLE.name} tiled on a grid",
+                  f"{points:,}", ("kind", "what", "records", "ms (median)", "GB/s", "G points/s"), rows)
+    table.notes = notes + [
+        f"GPU ms from timestamps, median of {repeats} after one warm-up. read: {RECORD_BYTES}-byte records of a "
+        f"store of whole batches ({BATCH_SLOTS:,} slots) read in that pattern, nothing drawn. raster: the "
+        f"64-bit batch walk at {size[0]}x{size[1]} over the whole cloud, auto camera, with its stages cut "
+        "(bench/kernel.py's docstring); records = RecordOrder. GB/s and G points/s count every record."]
+    return table
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--points", type=int, default=1_000_000)
+    ap.add_argument("--size", default="1920x1080")
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--out", default="bench/results/local")
+    args = ap.parse_args(argv)
+    glc = create_context()
+    size = tuple(int(v) for v in args.size.split("x"))
+    table = run(glc, args.points, size, args.repeats)
+    info = RunInfo.from_caps(glc.caps, "kernel")
+    table.write(Path(args.out), info)
+    print(table.markdown(info))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
