@@ -11,6 +11,11 @@ density instead of a uniform random subset.
 Read in full, a COPC source is its LAZ: the same points in the same order. Read down to
 a level, the cloud holds the kept nodes' points in file order, numbered from 0; its
 FileInfo.runs say which points of the file those are (picks read them back).
+
+Nodes are read by the hierarchy either way, so a node whose chunk does not decode is
+one line (InputError), or with partial a skipped node (its points not loaded, the
+others at their own indices) and a warning at the end of the file. The file's
+CopcFileInfo tallies what the reader has read, for a session's status.
 """
 
 from __future__ import annotations
@@ -18,15 +23,17 @@ from __future__ import annotations
 import dataclasses
 import os
 import struct
+import threading
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import lazrs
 import numpy as np
 
 from progressive.errors import InputError
-from progressive.loaders.las import LasSource, is_decode_error, open_las, selection
+from progressive.loaders.las import LasSource, TruncatedInput, is_decode_error, open_las, selection
 from progressive.loaders.laz import TABLE_OFFSET_BYTES
+from progressive.loaders.types import Batch, FileInfo
 from progressive.loaders.validate import fail, one_line, open_binary, shown
 
 HEADER_14 = 375                          # bytes of a LAS 1.4 header
@@ -49,6 +56,8 @@ threads and the render loop run between calls."""
 FIRST_READ_POINTS = 1 << 16
 """The first call decodes only the first nodes up to this many points: the first image
 comes sooner."""
+NAMED_NODES = 5
+"""Damaged nodes a warning names; it counts the others."""
 
 
 def is_copc(path: str | os.PathLike) -> bool:
@@ -177,6 +186,83 @@ def _checked(path: str, info: CopcInfo, entries: np.ndarray, point_data: int, po
     return Hierarchy(info, nodes, np.r_[0, np.cumsum(counts)[:-1]].astype(np.int64))
 
 
+class NodeReads:
+    """What the reader thread has read of a COPC file's kept nodes so far: nodes, points
+    and compressed bytes read, and the damaged nodes skipped (partial). Written by the
+    reader, read by a session at any moment, under a lock."""
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self.nodes = self.points = self.bytes = 0
+        self.skipped: list[tuple[tuple[int, int, int, int], int]] = []     # (key, points) of each damaged node
+
+    def read(self, nodes: int, points: int, nbytes: int) -> None:
+        with self._lock:
+            self.nodes, self.points, self.bytes = self.nodes + nodes, self.points + points, self.bytes + nbytes
+
+    def skip(self, key: tuple[int, int, int, int], points: int) -> None:
+        with self._lock:
+            self.skipped.append((key, points))
+
+    def snapshot(self) -> tuple[int, int, int, tuple]:
+        with self._lock:
+            return self.nodes, self.points, self.bytes, tuple(self.skipped)
+
+
+@dataclass(frozen=True)
+class CopcStatus:
+    """One COPC file at one moment: levels, nodes and points kept for the GPU (whole
+    levels from the root) of the file's, what has been read of them (compressed bytes
+    of its nodes' chunks) and the damaged nodes skipped (their points not loaded)."""
+
+    levels: int
+    levels_kept: int
+    nodes: int
+    nodes_kept: int
+    points: int
+    points_kept: int
+    nodes_read: int
+    points_read: int
+    bytes_read: int
+    nodes_skipped: int
+    points_skipped: int
+
+
+@dataclass(frozen=True)
+class CopcFileInfo(FileInfo):
+    """The FileInfo of a COPC file read by its hierarchy (`points` counts the kept
+    nodes' points), with the hierarchy's totals and the reader's tally."""
+
+    copc_levels: int = 0
+    copc_nodes: int = 0
+    copc_points: int = 0
+    levels_kept: int = 0
+    nodes_kept: int = 0
+    reads: NodeReads = field(default_factory=NodeReads, compare=False, repr=False)
+
+    def status(self) -> CopcStatus:
+        nodes, points, nbytes, skipped = self.reads.snapshot()
+        return CopcStatus(self.copc_levels, self.levels_kept, self.copc_nodes, self.nodes_kept, self.copc_points,
+                          self.points, nodes, points, nbytes, len(skipped), sum(n for _, n in skipped))
+
+
+def copc_status(info: FileInfo) -> CopcStatus | None:
+    """A file's COPC status; None for other files (and COPC files read as plain LAZ)."""
+    return info.status() if isinstance(info, CopcFileInfo) else None
+
+
+@dataclass(frozen=True)
+class AfterGap:
+    """Records that follow damaged nodes skipped in a file: `len` spans both, so the
+    loader numbers the next records from after these as well."""
+
+    records: np.ndarray
+    gap: int
+
+    def __len__(self) -> int:
+        return self.gap + len(self.records)
+
+
 @dataclass(frozen=True)
 class CopcSource(LasSource):
     """A COPC file: its LAZ source, its hierarchy (None where it could not be used: the
@@ -187,23 +273,31 @@ class CopcSource(LasSource):
     problem: str | None = None              # why the hierarchy cannot be used
 
     def chunks(self, batch_points: int, *, salvage: bool = False,
-               names: tuple[str, ...] | None = None) -> Iterator[np.ndarray]:
-        if self.depth is None:
+               names: tuple[str, ...] | None = None) -> Iterator[np.ndarray | AfterGap]:
+        if self.hierarchy is None:
             return super().chunks(batch_points, salvage=salvage, names=names)
-        return self._node_chunks(batch_points, None if names is None else selection(names))
+        return self._node_chunks(batch_points, None if names is None else selection(names), salvage)
+
+    def parse(self, chunk, start: int, origin: np.ndarray, names: tuple[str, ...]) -> Batch:
+        if isinstance(chunk, AfterGap):
+            return super().parse(chunk.records, start + chunk.gap, origin, names)
+        return super().parse(chunk, start, origin, names)
 
     def kept_nodes(self) -> np.ndarray:
         """Indices (into hierarchy.nodes, so in file order) of the nodes read."""
         level = self.hierarchy.nodes["level"]
         return np.arange(level.size) if self.depth is None else np.nonzero(level <= self.depth)[0]
 
-    def _node_chunks(self, batch_points: int, chosen) -> Iterator[np.ndarray]:
+    def _node_chunks(self, batch_points: int, chosen, salvage: bool) -> Iterator[np.ndarray | AfterGap]:
         """The kept nodes' records in file order, in pieces of at most batch_points; up to
         READ_POINTS at a time (FIRST_READ_POINTS first) are read and decoded by lazrs on
-        every core."""
+        every core. With salvage, damaged nodes are skipped (the next piece is an
+        AfterGap) and named at the end by a TruncatedInput (the loader's warning)."""
         nodes = self.hierarchy.nodes
         kept = self.kept_nodes()
         dtype = self.records.dtype
+        reads = self.info.reads
+        gap, read = 0, 0
         with open_binary(self.info.path) as stream:
             at = 0
             while at < kept.size:
@@ -213,12 +307,26 @@ class CopcSource(LasSource):
                     group.append(kept[end])
                     total += int(nodes["point_count"][kept[end]])
                     end += 1
-                records = self._decode(stream, nodes[group], total, dtype, chosen)
-                for first in range(0, total, batch_points):
-                    yield records[first:first + batch_points]
+                for records, skipped in self._decode(stream, nodes[group], dtype, chosen, salvage):
+                    gap += skipped
+                    for first in range(0, len(records), batch_points):
+                        piece = records[first:first + batch_points]
+                        yield AfterGap(piece, gap) if gap else piece
+                        read, gap = read + len(piece), 0
                 at = end
+        _, _, _, skipped = reads.snapshot()
+        if skipped:
+            named = ", ".join(f"level {k[0]} key ({k[1]}, {k[2]}, {k[3]}) ({n:,} points)" for k, n in skipped[:NAMED_NODES])
+            more = f" and {len(skipped) - NAMED_NODES} more" if len(skipped) > NAMED_NODES else ""
+            raise TruncatedInput(f"{shown(self.info.path)}: {len(skipped)} COPC node(s) whose chunk does not decode "
+                                 f"skipped, their {sum(n for _, n in skipped):,} points not loaded: {named}{more}",
+                                 read)
 
-    def _decode(self, stream, group: np.ndarray, total: int, dtype: np.dtype, chosen) -> np.ndarray:
+    def _decode(self, stream, group: np.ndarray, dtype: np.dtype, chosen,
+                salvage: bool) -> Iterator[tuple[np.ndarray, int]]:
+        """(records, damaged points skipped before them) of the group's nodes: decoded in
+        one call, or where that fails node by node to find the damaged ones (InputError
+        naming the first without salvage)."""
         compressed = bytearray(int(group["byte_size"].astype(np.int64).sum()))
         view, filled = memoryview(compressed), 0
         for offset, n in zip(group["offset"].tolist(), group["byte_size"].tolist()):
@@ -226,18 +334,40 @@ class CopcSource(LasSource):
             if stream.readinto(view[filled:filled + n]) != n:
                 raise fail(self.info.path, "the file ends inside a COPC node's chunk")
             filled += n
-        records = np.empty(total, dtype)
-        table = list(zip(group["point_count"].tolist(), group["byte_size"].tolist()))
+        counts, sizes = group["point_count"].tolist(), group["byte_size"].tolist()
+        self.info.reads.read(len(group), sum(counts), filled)
+        records = np.empty(sum(counts), dtype)
+        if self._decoded(compressed, records, list(zip(counts, sizes)), chosen) is None:
+            yield records, 0
+            return
+        skipped, at = 0, 0
+        for node, count, size in zip(group, counts, sizes):
+            one = np.empty(count, dtype)
+            problem = self._decoded(view[at:at + size], one, [(count, size)], chosen)
+            at += size
+            if problem is None:
+                yield one, skipped
+                skipped = 0
+                continue
+            key = (int(node["level"]), int(node["x"]), int(node["y"]), int(node["z"]))
+            if not salvage:
+                raise fail(self.info.path, f"COPC node of level {key[0]} key ({key[1]}, {key[2]}, {key[3]}) "
+                                           f"does not decode ({problem})")
+            self.info.reads.skip(key, count)
+            skipped += count
+        if skipped:
+            yield np.empty(0, dtype), skipped
+
+    def _decoded(self, compressed, records: np.ndarray, table: list, chosen) -> str | None:
+        """Decode chunks into records; None, or the decoder's error in one line."""
         try:
             lazrs.decompress_points_with_chunk_table(compressed, self.laz.vlr_data, memoryview(records).cast("B"),
                                                      table, chosen)
         except BaseException as exc:
             if not is_decode_error(exc):
                 raise
-            first = group[0]
-            raise fail(self.info.path, f"COPC nodes from level {first['level']} key ({first['x']}, {first['y']}, "
-                                       f"{first['z']}) on do not decode ({one_line(exc)})") from None
-        return records
+            return one_line(exc)
+        return None
 
     def through(self, depth: int, budget: int) -> CopcSource:
         """This source read down to level `depth` (every node of it and above), with the
@@ -251,7 +381,8 @@ class CopcSource(LasSource):
         note = (f"{shown(self.info.path)}: the cloud's points do not fit in the GPU memory limit (room for "
                 f"{budget:,}): showing this COPC file's octree levels 0-{depth} of 0-{self.hierarchy.levels - 1}, "
                 f"{count:,} of its {self.info.points:,} points (every point of those levels)")
-        info = dataclasses.replace(self.info, points=count, runs=_runs(first, nodes["point_count"]))
+        info = dataclasses.replace(self.info, points=count, runs=_runs(first, nodes["point_count"]),
+                                   levels_kept=depth + 1, nodes_kept=int(nodes.size))
         return dataclasses.replace(kept, info=info, warnings=(*self.warnings, note))
 
 
@@ -281,6 +412,11 @@ def open_copc(path: str | os.PathLike, *, partial: bool = False) -> CopcSource:
             problem = one_line(exc)
     warnings = source.warnings + ((f"{problem}; read as plain LAS/LAZ (every point, no levels of detail)",)
                                   if problem else ())
+    if hierarchy is not None:
+        info = {f.name: getattr(source.info, f.name) for f in dataclasses.fields(FileInfo)}
+        fields["info"] = CopcFileInfo(**info, copc_levels=hierarchy.levels, copc_nodes=int(hierarchy.nodes.size),
+                                      copc_points=source.info.points, levels_kept=hierarchy.levels,
+                                      nodes_kept=int(hierarchy.nodes.size))
     return CopcSource(**{**fields, "warnings": warnings}, hierarchy=hierarchy, problem=problem)
 
 

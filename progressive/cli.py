@@ -444,6 +444,10 @@ def _first_equal(history, after: int) -> int | None:
 
 
 def _stats(session, camera, frames: int, converged_at: int | None, clip) -> dict:
+    """What --stats writes; "copc": per file, its levels, nodes and points kept and read
+    (null for files other than COPC)."""
+    import dataclasses
+
     from progressive import memory
 
     status = session.status()
@@ -472,6 +476,7 @@ def _stats(session, camera, frames: int, converged_at: int | None, clip) -> dict
         "peak_rss_bytes": memory.peak_rss_bytes(),
         "camera": camera.to_dict(),
         "frames_rendered": frames,
+        "copc": [None if c is None else dataclasses.asdict(c) for c in status.copc],
     }
     if session.progressive:
         history = session.stats()

@@ -26,6 +26,7 @@ from progressive.colors import DEFAULT_PALETTE, Colormap, ColorStyle, Palette
 from progressive.context import GLContext, create_context
 from progressive.effects import Effects
 from progressive.frame_loop import FrameStats, ProgressiveOptions, ProgressiveRenderer
+from progressive.loaders.copc import CopcStatus, copc_status
 from progressive.loaders.crs import file_crs
 from progressive.loaders.lookup import read_record
 from progressive.loaders.types import AttributeInfo, AttributeKind
@@ -69,6 +70,9 @@ class SessionStatus:
     frames: int                 # progressive frames issued
     loading: bool               # batches still to come from the files or waiting for a frame
     switch: SwitchStatus | None
+    copc: tuple[CopcStatus | None, ...] = ()
+    """Per file (info.files' order): levels, nodes and points kept and read of a COPC
+    file read by its hierarchy; None for other files."""
 
 
 @dataclass(frozen=True)
@@ -371,7 +375,8 @@ class Session:
             slots=scene.store.capacity, not_drawn=scene.skipped, raster=r.raster_path,
             frames=r.frame_index if self.progressive else int(self._last is not None),
             loading=(self.loading and not self.loader.done) or pending,
-            switch=None if sw is None else SwitchStatus(sw.streamed, sw.total, sw.rate, sw.done))
+            switch=None if sw is None else SwitchStatus(sw.streamed, sw.total, sw.rate, sw.done),
+            copc=tuple(copc_status(f) for f in self.info.files))
 
     def categories(self) -> list[int]:
         """Category codes present in the shown attribute (kept batches; for a legend)."""

@@ -416,3 +416,86 @@ def test_budget_over_one_copc_file_twice(sample_copc):
         info = loader.info
         count = sum(b.count for b in loader)
     assert [f.points for f in info.files] == [root, root] and info.points == count == 2 * root
+
+
+def test_stats_and_panel_report_levels_nodes_points_and_bytes(tmp_path, capsys):
+    """--stats "copc" per file against laspy's hierarchy walk and level queries: levels,
+    nodes and points kept (whole levels under a limit) of the file's, the nodes read and
+    their compressed bytes; null for a plain file. The panel's lines say the same."""
+    from progressive.loaders.copc import CopcStatus
+    from progressive.viewer.panel import copc_lines
+
+    path = shared_file("lone-star.copc.laz")
+    theirs = [n for n in nodes_of(path) if n.point_count > 0]
+    levels = max(n.key.level for n in theirs) + 1
+    total = laspy.open(path).header.point_count
+    with laspy.CopcReader.open(path) as reader:
+        per_level = [len(reader.query(level=d)) for d in range(levels)]
+    for depth, files in ((levels - 1, [path, SAMPLE]), (levels - 2, [path])):
+        kept = [n for n in theirs if n.key.level <= depth]
+        points = sum(per_level[: depth + 1])
+        limit = [] if depth == levels - 1 else ["--gpu-memory-limit", str(limit_for(points + per_level[-1] // 2))]
+        stats = tmp_path / f"{depth}.json"
+        code = main(["render", *SMALL, *map(str, files), *limit, "--stats", str(stats), "--color-by", "intensity"])
+        assert code == 0, capsys.readouterr().err
+        s = json.loads(stats.read_text())
+        assert s["points_loaded"] == points + (len(files) - 1) * laspy.open(SAMPLE).header.point_count
+        assert s["copc"][0] == {"levels": levels, "levels_kept": depth + 1, "nodes": len(theirs),
+                                "nodes_kept": len(kept), "points": total, "points_kept": points,
+                                "nodes_read": len(kept), "points_read": points,
+                                "bytes_read": sum(n.byte_size for n in kept), "nodes_skipped": 0, "points_skipped": 0}
+        assert s["copc"][1:] == [None] * (len(files) - 1)
+        lines = copc_lines(CopcStatus(**s["copc"][0]))
+        assert lines[0].strip() == f"COPC levels {depth + 1} / {levels}, nodes {len(kept):,} / {len(theirs):,}"
+        assert f"points {points:,} / {total:,} kept" in lines[1]
+        assert f"{sum(n.byte_size for n in kept) / 2**20:,.1f} MiB" in lines[2] and len(lines) == 3
+
+
+def damaged_copc(tmp_path):
+    """lone-star with the chunk of one node (the last but one in the file: nodes follow
+    it) corrupted in the middle, and that node as laspy's hierarchy gives it."""
+    path = shared_file("lone-star.copc.laz")
+    node = sorted((n for n in nodes_of(path) if n.point_count > 0), key=lambda n: n.offset)[-2]
+    data = bytearray(path.read_bytes())
+    middle = node.offset + node.byte_size // 3
+    data[middle:middle + 64] = bytes(b ^ 0xFF for b in data[middle:middle + 64])
+    bad = tmp_path / "damaged.copc.laz"
+    bad.write_bytes(bytes(data))
+    return path, bad, node
+
+
+def test_damaged_node_is_one_line_or_skipped_with_partial(tmp_path, capsys):
+    """Without --partial: one line naming the node, exit 2, nothing written. With it: one
+    warning naming the node, its points not loaded, every other point at its own index
+    (laspy's points of the undamaged file), and the status counting the skip."""
+    path, bad, node = damaged_copc(tmp_path)
+    key = f"level {node.key.level} key ({node.key.x}, {node.key.y}, {node.key.z})"
+    out = tmp_path / "ids.npy"
+    assert main(["render", *SMALL, str(bad), "--ids", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("progressive: error: ") and key in err, err
+    assert not out.exists()
+
+    stats = tmp_path / "s.json"
+    assert main(["render", *SMALL, str(bad), "--partial", "--stats", str(stats)]) == 0
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("progressive: warning: ") and key in err, err
+    assert f"{node.point_count:,} points not loaded" in err
+    total = laspy.open(path).header.point_count
+    s = json.loads(stats.read_text())
+    assert s["points"] == total and s["points_loaded"] == total - node.point_count
+    copc = s["copc"][0]
+    assert (copc["nodes_skipped"], copc["points_skipped"]) == (1, node.point_count)
+    assert copc["bytes_read"] == sum(n.byte_size for n in nodes_of(path) if n.point_count > 0)
+
+    full = laspy.read(path)
+    first = int(open_copc(path).hierarchy.first[open_copc(path).hierarchy.nodes["offset"] == node.offset][0])
+    with CloudLoader([bad], partial=True) as loader:
+        batches = sorted(loader, key=lambda b: b.start)
+        info, warnings = loader.info, loader.warnings
+    assert sum(b.count for b in batches) == total - node.point_count and len(warnings) == 1
+    starts = np.concatenate([np.arange(b.start, b.start + b.count) for b in batches])
+    expect = np.r_[np.arange(first), np.arange(first + node.point_count, total)]
+    np.testing.assert_array_equal(starts, expect)
+    positions = np.concatenate([b.positions for b in batches]).astype(np.float64) + info.origin
+    np.testing.assert_allclose(positions, np.stack([full.x, full.y, full.z], axis=1)[expect], atol=1e-3)

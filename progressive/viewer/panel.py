@@ -19,6 +19,7 @@ from imgui_bundle import imgui
 from progressive.camera import NO_CLIP, Clip, Returns, project
 from progressive.colors import NO_RANGE, Colormap, ColorMode, Palette
 from progressive.effects import MAX_POINT_SIZE, EyeDome
+from progressive.loaders.copc import CopcStatus
 from progressive.loaders.types import AttributeKind
 from progressive.measure import Measurement
 from progressive.viewer import clipbox
@@ -133,6 +134,9 @@ class Panel:
                 imgui.text(f"{Path(f.path).name}: {f.points:,} points ({f.format} {f.version})")
                 imgui.text(f"    CRS: {f.crs or 'none given'}")
             status = s.status()
+            for copc in status.copc:
+                for line in copc_lines(copc) if copc is not None else ():
+                    imgui.text(line)
             loaded, total = status.loaded, status.points
             imgui.progress_bar(loaded / max(1, total), imgui.ImVec2(-1, 0), f"{loaded:,} / {total:,} loaded")
 
@@ -501,6 +505,17 @@ class Panel:
         imgui.set_current_context(self.context)
         self.renderer.shutdown()
         imgui.destroy_context(self.context)
+
+
+def copc_lines(c: CopcStatus) -> list[str]:
+    """The Files section's lines of a COPC file: what its octree keeps on the GPU of its
+    own, what has been read, the damaged nodes skipped."""
+    lines = [f"    COPC levels {c.levels_kept} / {c.levels}, nodes {c.nodes_kept:,} / {c.nodes:,}",
+             f"    points {c.points_kept:,} / {c.points:,} kept",
+             f"    read {c.nodes_read:,} nodes, {c.bytes_read / 2**20:,.1f} MiB"]
+    if c.nodes_skipped:
+        lines.append(f"    {c.nodes_skipped:,} damaged nodes skipped ({c.points_skipped:,} points)")
+    return lines
 
 
 def effect_lines(viewer) -> tuple[str, str]:
