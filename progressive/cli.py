@@ -158,13 +158,27 @@ def clip_from(args):
         raise UsageError("--clip-box and --clip-z do not overlap: nothing would be drawn") from None
 
 
+def eye_dome_from(args):
+    """--eye-dome-strength and --eye-dome-radius, checked wherever eye-dome lighting may
+    be on: asked for, or left to the viewer's rules (None); None where it is off."""
+    from progressive.effects import EyeDome
+
+    if args.eye_dome is False:
+        return None
+    try:
+        return EyeDome(args.eye_dome_strength, args.eye_dome_radius)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+
+
 def effects_from(args):
-    """The screen-space effects asked for on the command line."""
-    from progressive.effects import Effects, EyeDome
+    """The screen-space effects asked for on the command line; what `view` leaves to
+    the viewer's rules (None) is 1 pixel and no eye-dome lighting here, as `render`."""
+    from progressive.effects import Effects
 
     try:
-        edl = EyeDome(args.eye_dome_strength, args.eye_dome_radius) if args.eye_dome else None
-        return Effects(args.point_size, edl)
+        size = 1 if args.point_size is None else args.point_size
+        return Effects(size, eye_dome_from(args) if args.eye_dome else None)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
 
@@ -209,12 +223,20 @@ def palette_from(args):
     return Palette.from_json(args.palette) if args.palette else DEFAULT_PALETTE
 
 
-def add_look_args(parser) -> None:
-    """Options shared by render and view: effects, filters and clip boxes."""
+def add_look_args(parser, chosen: bool = False) -> None:
+    """Options shared by render and view: effects, filters and clip boxes. `chosen`
+    (view): --point-size and --eye-dome/--no-eye-dome default to None, the viewer's
+    rules (viewer/defaults.py), so that any value given, 1 and off included, stays."""
     from progressive.camera import Returns
 
-    parser.add_argument("--point-size", type=int_arg, default=1, help="pixels across a point (a screen-space pass)")
-    parser.add_argument("--eye-dome", action="store_true", help="eye-dome lighting")
+    if chosen:
+        parser.add_argument("--point-size", type=int_arg, default=None,
+                            help="pixels across a point (a screen-space pass; default: from the density on screen)")
+        parser.add_argument("--eye-dome", action=argparse.BooleanOptionalAction, default=None,
+                            help="eye-dome lighting on or off (default: on where it helps and its cost fits the frame)")
+    else:
+        parser.add_argument("--point-size", type=int_arg, default=1, help="pixels across a point (a screen-space pass)")
+        parser.add_argument("--eye-dome", action="store_true", help="eye-dome lighting")
     parser.add_argument("--eye-dome-strength", type=float_arg, default=1.0)
     parser.add_argument("--eye-dome-radius", type=float_arg, default=1.4, help="pixels")
     parser.add_argument("--hide-classes", type=classes_arg, default=frozenset(),
@@ -502,16 +524,18 @@ def cmd_view(args) -> int:
     from progressive.output import check_outputs
 
     paths = input_paths(args.files)
-    effects, clip = effects_from(args), clip_from(args)       # bad values are one line before any notice or window
+    effects, edl, clip = effects_from(args), eye_dome_from(args), clip_from(args)   # bad values: one line, no window
     options = view_session_options(args)
     check_cloud(paths, args)        # a bad file or attribute is one line, before any notice or window
     if has_display():
+        from progressive.effects import EyeDome
         from progressive.viewer.app import Viewer, ViewerOptions
 
         try:
-            viewer = Viewer(paths, ViewerOptions(session=options,
-                                                 ui=not args.no_ui, effects=effects, hidden_classes=args.hide_classes,
-                                                 clip=clip, returns=args.returns))
+            viewer = Viewer(paths, ViewerOptions(session=options, ui=not args.no_ui, point_size=args.point_size,
+                                                 eye_dome=args.eye_dome,
+                                                 eye_dome_params=edl or EyeDome(),
+                                                 hidden_classes=args.hide_classes, clip=clip, returns=args.returns))
         except GLCapabilityError as exc:
             print(f"progressive: cannot open a window ({one_line(exc)}); rendering headless instead", file=sys.stderr)
         else:
@@ -662,7 +686,7 @@ def build_parser() -> Parser:
     view = sub.add_parser("view", help="open a window on the cloud (without a display: render it to a PNG)")
     add_cloud_args(view)
     view.add_argument("--no-ui", action="store_true", help="no panel (keys still work)")
-    add_look_args(view)
+    add_look_args(view, chosen=True)
     view.add_argument("--out", type=path_arg, default="progressive-view.png", help="PNG written when there is no display")
     view.set_defaults(func=cmd_view)
 

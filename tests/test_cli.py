@@ -278,3 +278,49 @@ def test_render_effects_and_hidden_classes(tmp_path, capsys):
     assert main(["render", *SMALL, "--color-by", "classification", "--hide-classes", "2", "--ids", str(ids_hidden)]) == 0
     ids = np.load(ids_hidden)
     assert ids[ids != 0xFFFFFFFF].size and not np.any(classes[ids[ids != 0xFFFFFFFF]] == 2)
+
+
+def test_view_leaves_point_size_and_eye_dome_to_the_viewer_unless_given(tmp_path, capsys):
+    """view: None (the viewer's rules) unless given, so 1 and off stay the user's; render
+    keeps 1 and off as its defaults and has no --no-eye-dome."""
+    from progressive.cli import build_parser
+
+    parse = build_parser().parse_args
+    view = parse(["view"])
+    assert (view.point_size, view.eye_dome) == (None, None)
+    assert parse(["view", "--point-size", "1", "--no-eye-dome"]).point_size == 1
+    assert parse(["view", "--no-eye-dome"]).eye_dome is False and parse(["view", "--eye-dome"]).eye_dome is True
+    render = parse(["render"])
+    assert (render.point_size, render.eye_dome) == (1, False)
+    code, _, err = run(capsys, "render", *SMALL, "--no-eye-dome", "--out", tmp_path / "x.png")
+    assert code == 2 and err == "progressive: error: unrecognized arguments: --no-eye-dome\n"
+
+
+@pytest.mark.parametrize("argv", [
+    ["--point-size", "0"],
+    ["--eye-dome-radius", "0"],                     # the rules may turn eye-dome lighting on
+    ["--eye-dome", "--eye-dome-strength", "nan"],
+    ["--eye-dome", "--no-eye-dome", "--point-size", "99"],
+])
+def test_bad_view_effects_one_line_error(tmp_path, capsys, monkeypatch, argv):
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    out = tmp_path / "x.png"
+    code, _, err = run(capsys, "view", *SMALL, *argv, "--out", out)
+    assert code == 2
+    assert err.startswith("progressive: error: ") and err.count("\n") == 1, err
+    assert not out.exists()
+
+
+def test_headless_view_draws_what_render_draws(tmp_path, capsys, monkeypatch):
+    """Without a display, what view leaves to the viewer's rules is 1 pixel and no
+    lighting, as render's defaults; given effects are drawn as render draws them."""
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    from PIL import Image
+
+    for flags in ([], ["--point-size", "3", "--eye-dome"]):
+        seen, drawn = tmp_path / "view.png", tmp_path / "render.png"
+        assert run(capsys, "view", *SMALL, *flags, "--out", seen)[0] == 0
+        assert run(capsys, "render", *SMALL, *flags, "--out", drawn)[0] == 0
+        np.testing.assert_array_equal(np.asarray(Image.open(seen)), np.asarray(Image.open(drawn)))

@@ -27,6 +27,8 @@ from progressive.session import SessionOptions
 from progressive.viewer.controls import Action
 
 W, H = 320, 240
+EXACT = {"point_size": 1, "eye_dome": False}
+"""Chosen as --point-size 1 --no-eye-dome would: 1-pixel images the references compare exactly."""
 
 
 @pytest.fixture(scope="module")
@@ -56,7 +58,7 @@ def display():
 def viewer(display, tmp_path):
     from progressive.viewer.app import Viewer, ViewerOptions
 
-    v = Viewer([str(SAMPLE)], ViewerOptions(SessionOptions(width=W, height=H), screenshot_dir=tmp_path, automatic=False))
+    v = Viewer([str(SAMPLE)], ViewerOptions(SessionOptions(width=W, height=H), screenshot_dir=tmp_path, **EXACT))
     yield v
     v.close()
 
@@ -632,11 +634,11 @@ def test_section_along_the_measured_line_and_its_profile_view(viewer):
 
 def open_viewer(paths, width=W, height=H, automatic=False, **session):
     """automatic: the point size and eye-dome lighting rules choose (the cases that
-    compare exact 1-pixel images leave them off)."""
+    compare exact 1-pixel images choose 1 pixel and no lighting)."""
     from progressive.viewer.app import Viewer, ViewerOptions
 
     return Viewer([str(p) for p in paths], ViewerOptions(SessionOptions(width=width, height=height, **session),
-                                                         automatic=automatic))
+                                                         **({} if automatic else EXACT)))
 
 
 def corners(lo, hi) -> np.ndarray:
@@ -956,15 +958,107 @@ def test_default_point_size_and_lighting_follow_their_rules_and_say_why(display)
 
 
 def test_options_given_are_not_overridden(display):
-    """--point-size 3 and --eye-dome (ViewerOptions.effects) stay what they are."""
-    from progressive.effects import Effects, EyeDome
+    """--point-size 3 and --eye-dome (ViewerOptions) stay what they are."""
     from progressive.viewer.app import Viewer, ViewerOptions
 
-    v = Viewer([str(SAMPLE)], ViewerOptions(SessionOptions(width=W, height=H), effects=Effects(3, EyeDome())))
+    v = Viewer([str(SAMPLE)], ViewerOptions(SessionOptions(width=W, height=H), point_size=3, eye_dome=True))
     try:
         settle(v)
         v.step()
         assert (v.settings.point_size, v.settings.eye_dome) == (3, True)
         assert "your choice" in v.panel.effect_lines[0] and "your choice" in v.panel.effect_lines[1]
+    finally:
+        v.close()
+
+
+@pytest.mark.parametrize("flags", [[], ["--point-size", "1", "--no-eye-dome"]])
+def test_point_size_1_and_no_eye_dome_on_the_command_line_stay(display, monkeypatch, flags):
+    """`view --point-size 1 --no-eye-dome` keeps 1 pixel and no lighting after the view
+    converges, where the rules (as the same view without the flags shows) choose a larger
+    size from laspy's coverage and, at a frame goal its measured cost fits, lighting."""
+    from progressive.cli import main
+    from progressive.effects import Effects
+    from progressive.viewer import app, defaults
+    from progressive.viewer.controls import BudgetMode
+
+    seen = {}
+
+    def run(self):
+        try:
+            self.set_budget(BudgetMode.ADAPTIVE, target_fps=2.0)   # a goal eye-dome lighting's cost fits
+            settle(self)
+            self.step()
+            cost = self.session.effect_cost_ms(Effects(1, self.settings.eye_dome_params))["eye_dome"]
+            seen.update(settings=self.settings, lines=self.panel.effect_lines,
+                        size=defaults.point_size(projected_coverage(self)).value,
+                        edl=defaults.eye_dome(False, cost, self.goal_ms).value)
+        finally:
+            self.close()
+
+    monkeypatch.setattr(app.Viewer, "run", run)
+    assert main(["view", str(SAMPLE), "--width", "640", "--height", "360", "--color-by", "elevation", *flags]) == 0
+    s, lines = seen["settings"], seen["lines"]
+    assert seen["size"] > 1 and seen["edl"] is True
+    if flags:
+        assert (s.point_size, s.eye_dome) == (1, False)
+        assert lines[0].startswith("point size 1: your choice") and lines[1].startswith("eye-dome lighting off: your choice")
+    else:
+        assert (s.point_size, s.eye_dome) == (seen["size"], True)
+        assert "your choice" not in lines[0] + lines[1]
+
+
+def box_on_screen(v) -> np.ndarray:
+    """Screen columns and rows of the cloud's bounding box corners (float64 projection)."""
+    xy, depth = screen_points(v.camera, corners(v.session.info.bounds_min, v.session.info.bounds_max),
+                              *v.framebuffer_size)
+    assert (depth > 0).all()
+    return xy
+
+
+def test_dragging_the_panel_edge_sets_its_width_within_the_clamp(display):
+    """A left drag from just right of the panel's edge moves the edge with the cursor,
+    clamped to PANEL_MIN_WIDTH .. PANEL_DRAG_MAX_SHARE of the window; at the home view the
+    camera frames the box in the area left free after each move, a view the user chose
+    stays; the width is kept through Tab and a new file, and imgui docks at it."""
+    from progressive.viewer.controls import PANEL_DRAG_MAX_SHARE, PANEL_MIN_WIDTH
+
+    v = open_viewer([SAMPLE], 640, 360)
+    try:
+        settle(v)
+        ww = glfw.get_window_size(v.window)[0]
+        scale = v.framebuffer_size[0] / ww
+        start = v.panel_units
+        assert start > 0 and v.at_home() and not v.on_panel_edge(start - 1) and v.on_panel_edge(start + 2)
+        v.mouse_button(glfw.MOUSE_BUTTON_LEFT, True, start + 2, 100)
+        for dx, expected in ((80, start + 80), (1000, PANEL_DRAG_MAX_SHARE * ww), (-1000, PANEL_MIN_WIDTH),
+                             (50, start + 50)):
+            v.cursor(start + 2 + dx, 120)
+            assert v.panel_units == pytest.approx(expected)
+            assert v.at_home() and box_on_screen(v)[:, 0].min() >= v.free_area[0]
+        v.mouse_button(glfw.MOUSE_BUTTON_LEFT, False, start + 52, 120)
+        assert v.picked is None and v.dragged_panel == pytest.approx(start + 50)
+        settle(v)
+        x0, _, x1, y1 = v.free_area
+        assert x0 == round((start + 50) * scale) and v.panel.docked[1] * scale == pytest.approx(x0, abs=1)
+        xy = box_on_screen(v)
+        assert xy[:, 0].min() >= x0 and xy[:, 0].max() <= x1 and xy[:, 1].min() >= 0 and xy[:, 1].max() <= y1
+        assert xy[:, 0].max() - xy[:, 0].min() >= 0.85 * (x1 - x0) or xy[:, 1].max() - xy[:, 1].min() >= 0.85 * y1
+        assert np.nonzero((v.session.ids() != EMPTY).any(axis=0))[0].min() >= x0
+        v.act(Action.PANEL)
+        assert v.free_area[0] == 0 and not v.on_panel_edge(start + 52)
+        v.act(Action.PANEL)
+        assert v.free_area[0] == x0
+        v.open([str(SAMPLE)])
+        assert v.free_area[0] == x0
+        # a view the user chose stays where it is while the edge moves
+        v.orbit = v.navigator.orbit(v.orbit, 30, -10)
+        chosen = v.orbit
+        edge = v.panel_units
+        v.mouse_button(glfw.MOUSE_BUTTON_LEFT, True, edge + 1, 100)
+        v.cursor(edge + 41, 100)
+        v.mouse_button(glfw.MOUSE_BUTTON_LEFT, False, edge + 41, 100)
+        assert v.panel_units == pytest.approx(edge + 40) and v.orbit == chosen
+        v.step()
+        no_gl_error(v)
     finally:
         v.close()

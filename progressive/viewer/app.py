@@ -24,7 +24,16 @@ from progressive.output import write_png
 from progressive.passes.present import PresentPass
 from progressive.session import Session, SessionOptions
 from progressive.viewer import clipbox, defaults
-from progressive.viewer.controls import SECTION_WIDTH_SHARE, VIEW_ACTIONS, Action, BudgetMode, ViewSettings, cycle
+from progressive.viewer.controls import (
+    PANEL_EDGE_GRAB,
+    SECTION_WIDTH_SHARE,
+    VIEW_ACTIONS,
+    Action,
+    BudgetMode,
+    ViewSettings,
+    cycle,
+    docked_width,
+)
 from progressive.viewer.navigation import Navigator, Orbit
 
 DOUBLE_CLICK_SECONDS = 0.35
@@ -32,8 +41,6 @@ DOUBLE_CLICK_PIXELS = 4.0
 MESSAGE_SECONDS = 12.0         # how long a note stays in the panel
 CURSOR_SEARCH = 7              # pixels around the cursor searched for a point (zoom, focus)
 IDLE_WAIT_SECONDS = 0.05       # converged and no input: wait for events instead of spinning
-PANEL_WIDTH = 360              # the docked panel's width in screen units ...
-PANEL_MAX_SHARE = 0.42         # ... and at most this share of a narrow window's
 HISTOGRAM_BINS = 64
 SCALE_BAR_PIXELS = 160         # the scale bar is the longest 1, 2 or 5 x 10^k file units shorter than this
 UNIT_SYMBOLS = {"metre": "m", "foot": "ft", "US survey foot": "ftUS", "kilometre": "km"}
@@ -56,8 +63,9 @@ FLY_KEYS: dict[int, tuple[float, float, float]] = {
 @dataclass(frozen=True)
 class ViewerOptions:
     session: SessionOptions = SessionOptions()   # size, colouring, loading, memory (size: the window's first)
-    effects: Effects = Effects()        # the first point size and eye-dome lighting
-    automatic: bool = True              # a point size of 1 and no eye-dome lighting here: viewer/defaults.py chooses
+    point_size: int | None = None       # the first point size; None: viewer/defaults.py chooses
+    eye_dome: bool | None = None        # eye-dome lighting on or off; None: viewer/defaults.py chooses
+    eye_dome_params: EyeDome = EyeDome()
     hidden_classes: frozenset[int] = frozenset()
     clip: Clip = NO_CLIP                # the first clip box (file coordinates)
     returns: Returns = Returns.ALL      # the first return filter
@@ -78,6 +86,7 @@ class DragKind(enum.Enum):
     PAN = "pan"
     LOOK = "look"      # fly mode: turn about the camera
     CLIP_FACE = "clip face"   # move a face of the clip box along its normal
+    PANEL_EDGE = "panel edge"  # set the docked panel's width
 
 
 @dataclass(frozen=True)
@@ -92,11 +101,21 @@ class FaceDrag:
 
 
 @dataclass(frozen=True)
+class PanelDrag:
+    """What a drag of the panel's edge started from: its width (screen units), and
+    whether the camera was at the home view, which then follows the free area."""
+
+    width: float
+    home: bool
+
+
+@dataclass(frozen=True)
 class Drag:
     kind: DragKind
     x: float
     y: float
     face: FaceDrag | None = None
+    panel: PanelDrag | None = None
 
 
 class Viewer:
@@ -107,13 +126,13 @@ class Viewer:
         self.window = self.glc.window
         glfw.swap_interval(1)
         self.present = PresentPass(self.glc)
-        edl = options.effects.eye_dome
-        self.settings = ViewSettings(target_fps=display_refresh_hz(), point_size=options.effects.point_size,
-                                     eye_dome=edl is not None, eye_dome_params=edl or EyeDome())
-        # the rules of viewer/defaults.py choose what the options leave at its default,
-        # until the user changes it (keys, panel); each choice keeps its reason
-        self.auto_point_size = options.automatic and options.effects.point_size == 1
-        self.auto_eye_dome = options.automatic and edl is None
+        size = 1 if options.point_size is None else options.point_size     # the rules start from 1 pixel
+        self.settings = ViewSettings(target_fps=display_refresh_hz(), point_size=size,
+                                     eye_dome=bool(options.eye_dome), eye_dome_params=options.eye_dome_params)
+        # the rules of viewer/defaults.py choose what the options leave as None, until
+        # the user changes it (keys, panel); each choice keeps its reason
+        self.auto_point_size = options.point_size is None
+        self.auto_eye_dome = options.eye_dome is None
         self.point_size_choice: defaults.Choice | None = None
         self.eye_dome_choice: defaults.Choice | None = None
         self.eye_dome_cost: tuple[tuple[int, int], float] | None = None   # (size, ms) measured
@@ -135,6 +154,9 @@ class Viewer:
         self.measurement = Measurement(())  # Shift+clicked points
         self.last_screenshot: Path | None = None
         self._drag: Drag | None = None
+        self.dragged_panel: float | None = None    # the panel width dragged (screen units), kept while the viewer runs
+        self._resize_cursor = glfw.create_standard_cursor(glfw.HRESIZE_CURSOR)
+        self._cursor_shown = None
         self._last_click = (0.0, -1e9, -1e9)
         self._dropped: tuple[list[str], bool] | None = None
         self._categories: list[int] | None = None
@@ -324,13 +346,23 @@ class Viewer:
         return max(1, w), max(1, h)
 
     @property
+    def panel_units(self) -> float:
+        """Screen units the docked panel covers at the window's left (0 when hidden)."""
+        if self.panel is None or not self.settings.panel:
+            return 0.0
+        return docked_width(self.dragged_panel, glfw.get_window_size(self.window)[0])
+
+    @property
     def panel_width(self) -> int:
         """Framebuffer pixels the docked panel covers at the window's left (0 when hidden)."""
-        if self.panel is None or not self.settings.panel:
-            return 0
         ww, _ = glfw.get_window_size(self.window)
         fw, _ = self.framebuffer_size
-        return int(round(min(PANEL_WIDTH, PANEL_MAX_SHARE * ww) * fw / max(1, ww)))
+        return int(round(self.panel_units * fw / max(1, ww)))
+
+    def on_panel_edge(self, x: float) -> bool:
+        """Window position x (screen units) grabs the docked panel's right edge."""
+        edge = self.panel_units
+        return edge > 0 and edge <= x < edge + PANEL_EDGE_GRAB
 
     @property
     def free_area(self) -> tuple[int, int, int, int]:
@@ -342,6 +374,11 @@ class Viewer:
     def home(self) -> None:
         """Frame the whole cloud in the free area (R)."""
         self.orbit, self.pasted = self.navigator.framed(self.framebuffer_size, self.free_area), None
+
+    def at_home(self) -> bool:
+        """The camera is where home() puts it: a change of the free area may frame it again."""
+        return self.navigator is not None and self.pasted is None and \
+            self.orbit == self.navigator.framed(self.framebuffer_size, self.free_area)
 
     def scale_bar(self) -> tuple[float, float, str] | None:
         """(length in file units, pixels, label) of a bar measuring lengths across the view
@@ -466,6 +503,9 @@ class Viewer:
         if self.session is not None:
             self.session.close()
             self.session = None
+        if self._resize_cursor is not None:
+            glfw.destroy_cursor(self._resize_cursor)
+            self._resize_cursor = None
         self.present.release()
         self.glc.release()
 
@@ -490,8 +530,7 @@ class Viewer:
         elif action is Action.HELP:
             self.settings = replace(s, help=not s.help)
         elif action is Action.PANEL:
-            at_home = self.navigator is not None and self.pasted is None and \
-                self.orbit == self.navigator.framed(self.framebuffer_size, self.free_area)
+            at_home = self.at_home()
             self.settings = replace(s, panel=not s.panel)
             if at_home:             # the home view follows the free area; a view the user chose stays
                 self.home()
@@ -621,14 +660,18 @@ class Viewer:
         self.mouse_button(button, action == glfw.PRESS, x, y, bool(mods & glfw.MOD_SHIFT))
 
     def mouse_button(self, button: int, pressed: bool, x: float, y: float, shift: bool = False) -> None:
-        """A press starts a drag (orbit, pan, or look in fly mode); a release where it was
-        pressed picks the point there (the panel shows all of it; with Shift it is also the
-        next point of the measurement); two quick presses focus."""
+        """A press starts a drag (orbit, pan, or look in fly mode; on the panel's right
+        edge, its width); a release where it was pressed picks the point there (the panel
+        shows all of it; with Shift it is also the next point of the measurement); two
+        quick presses focus."""
         if not pressed:
             d, self._drag = self._drag, None
             if (d is not None and button == glfw.MOUSE_BUTTON_LEFT and abs(x - d.x) + abs(y - d.y) < DOUBLE_CLICK_PIXELS
-                    and d.kind is not DragKind.CLIP_FACE and (d.kind is not DragKind.PAN or shift)):
+                    and d.kind not in (DragKind.CLIP_FACE, DragKind.PANEL_EDGE) and (d.kind is not DragKind.PAN or shift)):
                 self.pick_point(x, y, measure=shift)
+            return
+        if button == glfw.MOUSE_BUTTON_LEFT and self.on_panel_edge(x):
+            self._drag = Drag(DragKind.PANEL_EDGE, x, y, panel=PanelDrag(self.panel_units, self.at_home()))
             return
         if self._ui_wants_mouse() or self.navigator is None:
             return
@@ -668,9 +711,18 @@ class Viewer:
         if self.panel is not None:
             self.panel.renderer.mouse_callback(window, x, y)
         self.cursor(x, y)
+        d = self._drag
+        edge = (d.kind is DragKind.PANEL_EDGE) if d is not None else self.on_panel_edge(x)
+        shape = self._resize_cursor if edge else None
+        if shape is not self._cursor_shown:
+            glfw.set_cursor(self.window, shape)
+            self._cursor_shown = shape
 
     def cursor(self, x: float, y: float) -> None:
         d = self._drag
+        if d is not None and d.kind is DragKind.PANEL_EDGE:
+            self._drag_panel(d, x)
+            return
         if d is None or self.navigator is None:
             return
         if d.kind is DragKind.CLIP_FACE:
@@ -686,6 +738,13 @@ class Viewer:
             o = nav.pan(o, dx, dy, self.framebuffer_size[1])
         self.orbit, self.pasted = o, None
         self._drag = Drag(d.kind, x, y)
+
+    def _drag_panel(self, d: Drag, x: float) -> None:
+        """The edge follows the cursor within the clamp; a camera at the home view frames
+        the cloud again in the area left free, a view the user chose stays."""
+        self.dragged_panel = docked_width(d.panel.width + x - d.x, glfw.get_window_size(self.window)[0])
+        if d.panel.home and self.navigator is not None:
+            self.home()
 
     def _drag_face(self, f: FaceDrag, x: float, y: float) -> None:
         """The face moves to where the cursor's ray meets its axis (the camera stands

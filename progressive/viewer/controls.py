@@ -51,6 +51,21 @@ MOUSE_HELP = (
     ("Left drag a clip handle", "move that face of the clip box"),
     ("Shift+click", "add the point to the measurement (two: a section along them)"),
 )
+PANEL_WIDTH = 360              # the docked panel's first width in screen units ...
+PANEL_MAX_SHARE = 0.42         # ... and at most this share of a narrow window's
+PANEL_MIN_WIDTH = 240          # a width dragged (its right edge) is at least this many screen units ...
+PANEL_DRAG_MAX_SHARE = 0.6     # ... and at most this share of the window's width (which wins)
+PANEL_EDGE_GRAB = 6            # screen units right of the panel's edge that grab it (left of it: its scrollbar)
+
+
+def docked_width(dragged: float | None, window_width: float) -> float:
+    """The docked panel's width in screen units: the first one, or the one dragged
+    (None: not dragged), clamped to the window as it is now."""
+    if dragged is None:
+        return min(PANEL_WIDTH, PANEL_MAX_SHARE * window_width)
+    return min(max(dragged, PANEL_MIN_WIDTH), PANEL_DRAG_MAX_SHARE * window_width)
+
+
 SECTION_WIDTH_SHARE = 0.01
 """A new section's width before the panel sets one: this share of the cloud's
 horizontal diagonal (file units differ: metres, feet)."""
