@@ -1029,6 +1029,10 @@ def test_dragging_the_panel_edge_sets_its_width_within_the_clamp(display):
         scale = v.framebuffer_size[0] / ww
         start = v.panel_units
         assert start > 0 and v.at_home() and not v.on_panel_edge(start - 1) and v.on_panel_edge(start + 2)
+        v.on_cursor(v.window, start + 2, 100)           # glfw's callback: the resize cursor over the edge
+        assert v._cursor_shown is not None and v._cursor_shown is v._resize_cursor
+        v.on_cursor(v.window, start + 40, 100)
+        assert v._cursor_shown is None
         v.mouse_button(glfw.MOUSE_BUTTON_LEFT, True, start + 2, 100)
         for dx, expected in ((80, start + 80), (1000, PANEL_DRAG_MAX_SHARE * ww), (-1000, PANEL_MIN_WIDTH),
                              (50, start + 50)):
