@@ -51,12 +51,12 @@ def main(argv=None) -> int:
     b, raster = r.budget, r.raster
     for _ in range(7):
         timed("clear", r.vis.clear)
-        timed("reproject", lambda: [raster.draw_list(view, r.prepare, p) for p in range(raster.passes)])
+        timed("reproject", lambda: [raster.draw_list(view, r.prepare.reprojection, p) for p in range(raster.passes)])
         timed("budget begin", lambda: b.begin(False))
-        timed("fill first", lambda: [raster.draw_piece(view, b, k, p) for p in range(raster.passes) for k in (0, 1)])
+        timed("fill first", lambda: [raster.draw_piece(view, b.pieces, k, p) for p in range(raster.passes) for k in (0, 1)])
         timed("stamp", lambda: b.stamp(Stamp.FILL))
         timed("budget adapt", b.adapt)
-        timed("fill rest", lambda: [raster.draw_piece(view, b, k, p) for p in range(raster.passes) for k in (2, 3)])
+        timed("fill rest", lambda: [raster.draw_piece(view, b.pieces, k, p) for p in range(raster.passes) for k in (2, 3)])
         timed("prepare", r.prepare.run)
         timed("resolve", lambda: r.shading.resolve.run(style, r.prepare.pixel_words))
         for name, fx in EFFECTS.items():

@@ -48,3 +48,12 @@ def test_kernel_section_times_every_read_pattern(gl):
     stages = [r for r in table.rows if r[0] == "raster"]
     assert len(stages) == (len(kernel.STAGES) * 2 if gl.caps.atomic_int64 else 0)
     assert gl.ctx.error == "GL_NO_ERROR"
+
+
+def test_passes_bench_runs(tmp_path):
+    """bench.passes times every pass of a progressive frame through the passes' handles."""
+    from bench import passes
+
+    assert passes.main(["--points", "20000", "--size", "96x64", "--budget", "5000", "--out", str(tmp_path)]) == 0
+    table = (tmp_path / "passes_20000.md").read_text()
+    assert all(f"| {name} |" in table for name in ("reproject", "fill first", "prepare", "resolve with point size 7"))
