@@ -13,7 +13,7 @@
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
-CHUNKS=(load raster-100M raster-1B progressive-100M progressive-1B accuracy attributes)
+CHUNKS=(load kernel-100M raster-100M raster-1B progressive-100M progressive-1B accuracy attributes)
 chunk="${1:-list}"
 if [ "$chunk" = list ]; then
     printf '%s\n' "${CHUNKS[@]}"
@@ -26,6 +26,7 @@ bench=("${PYTHON:-python3}" -m bench --full --out-root "$OUT")
 
 case "$chunk" in
     load)             "${bench[@]}" --sections load ;;
+    kernel-100M)      "${PYTHON:-python3}" -m bench.kernel --points 100000000 --out-root "$OUT" ;;
     raster-100M)      "${bench[@]}" --sections raster --raster-points 100000000 ;;
     raster-1B)        "${bench[@]}" --sections raster --raster-points 1000000000 ;;
     progressive-100M) "${bench[@]}" --sections progressive --progressive-points 100000000 ;;

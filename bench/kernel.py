@@ -2,7 +2,7 @@
 brute-force frame must read, no rasterization), and the 64-bit batch walk with its
 stages cut off one by one, on the same tiled cloud in one run.
 
-    python -m bench.kernel [--points 100000000] [--size 1920x1080] [--out DIR]
+    python -m bench.kernel [--points 100000000] [--size 1920x1080] [--out DIR | --out-root DIR]
 
 Stages are cut by rewriting the raster shader's text here (the renderer's shader has
 no switches for them): "load" keeps only the record reads, "+ project" adds the
@@ -159,12 +159,13 @@ def main(argv=None) -> int:
     ap.add_argument("--size", default="1920x1080")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--out", default="bench/results/local")
+    ap.add_argument("--out-root", help="write to OUT_ROOT/<machine> instead of --out")
     args = ap.parse_args(argv)
     glc = create_context()
     size = tuple(int(v) for v in args.size.split("x"))
     table = run(glc, args.points, size, args.repeats)
     info = RunInfo.from_caps(glc.caps, "kernel")
-    table.write(Path(args.out), info)
+    table.write(Path(args.out_root) / info.machine if args.out_root else Path(args.out), info)
     print(table.markdown(info))
     return 0
 
