@@ -17,6 +17,7 @@ import argparse
 import statistics
 from pathlib import Path
 
+from bench.raster import median_gpu_ms
 from bench.report import RunInfo, Table
 from bench.synthetic import SAMPLE, load, tiled
 from progressive import shaderlib
@@ -28,7 +29,6 @@ from progressive.passes.raster_compute import ComputeRaster
 from progressive.permutation import BATCH_SLOTS, SLICE_POINTS, FillOrder
 from progressive.pointstore import RecordOrder
 from progressive.renderer import Renderer
-from progressive.timing import Timestamps
 
 READS = {
     "linear, a record an invocation":
@@ -66,20 +66,6 @@ STAGES = {
 }
 
 
-def timed(glc: GLContext, run, repeats: int) -> float:
-    """Median GPU ms of `run` after one warm-up."""
-    t = Timestamps(glc)
-    ms = []
-    for _ in range(repeats + 1):
-        t.reset()
-        t.stamp("start")
-        run()
-        t.stamp("end")
-        ms.append(t.durations_ms()["end"])
-    t.release()
-    return statistics.median(ms[1:])
-
-
 def reads(glc: GLContext, points: int, repeats: int) -> list[tuple]:
     batches = -(-points // BATCH_SLOTS)
     slots = batches * BATCH_SLOTS
@@ -97,7 +83,7 @@ def reads(glc: GLContext, points: int, repeats: int) -> list[tuple]:
         buf.bind_to_storage_buffer(0)
         out.bind_to_storage_buffer(1)
         grid = (gx, -(-groups // gx), 1)
-        ms = timed(glc, lambda p=program, g=grid: p.run(*g), repeats)
+        ms = median_gpu_ms(glc, lambda p=program, g=grid: p.run(*g), repeats)
         rows.append(("read", name, "", ms, slots * RECORD_BYTES / (ms / 1e3) / 1e9, slots / (ms / 1e3) / 1e9))
         program.release()
     buf.release()

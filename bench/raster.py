@@ -47,6 +47,20 @@ LAYOUTS = (Layout("file order", Order.FILE, FillOrder.FILE), Layout("Morton orde
            Layout("batched, scan order", Order.SCAN, FillOrder.BATCHED))
 
 
+def median_gpu_ms(glc: GLContext, run, repeats: int) -> float:
+    """Median GPU milliseconds (timestamps) of `run()` over `repeats` runs after one warm-up."""
+    t = Timestamps(glc)
+    ms = []
+    for _ in range(repeats + 1):
+        t.reset()
+        t.stamp("start")
+        run()
+        t.stamp("end")
+        ms.append(t.durations_ms()["end"])
+    t.release()
+    return statistics.median(ms[1:])
+
+
 def copy_bandwidth(glc: GLContext, nbytes: int, repeats: int) -> dict[str, float]:
     """Bytes copied per second between two buffers (GPU timestamps; each byte read once
     and written once), by glCopyNamedBufferSubData and by a compute shader that reads
@@ -60,18 +74,8 @@ def copy_bandwidth(glc: GLContext, nbytes: int, repeats: int) -> dict[str, float
     dst.bind_to_storage_buffer(Binding.COUNTERS)
     methods = {"glCopyNamedBufferSubData": lambda: glc.gl.copy_named_buffer_sub_data(src.glo, dst.glo, 0, 0, nbytes),
                "compute shader": lambda: program.run(*grid(count))}
-    t = Timestamps(glc)
-    rates = {}
-    for name, copy in methods.items():
-        times = []
-        for _ in range(repeats + 1):
-            t.reset()
-            t.stamp("start")
-            copy()
-            t.stamp("copy")
-            times.append(t.durations_ms()["copy"])
-        rates[name] = nbytes / (statistics.median(times[1:]) / 1e3)
-    for obj in (src, dst, t, program):
+    rates = {name: nbytes / (median_gpu_ms(glc, copy, repeats) / 1e3) for name, copy in methods.items()}
+    for obj in (src, dst, program):
         obj.release()
     return rates
 

@@ -67,13 +67,19 @@ def environment(state: str, warm: dict[str, str]) -> dict[str, str]:
     return env
 
 
-def one(command: str, path: Path, size: tuple[int, int], env: dict[str, str]) -> dict:
+def spawn(module: str, kind: str, path: Path, size: tuple[int, int], env: dict[str, str]) -> dict:
+    """`python -m MODULE --child KIND PATH W H` in a fresh process: its JSON line, with
+    `process` the seconds from spawning it to the child's `epoch_done`."""
     started = time.time()
-    done = subprocess.run([sys.executable, "-m", "bench.startup", "--child", command, str(path), str(size[0]), str(size[1])],
+    done = subprocess.run([sys.executable, "-m", module, "--child", kind, str(path), str(size[0]), str(size[1])],
                           env=env, cwd=REPO, capture_output=True, text=True, check=True)
     result = json.loads(done.stdout.strip().splitlines()[-1])
     result["process"] = result.pop("epoch_done") - started
     return result
+
+
+def one(command: str, path: Path, size: tuple[int, int], env: dict[str, str]) -> dict:
+    return spawn("bench.startup", command, path, size, env)
 
 
 def run(files: list[Path], size: tuple[int, int], repeats: int):

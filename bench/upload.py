@@ -16,14 +16,12 @@ import argparse
 import json
 import os
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 RESULTS = Path(__file__).resolve().parent / "results"
-REPO = Path(__file__).resolve().parents[1]
 WARM = "Mesa + program cache"
 
 
@@ -55,12 +53,9 @@ def child(staging: str, path: str, width: int, height: int) -> dict:
 
 
 def start(staging: str, path: Path, size: tuple[int, int], env: dict[str, str]) -> dict:
-    started = time.time()
-    done = subprocess.run([sys.executable, "-m", "bench.upload", "--child", staging, str(path), str(size[0]), str(size[1])],
-                          env=env, cwd=REPO, capture_output=True, text=True, check=True)
-    result = json.loads(done.stdout.strip().splitlines()[-1])
-    result["process"] = result.pop("epoch_done") - started
-    return result
+    from bench.startup import spawn
+
+    return spawn("bench.upload", staging, path, size, env)
 
 
 def uploads(sizes: list[int], repeats: int) -> tuple[list[dict], object]:
