@@ -6,6 +6,7 @@ its view-space -z axis; depth is the distance along the viewing direction."""
 from __future__ import annotations
 
 import enum
+import functools
 import json
 import math
 import os
@@ -412,6 +413,14 @@ class ViewUniforms:
     section_range: np.ndarray = field(default_factory=NO_SECTION_RANGE.copy)  # (3,)
     perspective: float = 1.0  # 0: orthographic (no division by depth)
     returns: int = 0          # Returns value
+
+    @functools.cached_property
+    def filtering(self) -> bool:
+        """Whether a hidden category, a return filter, a clip box or a section can leave a
+        point out: without one the raster skips those tests in a uniform branch, so a
+        view without filters pays nothing for them (worked out once a view)."""
+        return bool(self.hidden.any() or self.returns or np.isfinite(self.clip_lo).any()
+                    or np.isfinite(self.clip_hi).any() or not np.array_equal(self.section_range, NO_SECTION_RANGE))
 
 
 def hidden_mask(hidden: frozenset[int]) -> np.ndarray:

@@ -3,9 +3,7 @@ the camera uniforms of camera.glsl."""
 
 from __future__ import annotations
 
-import numpy as np
-
-from progressive.camera import NO_SECTION_RANGE, ViewUniforms
+from progressive.camera import ViewUniforms
 
 GUARANTEED_GROUPS = 65535
 RANGE_GROUP = 256          # invocations of a work group over a 1-D range (range_index)
@@ -32,14 +30,6 @@ def grid_2d(width: int, height: int, tile: int = 16) -> tuple[int, int, int]:
     return -(-width // tile), -(-height // tile), 1
 
 
-def filters_apply(view: ViewUniforms) -> bool:
-    """Whether a hidden category, a return filter, a clip box or a section can leave a
-    point out: without one the raster skips those tests in a uniform branch, so a
-    view without filters pays nothing for them."""
-    return bool(view.hidden.any() or view.returns or np.isfinite(view.clip_lo).any()
-                or np.isfinite(view.clip_hi).any() or not np.array_equal(view.section_range, NO_SECTION_RANGE))
-
-
 def set_view(program, view: ViewUniforms) -> None:
     """Camera uniforms (camera.glsl); a program may not use all of them."""
     for name, value in (("u_view_rotation", view.rotation.T), ("u_view_translation", view.translation),
@@ -55,7 +45,7 @@ def set_view(program, view: ViewUniforms) -> None:
     if "u_returns" in program:
         program["u_returns"] = view.returns
     if "u_filtering" in program:
-        program["u_filtering"] = int(filters_apply(view))
+        program["u_filtering"] = int(view.filtering)
     if "u_clip_lo" in program:
         program["u_clip_lo"].write(view.clip_lo.tobytes())
         program["u_clip_hi"].write(view.clip_hi.tobytes())

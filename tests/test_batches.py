@@ -195,11 +195,10 @@ def test_every_tuning_keeps_the_ids(gl, sample, atomic64, name):
 
 
 @pytest.mark.parametrize("kind", ["none", "hidden", "returns", "clip box", "clip z", "section"])
-def test_filters_apply_whenever_a_filter_can_leave_a_point_out(sample, kind):
-    """The raster skips the filter tests when filters_apply is false: it must be true for
+def test_filtering_whenever_a_filter_can_leave_a_point_out(sample, kind):
+    """The raster skips the filter tests when view.filtering is false: it must be true for
     every filter that can leave a point out, and false with none."""
     from progressive.camera import Clip, Returns, Section
-    from progressive.gpu import filters_apply
 
     info = sample[0]
     lo, hi = info.bounds_min, info.bounds_max
@@ -208,4 +207,4 @@ def test_filters_apply_whenever_a_filter_can_leave_a_point_out(sample, kind):
                "clip z": {"clip": Clip(lo=(-np.inf, -np.inf, lo[2]), hi=(np.inf, np.inf, hi[2]))},
                "section": {"clip": Clip(section=Section(start=(lo[0], lo[1]), end=(hi[0], hi[1]), width=1.0))}}[kind]
     view = view_uniforms(cameras(info)["overview"], info.origin, W, H, **options)
-    assert filters_apply(view) == (kind != "none")
+    assert view.filtering == (kind != "none")
