@@ -6,6 +6,7 @@ a kept point never are, and bad boxes and sections are one line."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 
@@ -64,6 +65,18 @@ def las_xyz():
     return np.stack([las.x, las.y, las.z], axis=1).astype(np.float64)
 
 
+@contextlib.contextmanager
+def loaded(gl, info, parts, raster):
+    """A brute-force renderer of the cloud coloured by elevation, every batch added."""
+    r = Renderer(gl, info, find_attribute(info, "elevation"), raster=raster, width=W, height=H)
+    try:
+        for b in parts:
+            r.add_batch(b)
+        yield r
+    finally:
+        r.release()
+
+
 def expected_ids(info, positions, cam, clip: Clip, perm) -> np.ndarray:
     """The contract's ids over the points the clip keeps (ties by slot, as the GPU)."""
     kept = np.nonzero(clip.keeps(positions, info.origin))[0]
@@ -77,10 +90,7 @@ def test_clipped_ids_equal_the_reference(gl, sample, raster, name):
     info, parts, positions = sample
     clip = clips(info)[name]
     cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
-    r = Renderer(gl, info, find_attribute(info, "elevation"), raster=raster, width=W, height=H)
-    try:
-        for b in parts:
-            r.add_batch(b)
+    with loaded(gl, info, parts, raster) as r:
         ids = r.render(cam, W, H, r.style(), clip=clip).ids
         expected = expected_ids(info, positions, cam, clip, r.store.permutation)
         assert np.mean(ids == expected) >= 0.999
@@ -89,8 +99,6 @@ def test_clipped_ids_equal_the_reference(gl, sample, raster, name):
         else:
             assert 0 < np.count_nonzero(ids != EMPTY) < np.count_nonzero(r.render(cam, W, H, r.style()).ids != EMPTY)
         assert gl.ctx.error == "GL_NO_ERROR"
-    finally:
-        r.release()
 
 
 def test_progressive_converges_to_the_clipped_brute_force_render(gl, sample):
@@ -143,10 +151,7 @@ def test_section_ids_equal_the_float64_reference(gl, sample, las_xyz, raster, na
     section = sections(info)[name.removesuffix(" and slab")]
     clip = Clip(section=section).intersect(clips(info)["slab"]) if name.endswith("slab") else Clip(section=section)
     cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
-    r = Renderer(gl, info, find_attribute(info, "elevation"), raster=raster, width=W, height=H)
-    try:
-        for b in parts:
-            r.add_batch(b)
+    with loaded(gl, info, parts, raster) as r:
         ids = r.render(cam, W, H, r.style(), clip=clip).ids
         slots = r.store.permutation.forward(np.arange(positions.shape[0])).astype(np.int64)
         expected = clipped_reference_ids(las_xyz, clip, cam, W, H, slots)
@@ -155,8 +160,6 @@ def test_section_ids_equal_the_float64_reference(gl, sample, las_xyz, raster, na
         assert shown.size > 0 and clip.keeps(positions[shown], info.origin).all()
         assert shown.size < np.count_nonzero(r.render(cam, W, H, r.style()).ids != EMPTY)
         assert gl.ctx.error == "GL_NO_ERROR"
-    finally:
-        r.release()
 
 
 def test_section_on_a_utm_file_equals_the_float64_reference(gl):
