@@ -48,12 +48,14 @@ def raster_lines(raster: dict) -> list[str]:
     walks = any(r.get("batch_groups") for r in rows)     # runs before ComputeTuning had no such rows
 
     def row(layout: str, raster_path: str, view: str = "overview", reduced: bool = False,
-            groups: bool | None = None) -> dict | None:
+            groups: bool | None = None, precision: str = "exact") -> dict | None:
         """The row of the renderer's own tuning (one work group a batch where measured,
-        no subgroup reduction) unless `reduced` or `groups` asks for another."""
-        groups = walks and layout == "batched" if groups is None else groups
+        no subgroup reduction, exact precision) unless `reduced`, `groups` or
+        `precision` asks for another."""
+        groups = walks and layout.startswith("batched") if groups is None else groups
         return next((r for r in rows if r["layout"] == layout and r["raster"] == raster_path
                      and r.get("view", "overview") == view and r.get("subgroup_reduction", False) == reduced
+                     and r.get("precision", "exact") == precision
                      and (raster_path == "GL_POINTS" or r.get("batch_groups", False) == groups)), None)
 
     points = row(layout, "GL_POINTS")
@@ -81,6 +83,21 @@ def raster_lines(raster: dict) -> list[str]:
             out.append(f"- Brute force, {where}, {r['raster']}, {layout} store: each batch's records together "
                        f"{r['ms']:.2f} ms against records in slot order {slot_records['ms']:.2f} ms: "
                        f"**{_x(slot_records['ms'] / r['ms'])}** (`{raster['_file']}`).")
+        floats = row(f"{layout}, float records", r["raster"]) if layout == "batched" else None
+        if floats:
+            out.append(f"- Brute force, {where}, {r['raster']}, {layout} store: 30-bit words relative to the batch "
+                       f"{r['ms']:.2f} ms ({r['bytes_per_point']:.1f} B a point read) against float records "
+                       f"{floats['ms']:.2f} ms ({floats['bytes_per_point']:.1f} B): **{_x(floats['ms'] / r['ms'])}** "
+                       f"(`{raster['_file']}`).")
+        for view in ("overview", "close-up"):
+            exact, adaptive = row(layout, r["raster"], view), row(layout, r["raster"], view, groups=True,
+                                                                  precision="adaptive")
+            if exact and adaptive:
+                out.append(f"- Brute force, {where}, {r['raster']}, {view}: adaptive precision {adaptive['ms']:.2f} ms, "
+                           f"{_rate(adaptive['points_per_s'])}, {adaptive['bytes_per_point']:.1f} B a point read, "
+                           f"against exact {exact['ms']:.2f} ms ({exact['bytes_per_point']:.1f} B): "
+                           f"**{_x(exact['ms'] / adaptive['ms'])}**; {adaptive['pixels_differing']:,} of "
+                           f"{adaptive['covered_pixels']:,} covered pixels differ (`{raster['_file']}`).")
         slots = row(layout, r["raster"], groups=False) if r.get("batch_groups") else None
         if slots:
             out.append(f"- Brute force, {where}, {r['raster']}, {layout} store: one work group a batch "

@@ -3,8 +3,10 @@ GL_NV_shader_atomic_int64), compute 32-bit two-pass and GL_POINTS, on the same c
 and camera, with the store in file order, Morton order, terrestrial scan order
 (FillOrder.FILE, so slots follow that order), shuffled over the whole cloud (the
 paper's layout) and batched (the renderer's own layout: shuffled inside batches of
-consecutive points, of file or scan order). Bytes read per second are set against a buffer-to-buffer copy measured in
-the same run, the GPU's practical ceiling for streaming the store."""
+consecutive points, of file or scan order), its positions as 30-bit words relative to
+the batch (exact or adaptive precision) or as float records. Bytes read per second are
+set against a buffer-to-buffer copy measured in the same run, the GPU's practical
+ceiling for streaming the store."""
 
 from __future__ import annotations
 
@@ -17,10 +19,11 @@ import numpy as np
 
 from bench.report import RunInfo, Table
 from bench.synthetic import SAMPLE, Order, TiledCloud, load, tiled
-from progressive import batches, shaderlib
+from progressive import batches, encoding, shaderlib
 from progressive.bindings import Binding
 from progressive.camera import Camera, auto_camera, view_uniforms
 from progressive.context import GLContext, create_context
+from progressive.encoding import Encoding, Precision
 from progressive.gpu import grid
 from progressive.packing import RECORD_BYTES
 from progressive.passes.raster_compute import ComputeTuning, subgroup_reduction_available
@@ -38,11 +41,13 @@ class Layout:
     order: Order
     fill: FillOrder
     records: RecordOrder = RecordOrder.BATCHES
+    encoding: Encoding = Encoding.WORDS
 
 
 LAYOUTS = (Layout("file order", Order.FILE, FillOrder.FILE), Layout("Morton order", Order.MORTON, FillOrder.FILE),
            Layout("scan order", Order.SCAN, FillOrder.FILE), Layout("shuffled", Order.FILE, FillOrder.SHUFFLED),
            Layout("batched", Order.FILE, FillOrder.BATCHED),
+           Layout("batched, float records", Order.FILE, FillOrder.BATCHED, encoding=Encoding.FLOAT),
            Layout("batched, records in slot order", Order.FILE, FillOrder.BATCHED, RecordOrder.SLOTS),
            Layout("batched, scan order", Order.SCAN, FillOrder.BATCHED))
 
@@ -86,14 +91,38 @@ def rasters(glc: GLContext) -> list[Raster]:
     return ([Raster.COMPUTE] if glc.caps.atomic_int64 else []) + [Raster.COMPUTE32, Raster.POINTS]
 
 
-def variants(glc: GLContext, batched: bool) -> list[tuple[Raster, ComputeTuning]]:
+def variants(glc: GLContext, batched: bool, words: bool) -> list[tuple[Raster, ComputeTuning, Precision]]:
     """Each rasterizer; the compute ones on the batched layout also one invocation a slot
     (against one work group a batch) and, where the GPU has it, with the subgroup
-    reduction, so each choice is measured side by side."""
+    reduction, and on the word store a batch walk with adaptive precision, so each
+    choice is measured side by side."""
     reduce = subgroup_reduction_available(glc)
     tunings = [ComputeTuning(batch_groups=g, subgroup_reduction=s) for g in ((False, True) if batched else (False,))
                for s in ((False, True) if reduce else (False,))]
-    return [(r, t) for r in rasters(glc) for t in (tunings if r is not Raster.POINTS else [ComputeTuning()])]
+    out = []
+    for r in rasters(glc):
+        if r is Raster.POINTS:
+            out.append((r, ComputeTuning(), Precision.EXACT))
+            continue
+        out += [(r, t, Precision.EXACT) for t in tunings]
+        out += [(r, ComputeTuning(), Precision.ADAPTIVE)] if words else []
+    return out
+
+
+def bytes_read(store, view, precision: Precision) -> float:
+    """Bytes of the store a raster pass reads, from the cull pass's twins: each point of
+    a batch in view, 4 bytes a position word read (the word store; the attribute word
+    only where a filter needs it) or its 16-byte record; every point where nothing is culled."""
+    if not store.batched:
+        return float(store.capacity * RECORD_BYTES)
+    shown = batches.in_view(store.boxes, view)
+    held = store.kept / max(1, store.permutation.batches)       # points a batch holds, on average
+    if not store.words:
+        return float(np.count_nonzero(shown) * held * RECORD_BYTES)
+    levels = np.full(int(np.count_nonzero(shown)), encoding.LEVELS)
+    if precision is Precision.ADAPTIVE:
+        levels = encoding.levels_needed(store.frames[shown], batches.least_depths(store.boxes[shown], view), view)
+    return float(levels.sum() * 4 * held)
 
 
 def close_up(cloud: TiledCloud, aspect: float) -> Camera:
@@ -116,29 +145,35 @@ def measure(glc: GLContext, cloud: TiledCloud, layouts, sizes, repeats: int) -> 
     by all of them instead of favouring whichever ran last."""
     rows = []
     for layout in layouts:
-        scene, upload_s = load(glc, cloud, layout.order, layout.fill, layout.records)
+        scene, upload_s = load(glc, cloud, layout.order, layout.fill, layout.records, layout.encoding)
         for width, height in sizes:
             for view, cam in views(cloud, width / height).items():
-                culled = (1.0 - float(np.mean(batches.in_view(scene.store.boxes, view_uniforms(
-                    cam, cloud.info.origin, width, height))))) if scene.store.batched else 0.0
+                uniforms = view_uniforms(cam, cloud.info.origin, width, height)
+                culled = (1.0 - float(np.mean(batches.in_view(scene.store.boxes, uniforms)))) if scene.store.batched else 0.0
+                variant = [(raster, tuning, precision)
+                           for raster, tuning, precision in variants(glc, scene.store.batched, scene.store.words)
+                           if raster is not Raster.POINTS or view == "overview"]
                 renderers = [Renderer(glc, cloud.info, cloud.attribute, raster=raster, width=width, height=height,
-                                      scene=scene, tuning=tuning)
-                             for raster, tuning in variants(glc, scene.store.batched)
-                             if raster is not Raster.POINTS or view == "overview"]
+                                      scene=scene, tuning=tuning) for raster, tuning, _ in variant]
                 styles = [r.style() for r in renderers]
                 times = [[] for _ in renderers]
                 for _ in range(repeats + 1):
-                    for k, r in enumerate(renderers):
-                        times[k].append(r.render(cam, width, height, styles[k]).gpu_ms["raster"])
-                for r, style, t in zip(renderers, styles, times):
-                    frame = r.render(cam, width, height, style)
+                    for k, (r, (_, _, precision)) in enumerate(zip(renderers, variant)):
+                        times[k].append(r.render(cam, width, height, styles[k], precision=precision).gpu_ms["raster"])
+                exact = None
+                for r, style, t, (_, _, precision) in zip(renderers, styles, times, variant):
+                    frame = r.render(cam, width, height, style, precision=precision)
+                    exact = frame.slots if exact is None else exact
                     ms = statistics.median(t[1:])
+                    read = bytes_read(scene.store, uniforms, precision) * r.raster.passes
                     rows.append({"points": cloud.points, "width": width, "height": height, "layout": layout.label,
                                  "view": view, "raster": r.raster_path, "ms": ms, "ms_all": t[1:],
                                  "subgroup_reduction": getattr(r.raster, "partitioned", False),
                                  "batch_groups": getattr(r.raster, "batch_groups", False),
+                                 "precision": precision.value,
                                  "passes": r.raster.passes, "points_per_s": cloud.points / (ms / 1e3),
-                                 "bytes_per_s": cloud.points * RECORD_BYTES * r.raster.passes / (ms / 1e3),
+                                 "bytes_per_point": read / cloud.points, "bytes_per_s": read / (ms / 1e3),
+                                 "pixels_differing": int(np.count_nonzero(frame.slots != exact)),
                                  "batches_culled": culled, "covered_pixels": int((frame.slots != 0xFFFFFFFF).sum()),
                                  "upload_s": upload_s})
                 for r in renderers:
@@ -156,8 +191,10 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
         rows += measure(glc, tiled(str(SAMPLE), n), layouts, sizes, repeats)
     table = Table(f"raster_{max(points)}", "Brute-force rasterization of every point", f"{SAMPLE.name} tiled on a grid",
                   ", ".join(f"{n:,}" for n in points), (
-                      "points", "size", "store order", "view", "rasterizer", "work group", "subgroup reduction", "ms (median)", "Mpoints/s", "GB/s read",
-                      "share of copy bandwidth", "× GL_POINTS", "batches culled", "× overview", "covered pixels"))
+                      "points", "size", "store order", "view", "rasterizer", "work group", "subgroup reduction",
+                      "precision", "ms (median)", "Mpoints/s", "B/point read", "GB/s read",
+                      "share of copy bandwidth", "× GL_POINTS", "batches culled", "× overview", "covered pixels",
+                      "pixels ≠ first row"))
     def twin(r: dict, **keys) -> float:
         """ms of the row of the same cloud, size and layout with `keys` changed."""
         want = dict(points=r["points"], width=r["width"], layout=r["layout"], **keys)
@@ -166,27 +203,35 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
     for r in rows:
         base = twin(r, view="overview", raster="GL_POINTS")
         overview = twin(r, view="overview", raster=r["raster"], subgroup_reduction=r["subgroup_reduction"],
-                        batch_groups=r["batch_groups"])
+                        batch_groups=r["batch_groups"], precision=r["precision"])
         r["vs_points"] = base / r["ms"] if r["view"] == "overview" else None
         r["vs_overview"] = overview / r["ms"]
         r["share_of_copy"] = r["bytes_per_s"] / copy
         table.rows.append((r["points"], f"{r['width']}x{r['height']}", r["layout"], r["view"], r["raster"],
-                           "batch" if r["batch_groups"] else "256 slots", "yes" if r["subgroup_reduction"] else "no", r["ms"],
-                           r["points_per_s"] / 1e6, r["bytes_per_s"] / 1e9, r["share_of_copy"], r["vs_points"],
-                           r["batches_culled"], r["vs_overview"], r["covered_pixels"]))
+                           "batch" if r["batch_groups"] else "256 slots", "yes" if r["subgroup_reduction"] else "no",
+                           r["precision"], r["ms"], r["points_per_s"] / 1e6, r["bytes_per_point"], r["bytes_per_s"] / 1e9,
+                           r["share_of_copy"], r["vs_points"], r["batches_culled"], r["vs_overview"], r["covered_pixels"],
+                           r["pixels_differing"]))
     missing = [] if glc.caps.atomic_int64 else [
         ("Compute 64-bit atomicMin: not run, this GPU lacks GL_NV_shader_atomic_int64 (llvmpipe has no 64-bit "
         "atomics); `--raster compute` falls back to the 32-bit two-pass path here.")]
     table.notes = missing + [
         (f"Same auto camera for every row; GPU time of the raster pass from timestamps, median of {repeats} after "
-        f"one warm-up. GB/s read = points × {RECORD_BYTES} B × passes over the store (the 32-bit path reads it "
-        f"twice) / time. Copy bandwidth, measured in this run on {copy_bytes / 2**20:.0f} MiB (each byte read "
+        f"one warm-up. B/point read = bytes of the store a raster reads (from the cull pass's twins: "
+        f"{RECORD_BYTES} B a float record, 4 B a position word, for the points of batches in view; × passes, "
+        f"the 32-bit path reads twice) / the cloud's points; GB/s read = those bytes / time. Precision: exact reads "
+        f"all three 10-bit words of a position (30 bits), adaptive the fewest that keep each point within "
+        f"{encoding.ADAPTIVE_ERROR_PX} px of its exact projection; pixels ≠ first row = pixels whose slot differs "
+        f"from the first rasterizer's of the same layout, size and view (exact, so the adaptive rows count what "
+        f"coarser words change). Copy bandwidth, measured in this run on {copy_bytes / 2**20:.0f} MiB (each byte read "
         "and written): " + ", ".join(f"{k} {v / 1e9:.1f} GB/s" for k, v in copies.items()) +
         f"; the share is of the faster, {copy / 1e9:.1f} GB/s. × GL_POINTS = GL_POINTS ms / this ms, "
         "same cloud, size and order. Store order: file/Morton/scan = points in the buffer in that file order "
         "(FillOrder.FILE); shuffled = the paper's permutation of the whole file order; batched = the renderer's "
         "layout (shuffled inside batches of 10,240 consecutive points, slices of 256 interleaved in slot order, each "
-        "batch's records stored together; 'records in slot order' stores them slice by slice as the slots run). Scan order: a scanner station "
+        "batch's records stored together, positions as 30-bit words relative to the batch; 'float records' keeps "
+        "float32 xyz relative to the origin beside the attribute word; 'records in slot order' stores them slice by "
+        "slice as the slots run). Scan order: a scanner station "
         "per tile, vertical scan lines by azimuth (bench/synthetic.py). Views: overview = the auto camera on the "
         "whole cloud; close-up = one corner tile from above at 45° (GL_POINTS not run); batches culled = share of "
         "the store's batches the culling test leaves out (batched layouts only); × overview = overview ms / this "

@@ -17,6 +17,7 @@ import numpy as np
 
 from progressive.attributes import default_attribute
 from progressive.context import GLContext, create_context
+from progressive.encoding import Encoding
 from progressive.loaders import CloudLoader
 from progressive.loaders.types import AttributeInfo, Batch, CloudInfo
 from progressive.packing import pack_records
@@ -129,11 +130,11 @@ def tiled(path: str, points: int, attribute: str | None = None) -> TiledCloud:
     return TiledCloud(tiled_info, attr, records, size, (gx, gy), points)
 
 
-def load(glc: GLContext, cloud: TiledCloud, order: Order = Order.FILE,
-         fill: FillOrder = LAYOUT, records: RecordOrder = RecordOrder.BATCHES) -> tuple[Scene, float]:
+def load(glc: GLContext, cloud: TiledCloud, order: Order = Order.FILE, fill: FillOrder = LAYOUT,
+         records: RecordOrder = RecordOrder.BATCHES, position_encoding: Encoding = Encoding.WORDS) -> tuple[Scene, float]:
     """The tiled cloud on the GPU once, shared by every run; seconds to upload it."""
     t0 = time.perf_counter()
-    scene = Scene(glc, cloud.info, cloud.attribute, order=fill, records=records)
+    scene = Scene(glc, cloud.info, cloud.attribute, order=fill, records=records, position_encoding=position_encoding)
     for start, rec in cloud.batches(order):
         scene.add_batch(Batch(start=start, positions=rec[:, :3].view(np.float32), records=rec))
     glc.ctx.finish()

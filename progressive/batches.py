@@ -31,8 +31,8 @@ def empty_boxes(batches: int) -> np.ndarray:
 
 def boxes_of(positions: np.ndarray, start: int) -> tuple[int, np.ndarray]:
     """The first batch that file indices [start, start+n) touch and the boxes of their
-    points in each batch touched, (k, BOX_FLOATS); NaN coordinates are left out (such
-    points never draw), a batch of only those stays empty."""
+    points in each batch touched, (k, BOX_FLOATS); points with a non-finite coordinate
+    are left out (they never draw), a batch of only those stays empty."""
     n = positions.shape[0]
     first = start // BATCH_POINTS
     if n == 0:
@@ -44,6 +44,10 @@ def boxes_of(positions: np.ndarray, start: int) -> tuple[int, np.ndarray]:
     with np.errstate(invalid="ignore"):
         boxes[:, 0:3] = np.fmin.reduceat(p, edges, axis=0)
         boxes[:, 4:7] = np.fmax.reduceat(p, edges, axis=0)
+        if np.isinf(boxes).any():      # a point with an infinite coordinate is never drawn either
+            p = np.where(np.isfinite(p).all(axis=1)[:, None], p, np.float32(np.nan))
+            boxes[:, 0:3] = np.fmin.reduceat(p, edges, axis=0)
+            boxes[:, 4:7] = np.fmax.reduceat(p, edges, axis=0)
     nan = np.isnan(boxes[:, 0])
     boxes[nan] = empty_boxes(int(nan.sum()))
     return first, boxes
@@ -78,6 +82,16 @@ def section_meets(boxes: np.ndarray, view: ViewUniforms) -> np.ndarray:
         st = BOX_MARGIN * (np.abs(t) + rt + abs(start) + abs(end) + m) + 1e-30
         sd = BOX_MARGIN * (np.abs(d) + rd + half + m) + 1e-30
         return (t + rt >= start - st) & (t - rt <= end + st) & (np.abs(d) - rd <= half + sd)
+
+
+def least_depths(boxes: np.ndarray, view: ViewUniforms) -> np.ndarray:
+    """Each box's least corner depth, padded as in_view pads it (shaders/cull.comp
+    depth_min: the adaptive precision's nearest point of the batch)."""
+    lo, hi = boxes[:, 0:3].astype(np.float64), boxes[:, 4:7].astype(np.float64)
+    with np.errstate(invalid="ignore", over="ignore"):
+        pad = BOX_MARGIN * ((hi - lo) + np.maximum(np.abs(lo), np.abs(hi))) + 1e-30
+        v = corners(lo - pad, hi + pad) @ view.rotation.astype(np.float64).T + view.translation.astype(np.float64)
+    return (-v[..., 2]).min(axis=1)
 
 
 def in_view(boxes: np.ndarray, view: ViewUniforms) -> np.ndarray:

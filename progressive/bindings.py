@@ -6,7 +6,8 @@ from __future__ import annotations
 import enum
 
 MAX_POINT_CHUNKS = 8
-"""Shuffled point buffers: each under 2^31 bytes and the GL limit; 8 hold > 1e9 points."""
+"""Shuffled point buffers: each under 2^31 bytes and the GL limit; 8 hold > 1e9 points.
+The word store binds plane p's chunk c at POINTS_0 + p·chunks + c (pointstore.py)."""
 
 
 class Binding(enum.IntEnum):
@@ -39,6 +40,7 @@ class Binding(enum.IntEnum):
     BATCH_BOXES = 28        # batched layout: each batch's box (progressive/batches.py)
     BATCH_FLAGS = 29        # batched layout: each batch in view this frame (passes/cull.py)
     CLASSES = 30            # per slot, its classification code: a byte each (pointstore.py class filter)
+    BATCH_FRAMES = 31       # word store: each batch's base and step (progressive/encoding.py)
 
     @classmethod
     def points(cls, chunk: int) -> Binding:

@@ -185,6 +185,8 @@ def effects_from(args):
 
 def add_cloud_args(parser) -> None:
     """Options shared by render and view: the files, the frame size, loading, colouring."""
+    from progressive.encoding import Precision
+
     parser.add_argument("files", nargs="*", type=path_arg, help="LAS/LAZ/fast-format files, one cloud (default: the bundled sample)")
     parser.add_argument("--width", type=size_arg, default=1280)
     parser.add_argument("--height", type=size_arg, default=720)
@@ -196,6 +198,9 @@ def add_cloud_args(parser) -> None:
                         "whole levels of its COPC files, else a uniform random subset (the free memory the driver "
                         "reports also counts)")
     add_reproject_arg(parser)
+    parser.add_argument("--precision", type=enum_arg(Precision), default=Precision.EXACT,
+                        help="exact (every point's full 30-bit position: the render contract) or adaptive (a distant "
+                             "batch's points from fewer bits, each within half a pixel of where it projects)")
     parser.add_argument("--palette", type=path_arg, metavar="FILE.json",
                         help='classification colours overriding the default ones: {"2": [166, 116, 66], "6": "#ff8c1e"}')
 
@@ -381,12 +386,14 @@ def session_options(args):
                           progressive=progressive, color_by=args.color_by,
                           colormap=args.colormap, background=args.background, partial=args.partial,
                           gpu_memory_limit=args.gpu_memory_limit, value_range=args.value_range,
-                          class_filter=filters(args), palette=palette_from(args), reproject=args.reproject)
+                          class_filter=filters(args), palette=palette_from(args), reproject=args.reproject,
+                          precision=args.precision)
 
 
 def cmd_render(args) -> int:
     import json
 
+    from progressive.encoding import Precision
     from progressive.output import Outputs, check_outputs, json_writer, npy_writer, png_writer
     from progressive.session import Method, Session
 
@@ -398,6 +405,8 @@ def cmd_render(args) -> int:
     camera = None if args.camera == "auto" or cameras else load_camera(args.camera)
     if args.method is Method.BRUTE and (args.converge or args.reference or cameras):
         raise UsageError("--converge, --reference and --camera-path need --method progressive")
+    if (args.converge or args.reference) and args.precision is not Precision.EXACT:
+        raise UsageError("--converge and --reference compare with the exact brute-force ids: they need --precision exact")
     effects, clip = effects_from(args), clip_from(args)       # bad values are one line before any work
     with Session(paths, session_options(args)) as session, Outputs() as outputs:
         check_classes(session, args)
@@ -490,6 +499,7 @@ def _stats(session, camera, frames: int, converged_at: int | None, clip) -> dict
         "height": session.options.height,
         "attribute": session.attribute.name,
         "color_range": session.color_range(),
+        "precision": session.options.precision.value,
         "batches": session.batch_counts(camera, clip),
         "clip": {"min": [v if np.isfinite(v) else None for v in clip.lo],
                  "max": [v if np.isfinite(v) else None for v in clip.hi],
@@ -564,7 +574,8 @@ def view_session_options(args):
 
     return SessionOptions(width=args.width, height=args.height, color_by=args.color_by, partial=args.partial,
                           gpu_memory_limit=args.gpu_memory_limit, value_range=args.value_range,
-                          class_filter=filters(args), palette=palette_from(args), reproject=args.reproject)
+                          class_filter=filters(args), palette=palette_from(args), reproject=args.reproject,
+                          precision=args.precision)
 
 
 def _view_headless(paths: list[str], effects, clip, args, options) -> int:

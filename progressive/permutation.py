@@ -132,6 +132,11 @@ class Permutation:
         p = np.uint64(self.prime)
         return ((np.asarray(batch, dtype=np.uint64) + np.uint64(1)) % p) * np.uint64(self.offset) % p
 
+    def slot_batch(self, slot: np.ndarray | int) -> np.ndarray:
+        """The batch whose slice holds each slot (batched layout; shaders/records.glsl)."""
+        s = np.asarray(slot, dtype=np.int64)
+        return (s % (self.batches * SLICE_POINTS)) // SLICE_POINTS
+
     def forward(self, index: np.ndarray | int) -> np.ndarray:
         """Slot of each file-order index (vectorised, exact)."""
         i = np.asarray(index, dtype=np.uint64)

@@ -1,5 +1,8 @@
-"""The shuffled point buffer on the GPU: one 16-byte record per slot, split into
-chunks so no GL buffer exceeds the driver's storage-block limit or 2^31 bytes."""
+"""The shuffled point buffer on the GPU: 16 bytes a slot, split into chunks so no GL
+buffer exceeds the driver's storage-block limit or 2^31 bytes. The batched layout
+keeps each point as four words in four planes (progressive/encoding.py: three
+position words relative to its batch, then the attribute word); the other layouts
+keep one float32 record a slot (xyz relative to the origin, the attribute word)."""
 
 from __future__ import annotations
 
@@ -9,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from progressive import batches
+from progressive import batches, encoding
 from progressive.bindings import MAX_POINT_CHUNKS, Binding, UniformBinding
 from progressive.context import GLContext
 from progressive.errors import ProgressiveError
@@ -30,8 +33,12 @@ class GPUMemoryError(ProgressiveError):
     """An allocation the driver refused (GL_OUT_OF_MEMORY)."""
 
 
-def chunk_capacity(max_ssbo_bytes: int) -> int:
-    return min(max_ssbo_bytes, 2**31 - 1) // RECORD_BYTES
+def chunk_capacity(max_ssbo_bytes: int, item_bytes: int = RECORD_BYTES) -> int:
+    return min(max_ssbo_bytes, 2**31 - 1) // item_bytes
+
+
+PLANE_CHUNKS = MAX_POINT_CHUNKS // encoding.PLANES
+"""Buffers of each plane of the word store at most (the bindings are shared)."""
 
 
 class RecordOrder(enum.Enum):
@@ -77,8 +84,11 @@ class StoreLayout:
         b, j = np.divmod(within, SLICE_POINTS)
         return self.batch_record(b) + k * SLICE_POINTS + j
 
-    def words(self) -> bytes:
-        return np.array([self.batches, self.slices, self.longer, self.rest], dtype=np.uint32).tobytes()
+    def words(self, point_batches: int) -> bytes:
+        """The uniform block: the layout, then the permutation's batches (the batch of a
+        slot, which the word store's decoding needs whatever the record order)."""
+        return np.array([self.batches, self.slices, self.longer, self.rest, point_batches, 0, 0, 0],
+                        dtype=np.uint32).tobytes()
 
 
 class PointStore:
@@ -87,26 +97,33 @@ class PointStore:
 
     def __init__(self, glc: GLContext, count: int, *, capacity: int | None = None,
                  chunk_points: int | None = None, rotate: bool = True,
-                 order: FillOrder = LAYOUT, classes: bool = False, records: RecordOrder = RecordOrder.BATCHES):
+                 order: FillOrder = LAYOUT, classes: bool = False, records: RecordOrder = RecordOrder.BATCHES,
+                 position_encoding: encoding.Encoding = encoding.Encoding.WORDS):
         """classes: keep each point's class and return flags (CLASS_BYTES a slot) for
         filters that apply whatever attribute is shown. records: where the batched
-        layout's records live (the slot order is a benchmark baseline)."""
-        limit = chunk_capacity(glc.caps.max_ssbo_bytes)
-        self.chunk_points = min(chunk_points or limit, limit)
+        layout's records live (the slot order is a benchmark baseline).
+        position_encoding: words relative to the batch (batched layout only) or float
+        records."""
         self.count = count
         try:
             self.permutation = Permutation.for_count(count, rotate=rotate, order=order)
         except ValueError as exc:
             raise ProgressiveError(f"{count:,} points do not fit the store's 32-bit slots ({exc})") from None
         slots = self.permutation.slots
+        words = position_encoding is encoding.Encoding.WORDS and self.permutation.batches > 0
+        self.encoding = encoding.Encoding.WORDS if words else encoding.Encoding.FLOAT
+        limit = chunk_capacity(glc.caps.max_ssbo_bytes, 4 if words else RECORD_BYTES)
+        self.chunk_points = min(chunk_points or limit, limit)
         # A capacity that holds the cloud holds the layout's padding too (under one batch).
         self.capacity = slots if capacity is None or capacity >= count else max(0, capacity)
         self.layout = StoreLayout.of(self.permutation, self.capacity, records)
         chunks = max(1, -(-self.capacity // self.chunk_points))
-        if chunks > MAX_POINT_CHUNKS:
+        most = PLANE_CHUNKS if words else MAX_POINT_CHUNKS
+        if chunks > most:
             raise ProgressiveError(
-                f"{self.capacity:,} points need {chunks} GPU buffers of {self.chunk_points:,} points; "
-                f"at most {MAX_POINT_CHUNKS} are supported")
+                f"{self.capacity:,} points need {chunks} GPU buffers of {self.chunk_points:,} points"
+                f"{' for each word' if words else ''}; at most {most} are supported")
+        self.chunks = chunks
         self._glc = glc
         self.class_buffer = None
         if classes:
@@ -119,22 +136,44 @@ class PointStore:
         self.boxes = batches.empty_boxes(max(1, self.permutation.batches))
         self.box_buffer = glc.ctx.buffer(self.boxes.tobytes())
         self.box_buffer.label = "batch boxes"
-        self.layout_buffer = glc.ctx.buffer(self.layout.words())
+        self.frames = encoding.empty_frames(max(1, self.permutation.batches))
+        self.frame_buffer = glc.ctx.buffer(self.frames.tobytes()) if words else None
+        if words:
+            self.frame_buffer.label = "batch frames"
+        self.layout_buffer = glc.ctx.buffer(self.layout.words(self.permutation.batches))
         self.layout_buffer.label = "store layout"
         self.buffers = []
-        for c in range(chunks):
-            n = max(1, min(self.chunk_points, self.capacity - c * self.chunk_points))
-            buf = glc.ctx.buffer(reserve=n * RECORD_BYTES)
-            buf.label = f"points[{c}]"
-            glc.gl.clear_u32(buf.glo, EMPTY_WORD, total=buf.size)
-            self.buffers.append(buf)
-            if glc.ctx.error == "GL_OUT_OF_MEMORY":
-                self.release()
-                raise GPUMemoryError(f"the GPU could not allocate {n * RECORD_BYTES / 2**20:.0f} MiB for points")
+        planes = [f"words{p}" for p in range(encoding.POSITION_WORDS)] + ["attributes"] if words else ["points"]
+        item = 4 if words else RECORD_BYTES
+        for plane in planes:
+            for c in range(chunks):
+                n = max(1, min(self.chunk_points, self.capacity - c * self.chunk_points))
+                buf = glc.ctx.buffer(reserve=n * item)
+                buf.label = f"{plane}[{c}]"
+                glc.gl.clear_u32(buf.glo, EMPTY_WORD, total=buf.size)
+                self.buffers.append(buf)
+                if glc.ctx.error == "GL_OUT_OF_MEMORY":
+                    self.release()
+                    raise GPUMemoryError(f"the GPU could not allocate {n * item / 2**20:.0f} MiB for points")
 
     @property
     def batched(self) -> bool:
         return self.permutation.batches > 0
+
+    @property
+    def words(self) -> bool:
+        return self.encoding is encoding.Encoding.WORDS
+
+    def set_frames(self, first: int, frames: np.ndarray, boxes: np.ndarray) -> None:
+        """Batches first.. are encoded in `frames` and hold `boxes` (word store: set before
+        their points are distributed, again for a batch whose points so far are encoded
+        anew; progressive/encoding.py BatchAssembler)."""
+        k = frames.shape[0]
+        self.frames[first: first + k] = frames
+        self.frame_buffer.write(frames.tobytes(), offset=first * frames.itemsize * encoding.FRAME_FLOATS)
+        batches.merge(self.boxes, first, boxes)
+        part = self.boxes[first: first + k]
+        self.box_buffer.write(part.tobytes(), offset=first * part.itemsize * batches.BOX_FLOATS)
 
     def add_boxes(self, positions, start: int) -> None:
         """Grow the boxes of the batches that file indices [start, start+n) belong to
@@ -149,6 +188,9 @@ class PointStore:
     def bind_boxes(self) -> None:
         self.box_buffer.bind_to_storage_buffer(Binding.BATCH_BOXES)
 
+    def bind_frames(self) -> None:
+        self.frame_buffer.bind_to_storage_buffer(Binding.BATCH_FRAMES)
+
     @functools.cached_property
     def kept(self) -> int:
         """File points the GPU holds (the capacity and layout are fixed: counted once; a
@@ -161,25 +203,51 @@ class PointStore:
 
     @property
     def defines(self) -> dict[str, int]:
-        return {"POINT_CHUNKS": len(self.buffers), "CHUNK_POINTS": self.chunk_points, "CLASS_FILTER": int(self.has_classes)}
+        return {"POINT_CHUNKS": self.chunks, "CHUNK_POINTS": self.chunk_points, "CLASS_FILTER": int(self.has_classes),
+                "WORD_PLANES": int(self.words)}
 
     def bind(self) -> None:
         for c, buf in enumerate(self.buffers):
             buf.bind_to_storage_buffer(Binding.points(c))
         self.layout_buffer.bind_to_uniform_block(UniformBinding.STORE_LAYOUT)
+        if self.frame_buffer is not None:
+            self.bind_frames()
         if self.class_buffer is not None:
             self.class_buffer.bind_to_storage_buffer(Binding.CLASSES)
 
-    def read_records(self):
-        """All slots as (count, 4) uint32, in slot order (tests and debugging only)."""
-        parts = [np.frombuffer(b.read(), dtype=np.uint32).reshape(-1, 4) for b in self.buffers]
-        return np.concatenate(parts)[self.layout.record_index(np.arange(self.capacity))]
+    def raw_words(self) -> np.ndarray:
+        """Every record as (capacity, 4) uint32 in record order (StoreLayout): the float
+        record, or the word store's three position words and attribute word (tests and
+        debugging only)."""
+        planes = [np.concatenate([np.frombuffer(b.read(), dtype=np.uint32) for b in
+                                  self.buffers[p * self.chunks: (p + 1) * self.chunks]])
+                  for p in range(len(self.buffers) // self.chunks)]
+        return np.stack(planes, axis=1) if self.words else planes[0].reshape(-1, 4)
+
+    def read_words(self) -> np.ndarray:
+        """raw_words in slot order."""
+        return self.raw_words()[self.layout.record_index(np.arange(self.capacity))]
+
+    def read_records(self) -> np.ndarray:
+        """All slots as (capacity, 4) uint32 float records (xyz float32 bits relative to
+        the origin, the attribute word), as the GPU decodes them: EMPTY_WORD
+        coordinates where nothing is drawn (tests and debugging only)."""
+        held = self.read_words()
+        if not self.words:
+            return held
+        out = np.empty_like(held)
+        b = self.permutation.slot_batch(np.arange(self.capacity))
+        xyz = encoding.decode_frames(held[:, :3], self.frames[b])
+        out[:, :3] = xyz.view(np.uint32)
+        out[np.isnan(xyz).any(axis=1), :3] = EMPTY_WORD
+        out[:, 3] = held[:, 3]
+        return out
 
     def release(self) -> None:
         for buf in self.buffers:
             buf.release()
         self.buffers = []
-        for name in ("box_buffer", "layout_buffer"):
+        for name in ("box_buffer", "layout_buffer", "frame_buffer"):
             if getattr(self, name, None) is not None:
                 getattr(self, name).release()
                 setattr(self, name, None)

@@ -12,6 +12,7 @@ from progressive.camera import NO_CLIP, Camera, Clip, Returns, view_uniforms
 from progressive.colors import Colormap, ColorStyle
 from progressive.context import GLContext
 from progressive.effects import Effects
+from progressive.encoding import Encoding, Precision
 from progressive.loaders.types import AttributeInfo, Batch, CloudInfo
 from progressive.passes.cull import CullPass
 from progressive.passes.raster_compute import DEFAULT_TUNING, ComputeRaster, ComputeTuning
@@ -44,12 +45,13 @@ class Renderer:
                  raster: Raster = Raster.COMPUTE, width: int = 1280, height: int = 720,
                  chunk_points: int | None = None, capacity: int | None = None, scene: Scene | None = None,
                  keep_batches: bool = False, tuning: ComputeTuning = DEFAULT_TUNING,
-                 class_filter: bool = False):
+                 class_filter: bool = False, position_encoding: Encoding = Encoding.WORDS):
         """`scene`: a cloud already on the GPU to render (kept on release)."""
         self.glc, self.info, self.attribute = glc, info, attribute
         self._own_scene = scene is None
         self.scene = scene or Scene(glc, info, attribute, chunk_points=chunk_points, capacity=capacity,
-                                    keep_batches=keep_batches, class_filter=class_filter)
+                                    keep_batches=keep_batches, class_filter=class_filter,
+                                    position_encoding=position_encoding)
         self.store = self.scene.store
         self.vis = VisibilityBuffer(glc, width, height)
         self.raster_kind = raster
@@ -83,8 +85,11 @@ class Renderer:
 
     def render(self, camera: Camera, width: int, height: int, style: ColorStyle,
                effects: Effects = Effects(), hidden: frozenset[int] = frozenset(), clip: Clip = NO_CLIP,
-               returns: Returns = Returns.ALL) -> Frame:
+               returns: Returns = Returns.ALL, precision: Precision = Precision.EXACT) -> Frame:
+        """precision: the position words a compute raster reads (GL_POINTS reads all)."""
         self.vis.resize(width, height)
+        if isinstance(self.raster, ComputeRaster):
+            self.raster.precision = precision
         style = self.scene.resolved(style)
         view = view_uniforms(camera, self.info.origin, width, height, self.scene.drawable(hidden), clip,
                              self.scene.drawable_returns(returns))
@@ -109,13 +114,14 @@ class Renderer:
 
 
 def make_raster(glc: GLContext, store: PointStore, vis: VisibilityBuffer, raster: Raster,
-                tuning: ComputeTuning = DEFAULT_TUNING):
-    """tuning: how a compute raster walks the store (GL_POINTS ignores it). A compute
-    raster of the batched layout gets a cull pass: batches outside the view are skipped."""
+                tuning: ComputeTuning = DEFAULT_TUNING, precision: Precision = Precision.EXACT):
+    """tuning: how a compute raster walks the store, precision: the position words it
+    reads (GL_POINTS ignores both). A compute raster of the batched layout gets a cull
+    pass: batches outside the view are skipped."""
     if raster is Raster.POINTS:
         return PointsRaster(glc, store, vis)
     return ComputeRaster(glc, store, vis, atomic64=raster is Raster.COMPUTE and glc.caps.atomic_int64,
-                         culling=CullPass(glc, store) if store.batched else None, tuning=tuning)
+                         culling=CullPass(glc, store) if store.batched else None, tuning=tuning, precision=precision)
 
 
 def raster_path(kind: Raster, raster) -> str:

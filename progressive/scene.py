@@ -10,6 +10,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from progressive import batches as batch_boxes
+from progressive import encoding
 from progressive.camera import Returns
 from progressive.colors import DEFAULT_PALETTE, NO_RANGE, Colormap, ColorMode, ColorStyle, Palette
 from progressive.context import GLContext
@@ -18,7 +20,7 @@ from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, Cloud
 from progressive.packing import attribute_word, batch_words, pack_into
 from progressive.passes.distribute import DistributePass
 from progressive.passes.percentile import PercentilePass
-from progressive.permutation import LAYOUT, FillOrder
+from progressive.permutation import BATCH_POINTS, LAYOUT, FillOrder
 from progressive.pointstore import PointStore, RecordOrder
 
 RANGE_GROWTH = 2
@@ -54,20 +56,24 @@ class AttributeSwitch:
 class Scene:
     def __init__(self, glc: GLContext, info: CloudInfo, attribute: AttributeInfo, *, chunk_points: int | None = None,
                  capacity: int | None = None, keep_batches: bool = False, order: FillOrder = LAYOUT,
-                 class_filter: bool = False, records: RecordOrder = RecordOrder.BATCHES):
+                 class_filter: bool = False, records: RecordOrder = RecordOrder.BATCHES,
+                 position_encoding: encoding.Encoding = encoding.Encoding.WORDS):
         """capacity: points kept on the GPU (default all; see progressive/memory.py).
         keep_batches: keep the loaded attributes in host memory to switch attributes.
         order: FILE stores points in file order (the unshuffled baseline, for benchmarks).
         class_filter: keep every point's class and return flags on the GPU, so hidden classes
         and return filters apply whatever attribute is shown (the cloud must have
         classification). records: where the batched layout's records live (the slot
-        order is the benchmarks' baseline)."""
+        order is the benchmarks' baseline). position_encoding: how the batched layout
+        keeps positions (progressive/encoding.py; float records are the baseline)."""
         self.glc, self.info, self.attribute = glc, info, attribute
         if class_filter and CLASSIFICATION not in {a.name for a in info.attributes}:
             raise ProgressiveError("this cloud has no classification to filter by")
         self.store = PointStore(glc, info.points, capacity=capacity, chunk_points=chunk_points, order=order,
-                                classes=class_filter, records=records)
+                                classes=class_filter, records=records, position_encoding=position_encoding)
         self.distribute = DistributePass(glc, self.store)
+        self.assembler = encoding.BatchAssembler(info.points) if self.store.words else None
+        self._held_hidden: dict[int, int] = {}     # hidden points of the batches the assembler keeps
         self.loaded = 0
         self.skipped = 0            # points never drawn: non-finite coordinates or shown value
         self.upload_seconds = 0.0
@@ -85,18 +91,41 @@ class Scene:
 
     def add_batch(self, batch: Batch) -> None:
         t0 = time.perf_counter()
-        self.skipped += self._upload_records(batch, self.attribute)
+        if self.assembler is not None:
+            for held, group in self.assembler.add(batch.start, batch.count, batch):
+                hidden = self._encode_group(group)
+                # A batch encoded again: its hidden points so far replace those counted.
+                self.skipped += hidden - (self._held_hidden.pop(held, 0) if held is not None else 0)
+                if held is not None and self.assembler.held_of(held):
+                    self._held_hidden[held] = hidden
+        else:
+            self.skipped += self._upload_records(batch, self.attribute)
+            self.store.add_boxes(batch.positions, batch.start)
         if self.store.has_classes:
             self.distribute.upload_classes(point_flags(batch), batch.start)
-        self.store.add_boxes(batch.positions, batch.start)
         if self.keep_batches:
             self.batches.append(batch)
         self.loaded += batch.count
         self.upload_seconds += time.perf_counter() - t0
 
+    def _encode_group(self, group: list) -> int:
+        """Frame the batches of a group of runs (encoding.BatchAssembler) by the boxes of
+        their points, then upload the runs (distribute encodes them in those frames);
+        the points never drawn."""
+        runs = [[_rows(part, lo, hi) for part, lo, hi in pieces] for _, _, pieces in group]
+        first = group[0][0] // BATCH_POINTS
+        boxes = batch_boxes.empty_boxes((group[-1][0] + group[-1][1] - 1) // BATCH_POINTS - first + 1)
+        for parts in runs:
+            for part in parts:
+                at, part_boxes = batch_boxes.boxes_of(_positions(part), part.start)
+                batch_boxes.merge(boxes, at - first, part_boxes)
+        self.store.set_frames(first, encoding.frames_from_boxes(boxes), boxes)
+        return sum(self._upload_records(part, self.attribute) for parts in runs for part in parts)
+
     def _upload_records(self, batch: Batch, attribute: AttributeInfo) -> int:
         """Pack the batch's records straight into the distribute pass's staging memory
-        and scatter them; the points never drawn (non-finite coordinates or value)."""
+        and scatter them (the word store's in its batches' frames, set already); the
+        points never drawn (non-finite coordinates or value)."""
         words = batch_words(batch, attribute, float(self.info.origin[2]))
         return self.distribute.upload_packed(lambda out, lo, hi: pack_into(out, batch, attribute, words, lo, hi),
                                              batch.count, batch.start)
@@ -232,6 +261,20 @@ def point_flags(batch: Batch) -> np.ndarray:
     number, count = np.asarray(number), np.asarray(count)
     return (flags | np.where(number <= 1, FIRST_RETURN, 0).astype(np.uint32)
             | np.where(number >= count, LAST_RETURN, 0).astype(np.uint32))
+
+
+def _rows(batch: Batch, lo: int, hi: int) -> Batch:
+    """Rows lo..hi of a batch (views; the non-finite counts stay the whole batch's,
+    which only say whether a part may hide points)."""
+    if lo == 0 and hi == batch.count:
+        return batch
+    return replace(batch, start=batch.start + lo, positions=batch.positions[lo:hi],
+                   attributes={k: v[lo:hi] for k, v in batch.attributes.items()},
+                   records=None if batch.records is None else batch.records[lo:hi], bounds=None)
+
+
+def _positions(batch: Batch) -> np.ndarray:
+    return batch.positions if batch.records is None else batch.records[:, :3].view(np.float32)
 
 
 def _hides_points(batch: Batch, attribute: AttributeInfo) -> bool:

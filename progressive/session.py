@@ -18,13 +18,14 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from progressive import batches, memory
+from progressive import batches, encoding, memory
 from progressive.attributes import default_choice, find_attribute
 from progressive.budget import BudgetParams
 from progressive.camera import NO_CLIP, Camera, Clip, Returns, auto_camera, view_uniforms
 from progressive.colors import DEFAULT_PALETTE, Colormap, ColorStyle, Palette
 from progressive.context import GLContext, create_context
 from progressive.effects import Effects
+from progressive.encoding import Precision
 from progressive.frame_loop import FrameStats, ProgressiveOptions, ProgressiveRenderer
 from progressive.loaders.copc import CopcStatus, copc_status
 from progressive.loaders.crs import file_crs
@@ -94,6 +95,10 @@ class SessionOptions:
     value_range: tuple[float, float] | None = None   # the first attribute's values at the colormap's ends; None: percentiles
     class_filter: bool = False              # keep classification on the GPU (where the cloud has it): any colouring filters
     palette: Palette = DEFAULT_PALETTE      # colours of classification codes
+    precision: Precision = Precision.EXACT
+    """The position words a compute raster reads of each batch (progressive/encoding.py):
+    all, or with ADAPTIVE the fewest that keep every point within
+    encoding.ADAPTIVE_ERROR_PX of where it projects."""
     reproject: str | None = None
     """A CRS code (EPSG:32610): load files in any CRSs as one cloud in it (float64,
     pyproj); None: files whose EPSG codes differ are refused."""
@@ -153,7 +158,7 @@ class Session:
                 self.renderer = ProgressiveRenderer(self.glc, self.info, self.attribute, replace(
                     options.progressive, width=options.width, height=options.height, raster=options.raster,
                     chunk_points=options.chunk_points, capacity=capacity, keep_batches=options.switchable,
-                    class_filter=class_filter))
+                    class_filter=class_filter, precision=options.precision))
         except BaseException:
             self.loader.close()
             raise
@@ -265,15 +270,22 @@ class Session:
         self._given_range = None
         return self.renderer.scene.switch
 
-    def batch_counts(self, camera: Camera, clip: Clip = NO_CLIP) -> dict[str, int]:
-        """Batches of the store and how many the rasterizer's culling test keeps for
-        `camera` and `clip` (its numpy twin); empty batches are culled."""
+    def batch_counts(self, camera: Camera, clip: Clip = NO_CLIP) -> dict[str, int | dict[str, int]]:
+        """Batches of the store, how many the rasterizer's culling test keeps for
+        `camera` and `clip` and, of those, how many it reads at 10, 20 and 30 bits
+        (the numpy twins of shaders/cull.comp); empty batches are culled."""
         store = self.renderer.store
         if not store.batched:
-            return {"total": 0, "drawn": 0, "culled": 0}
+            return {"total": 0, "drawn": 0, "culled": 0, "bits": {}}
         view = view_uniforms(camera, self.info.origin, *self.size, clip=clip)
-        drawn = int(np.count_nonzero(batches.in_view(store.boxes, view)))
-        return {"total": store.permutation.batches, "drawn": drawn, "culled": store.permutation.batches - drawn}
+        shown = batches.in_view(store.boxes, view)
+        drawn = int(np.count_nonzero(shown))
+        levels = np.full(int(drawn), encoding.LEVELS)
+        if store.words and self.options.precision is Precision.ADAPTIVE:
+            levels = encoding.levels_needed(store.frames[shown], batches.least_depths(store.boxes[shown], view), view)
+        bits = {f"{encoding.LEVEL_BITS * k}": int(np.count_nonzero(levels == k)) for k in range(1, encoding.LEVELS + 1)}
+        return {"total": store.permutation.batches, "drawn": drawn, "culled": store.permutation.batches - drawn,
+                "bits": bits}
 
     def nearest_shown(self, x: float, y: float, radius: int = PICK_RADIUS) -> tuple[int, float, tuple[int, int]] | None:
         """(file-order index, depth, (column, row)) of the point shown nearest to image
@@ -354,7 +366,8 @@ class Session:
         style = style or self.style()
         if not self.progressive:
             self._pump(block=True)
-            self._last = self.renderer.render(camera, *self.size, style, effects, hidden, clip, returns)
+            self._last = self.renderer.render(camera, *self.size, style, effects, hidden, clip, returns,
+                                              self.options.precision)
             passes = ("distribute", "raster", "resolve")
         else:
             self._pump(block=False)

@@ -10,7 +10,7 @@ from importlib import resources
 
 import moderngl
 
-from progressive import batches, permutation
+from progressive import batches, encoding, permutation
 from progressive.bindings import glsl_defines
 from progressive.programs import ComputeProgram, Programs
 
@@ -34,7 +34,7 @@ def source(name: str, defines: Defines | None = None, extensions: tuple[str, ...
     head += [f"#extension {e} : require" for e in extensions]
     for key, value in (defines or {}).items():
         head.append(f"#define {key} {int(value) if isinstance(value, bool) else value}")
-    return "\n".join(head) + "\n" + glsl_defines() + permutation.glsl_defines() + batches.glsl_defines() + "#line 1\n" + _expand(name)
+    return "\n".join(head) + "\n" + glsl_defines() + permutation.glsl_defines() + batches.glsl_defines() + encoding.glsl_defines() + "#line 1\n" + _expand(name)
 
 
 def compute(ctx: moderngl.Context, name: str, defines: Defines | None = None,

@@ -1,5 +1,7 @@
-// Per batch, whether its box can hold a point in view (progressive/batches.py in_view):
-// one invocation a batch, once a frame; the rasterizer skips points of batches flagged 0.
+// Per batch, whether its box can hold a point in view (progressive/batches.py in_view)
+// and how many of its position words the raster reads (progressive/encoding.py
+// levels_needed): one invocation a batch, once a frame; the rasterizer skips points of
+// batches flagged 0 and reads the flag's number of words of the others.
 layout(local_size_x = 256) in;
 #include "common.glsl"
 #include "camera.glsl"
@@ -7,6 +9,11 @@ layout(local_size_x = 256) in;
 layout(std430, binding = BINDING_BATCH_BOXES) readonly buffer Boxes { vec4 boxes[]; };  // min, max per batch
 layout(std430, binding = BINDING_BATCH_FLAGS) writeonly buffer Flags { uint batch_flags[]; };
 uniform uint u_batches;
+#if ADAPTIVE
+layout(std430, binding = BINDING_BATCH_FRAMES) readonly buffer Frames { vec4 batch_frames[]; };  // base, step per batch
+uniform float u_error_px;    // the adaptive precision's bound (encoding.py ADAPTIVE_ERROR_PX)
+uniform float u_pixel_scale; // pixels a unit of displacement may move a point at depth 1 (encoding.py pixel_scale)
+#endif
 
 // Whether the box's XY rectangle can meet the section's (progressive/batches.py
 // section_meets): their projections on the section's axis and on its normal overlap,
@@ -26,7 +33,8 @@ bool section_meets(vec3 lo, vec3 hi) {
 // The frustum test of progressive/batches.py in_view: false iff the box is empty or
 // some plane has all eight corners (padded by BOX_MARGIN) outside it by more than
 // BOX_MARGIN of the terms it compares. Never false for a box holding a drawn point.
-bool batch_in_view(uint b) {
+bool batch_in_view(uint b, out float depth_min) {
+    depth_min = 0.0;
     vec3 lo = boxes[2u * b].xyz, hi = boxes[2u * b + 1u].xyz;
     if (!all(lessThanEqual(lo, hi))) return false;
     // The box and the clip box compare in the same float32 frame as clip_keeps: exact.
@@ -37,9 +45,11 @@ bool batch_in_view(uint b) {
     hi += pad;
     float near = u_projection.z, far = u_projection.w;
     bool out_near = true, out_far = true, out_right = true, out_left = true, out_top = true, out_bottom = true;
+    depth_min = 1.0 / 0.0;
     for (int c = 0; c < 8; ++c) {
         vec3 v = to_view(vec3((c & 1) != 0 ? hi.x : lo.x, (c & 2) != 0 ? hi.y : lo.y, (c & 4) != 0 ? hi.z : lo.z));
         float depth = -v.z, d = abs(depth);
+        depth_min = min(depth_min, depth);
         float w = u_perspective != 0.0 ? depth : 1.0, aw = abs(w);    // the side planes: |x| <= w
         float x = u_projection.x * v.x, y = u_projection.y * v.y;
         float tx = BOX_MARGIN * (aw + abs(x)), ty = BOX_MARGIN * (aw + abs(y));
@@ -53,8 +63,30 @@ bool batch_in_view(uint b) {
     return !(out_near || out_far || out_right || out_left || out_top || out_bottom);
 }
 
+#if ADAPTIVE
+// The fewest words whose error, projected, stays under u_error_px for every point of
+// the batch: a cell's half diagonal e moves a point at depth z by at most
+// e·u_pixel_scale/z pixels, and a drawn point's exact depth is at least the box's
+// least corner depth and near - e (progressive/encoding.py levels_needed, the twin).
+uint batch_levels(uint b, float depth_min) {
+    vec3 step = batch_frames[2u * b + 1u].xyz;
+    for (uint k = 1u; k < 3u; ++k) {
+        float e = 0.5 * length(step * float(1u << (30u - 10u * k))) * (1.0 + ERROR_SLACK);
+        float z = u_perspective != 0.0 ? max(depth_min, u_projection.z - e) : 1.0;
+        if (z > 0.0 && e * u_pixel_scale <= u_error_px * z) return k;
+    }
+    return 3u;
+}
+#endif
+
 void main() {
     uint b;
     if (!range_index(u_batches, b)) return;
-    batch_flags[b] = batch_in_view(b) ? 1u : 0u;
+    float depth_min;
+    bool shown = batch_in_view(b, depth_min);
+#if ADAPTIVE
+    batch_flags[b] = shown ? batch_levels(b, depth_min) : 0u;
+#else
+    batch_flags[b] = shown ? 3u : 0u;
+#endif
 }

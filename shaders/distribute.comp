@@ -1,6 +1,8 @@
 // Scatter a staged batch into its permuted slots (paper section 3.3). With
 // ATTRIBUTE_ONLY the stage holds one word per point and only word 3 is replaced; with
 // CLASS_WORDS each point's 16 flag bits (class, first and last return) go to the store's flags.
+// The word store's points are encoded here, in their batch's frame (set before the
+// scatter): in float64, as progressive/encoding.py quantize and pack_words do.
 layout(local_size_x = 256) in;
 #include "common.glsl"
 #include "points.glsl"
@@ -21,6 +23,24 @@ uniform uint u_rotation;
 uniform uint u_batches;    // batched layout (0: one shuffle)
 uniform uint u_capacity;    // slots held on the GPU: the rest of the cloud is left out
 
+#if WORD_PLANES && !ATTRIBUTE_ONLY && !CLASS_WORDS
+// A float record (xyz float bits relative to the origin, the attribute word) as the
+// word store keeps it: cells round((p - base) / step), nearest even, in [0, 2^30), three
+// words of 10+10+10 bits; a point never drawn gets HIDDEN_WORD in every position word.
+uvec4 encode_words(uint index, uvec4 record) {
+    if (!finite_position(record)) return uvec4(HIDDEN_WORD, HIDDEN_WORD, HIDDEN_WORD, record.w);
+    uint b = index / BATCH_POINTS;
+    dvec3 cells = (dvec3(uintBitsToFloat(record.xyz)) - dvec3(batch_frames[2u * b].xyz)) / dvec3(batch_frames[2u * b + 1u].xyz);
+    uvec3 q = uvec3(clamp(roundEven(cells), dvec3(0.0), dvec3(double(CELLS - 1u))));
+    uvec3 words;
+    for (uint level = 0u; level < 3u; ++level) {
+        uvec3 part = (q >> (10u * (2u - level))) & LEVEL_MASK;
+        words[level] = (part.x << 20u) | (part.y << 10u) | part.z;
+    }
+    return uvec4(words, record.w);
+}
+#endif
+
 void main() {
     uint i;
     if (!range_index(u_count, i)) return;
@@ -31,6 +51,8 @@ void main() {
     atomicOr(classes[slot >> 1u], (staged[i] & 0xFFFFu) << ((slot & 1u) * 16u));
 #elif ATTRIBUTE_ONLY
     store_point(slot, uvec4(0u, 0u, 0u, staged[i]), 3);
+#elif WORD_PLANES
+    store_point(slot, encode_words(u_start + i, staged[i]), -1);
 #else
     store_point(slot, staged[i], -1);
 #endif

@@ -1,7 +1,90 @@
-// The shuffled point buffer: POINT_CHUNKS storage blocks of CHUNK_POINTS 16-byte
-// records each (xyz float bits relative to the origin, one attribute word), and
-// where each slot's record lives (progressive/pointstore.py StoreLayout).
+// The shuffled point store (progressive/pointstore.py), and where each slot's record
+// lives (StoreLayout). WORD_PLANES: four planes of one word a point, each in
+// POINT_CHUNKS buffers of CHUNK_POINTS words (plane p's chunk c at binding
+// POINTS_0 + p·POINT_CHUNKS + c): three position words relative to the point's batch
+// (progressive/encoding.py), then the attribute word; load_point decodes them into a
+// float record, so passes that need a whole point see the float layout. Else
+// POINT_CHUNKS buffers of CHUNK_POINTS 16-byte records (xyz float bits relative to the
+// origin, the attribute word).
+#include "records.glsl"
 
+#if WORD_PLANES
+#if POINT_CHUNKS > 2
+#error "the word store binds at most two buffers a plane"
+#endif
+layout(std430, binding = BINDING_POINTS_0) buffer Words0a { uint words0a[]; };
+layout(std430, binding = BINDING_POINTS_0 + POINT_CHUNKS) buffer Words1a { uint words1a[]; };
+layout(std430, binding = BINDING_POINTS_0 + 2 * POINT_CHUNKS) buffer Words2a { uint words2a[]; };
+layout(std430, binding = BINDING_POINTS_0 + 3 * POINT_CHUNKS) buffer Attributes0 { uint attributes0[]; };
+#if POINT_CHUNKS > 1
+layout(std430, binding = BINDING_POINTS_1) buffer Words0b { uint words0b[]; };
+layout(std430, binding = BINDING_POINTS_1 + POINT_CHUNKS) buffer Words1b { uint words1b[]; };
+layout(std430, binding = BINDING_POINTS_1 + 2 * POINT_CHUNKS) buffer Words2b { uint words2b[]; };
+layout(std430, binding = BINDING_POINTS_1 + 3 * POINT_CHUNKS) buffer Attributes1 { uint attributes1[]; };
+#define PLANE_READ(a, b, index) ((index) < uint(CHUNK_POINTS) ? a[index] : b[(index) - uint(CHUNK_POINTS)])
+#define PLANE_WRITE(a, b, index, value) if ((index) < uint(CHUNK_POINTS)) a[index] = (value); else b[(index) - uint(CHUNK_POINTS)] = (value)
+#else
+#define PLANE_READ(a, b, index) a[index]
+#define PLANE_WRITE(a, b, index, value) a[index] = (value)
+#endif
+
+layout(std430, binding = BINDING_BATCH_FRAMES) readonly buffer Frames { vec4 batch_frames[]; };  // base, step per batch
+
+const uint LEVEL_MASK = 0x3FFu;
+const uint HIDDEN_WORD = 0xFFFFFFFFu;
+const uint CELLS = 1u << 30u;
+
+uint point_word(uint index, uint level) {
+    if (level == 0u) return PLANE_READ(words0a, words0b, index);
+    if (level == 1u) return PLANE_READ(words1a, words1b, index);
+    return PLANE_READ(words2a, words2b, index);
+}
+
+uint attribute_word(uint index) {
+    return PLANE_READ(attributes0, attributes1, index);
+}
+
+// The cells of a point from its first `levels` words (1..3): the cell's centre below
+// full precision, as progressive/encoding.py unpack_cells.
+uvec3 point_cells(uvec3 words, uint levels) {
+    uvec3 q = ((uvec3(words.x) >> uvec3(20u, 10u, 0u)) & LEVEL_MASK) << 20u;
+    if (levels > 1u) q |= ((uvec3(words.y) >> uvec3(20u, 10u, 0u)) & LEVEL_MASK) << 10u;
+    if (levels > 2u) q |= (uvec3(words.z) >> uvec3(20u, 10u, 0u)) & LEVEL_MASK;
+    else q += uvec3(1u << (29u - 10u * levels));
+    return q;
+}
+
+// A point's position relative to the origin as float bits (EMPTY for a point never
+// drawn), read from the first `levels` words at record `index` of batch b: base +
+// float(q)·step, each rounded (progressive/encoding.py decode_frames, bit for bit).
+uvec3 decode_position(uint b, uint index, uint levels) {
+    uvec3 words = uvec3(point_word(index, 0u), 0u, 0u);
+    if (words.x == HIDDEN_WORD) return uvec3(EMPTY);
+    if (levels > 1u) words.y = point_word(index, 1u);
+    if (levels > 2u) words.z = point_word(index, 2u);
+    // precise: no fused multiply-add, so every stage (and the numpy twin) rounds alike.
+    precise vec3 offset = vec3(point_cells(words, levels)) * batch_frames[2u * b + 1u].xyz;
+    precise vec3 p = batch_frames[2u * b].xyz + offset;
+    return floatBitsToUint(p);
+}
+
+uvec4 load_point(uint slot) {
+    uint index = record_index(slot);
+    return uvec4(decode_position(slot_batch_of(slot), index, 3u), attribute_word(index));
+}
+
+// Writes a slot's four words as distribute stages them (component < 0: the position
+// words and the attribute word) or only its attribute word (component 3).
+void store_point(uint slot, uvec4 words, int component) {
+    uint index = record_index(slot);
+    if (component < 0) {
+        PLANE_WRITE(words0a, words0b, index, words.x);
+        PLANE_WRITE(words1a, words1b, index, words.y);
+        PLANE_WRITE(words2a, words2b, index, words.z);
+    }
+    PLANE_WRITE(attributes0, attributes1, index, words.w);
+}
+#else
 layout(std430, binding = BINDING_POINTS_0) buffer Points0 { uvec4 points0[]; };
 #if POINT_CHUNKS > 1
 layout(std430, binding = BINDING_POINTS_1) buffer Points1 { uvec4 points1[]; };
@@ -24,8 +107,6 @@ layout(std430, binding = BINDING_POINTS_6) buffer Points6 { uvec4 points6[]; };
 #if POINT_CHUNKS > 7
 layout(std430, binding = BINDING_POINTS_7) buffer Points7 { uvec4 points7[]; };
 #endif
-
-#include "records.glsl"
 
 uvec4 load_record(uint index) {
     uint c = index / uint(CHUNK_POINTS);
@@ -93,3 +174,4 @@ void store_point(uint slot, uvec4 record, int component) {
     }
 #undef STORE
 }
+#endif

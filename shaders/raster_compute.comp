@@ -86,7 +86,10 @@ void main() {
     if (g >= min(u_batches, (first + (count - 1u)) / SLICE_POINTS - slice + 1u)) return;
     uint b = (slice % u_batches + g) % u_batches;
 #if CULL
-    if (!batch_shown(b)) return;
+    uint levels = batch_flags[b];   // 0: culled; else the position words to read (cull.comp)
+    if (levels == 0u) return;
+#else
+    uint levels = 3u;
 #endif
     uint stride = u_batches * SLICE_POINTS;
     uint base = b * SLICE_POINTS + gl_LocalInvocationID.x;
@@ -101,7 +104,14 @@ void main() {
         for (uint j = 0u; j < PREFETCH; ++j) {
             // k + j < ROUNDS first: past the last round the product could wrap around.
             slots[j] = k + j < ROUNDS ? base + (k + j) * stride : EMPTY;
-            loaded[j] = slots[j] <= last ? load_record(records + (k + j) * record_stride) : uvec4(EMPTY);
+            uint index = records + (k + j) * record_stride;
+#if WORD_PLANES
+            // The attribute word only where a filter reads it (a category's code).
+            loaded[j] = slots[j] <= last ? uvec4(decode_position(b, index, levels),
+                                                 u_filtering != 0u ? attribute_word(index) : EMPTY) : uvec4(EMPTY);
+#else
+            loaded[j] = slots[j] <= last ? load_record(index) : uvec4(EMPTY);
+#endif
         }
         for (uint j = 0u; j < PREFETCH; ++j) raster(slots[j], slots[j], loaded[j]);
     }

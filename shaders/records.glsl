@@ -4,9 +4,16 @@
 // records are contiguous: batch b holds store_slices slices, one more if b <
 // store_longer, and batch store_longer also the first store_rest slots of its next
 // slice (a store that keeps part of the cloud keeps exactly its capacity).
+// point_batches: the permutation's batches, whatever the record order (the batch of a
+// slot, slot_batch_of, for the word store's decoding).
 layout(std140, binding = UNIFORM_STORE_LAYOUT) uniform StoreLayout {
     uint store_batches, store_slices, store_longer, store_rest;
+    uint point_batches;
 };
+
+uint slot_batch_of(uint slot) {
+    return (slot % (point_batches * SLICE_POINTS)) / SLICE_POINTS;
+}
 
 uint batch_record(uint b) {
     return (b * store_slices + min(b, store_longer)) * SLICE_POINTS + (b > store_longer ? store_rest : 0u);

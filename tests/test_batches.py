@@ -138,9 +138,11 @@ def test_stats_report_batches_culled(tmp_path, sample):
         assert main(["render", "--width", str(W), "--height", str(H), "--camera", camera, "--stats", str(stats)]) == 0
         counts[name] = json.loads(stats.read_text())["batches"]
     total = -(-info.points // BATCH_POINTS)
-    assert counts["overview"] == {"total": total, "drawn": total, "culled": 0}
+    exact = {"10": 0, "20": 0}
+    assert counts["overview"] == {"total": total, "drawn": total, "culled": 0, "bits": dict(exact, **{"30": total})}
     assert 0 < counts["zoomed corner"]["culled"] < total
-    assert counts["outside"] == {"total": total, "drawn": 0, "culled": total}
+    assert counts["zoomed corner"]["bits"]["30"] == counts["zoomed corner"]["drawn"]
+    assert counts["outside"] == {"total": total, "drawn": 0, "culled": total, "bits": dict(exact, **{"30": 0})}
 
 
 TUNINGS = [ComputeTuning(batch_groups=g, subgroup_reduction=s) for g in (True, False) for s in (True, False)]

@@ -193,13 +193,14 @@ def test_reprojection_list_holds_record_copies_and_avoids_gathers(gl, cloud):
 
 
 def test_eight_chunk_store_converges(gl, cloud, brute):
-    """The largest store (8 buffers) must fit every pass within 16 storage blocks."""
+    """The largest store (8 buffers: four word planes of two) must fit every pass within
+    16 storage blocks."""
     info, batches = cloud
     cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
     pr = ProgressiveRenderer(gl, info, default_attribute(info),
                              ProgressiveOptions(W, H, budget=BudgetParams(fixed=B), batches_per_frame=100,
-                                                chunk_points=-(-Permutation.for_count(info.points, order=LAYOUT).slots // 8)))
-    assert len(pr.store.buffers) == 8
+                                                chunk_points=-(-Permutation.for_count(info.points, order=LAYOUT).slots // 2)))
+    assert len(pr.store.buffers) == 8 and pr.store.chunks == 2
     for b in batches:
         pr.add_batch(b)
     assert frames_until_equal(gl, pr, cam, pr.scene.style(), brute(cam), math.ceil(pr.store.capacity / B) + 1)

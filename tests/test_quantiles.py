@@ -58,7 +58,7 @@ def stored_words(info, batches, name) -> np.ndarray:
 @pytest.mark.parametrize("name", ["elevation", "intensity", "gps_time"])
 def test_gpu_select_equals_numpy_on_the_store(gl, sample_batches, name):
     info, batches = sample_batches
-    scene = Scene(gl, info, info.attribute(name), chunk_points=40_000)
+    scene = Scene(gl, info, info.attribute(name), chunk_points=60_000)
     try:
         for b in batches:
             scene.add_batch(b)

@@ -7,10 +7,12 @@ import numpy as np
 import pytest
 
 from conftest import SAMPLE, shared_file
+from progressive import encoding
 from progressive.attributes import default_attribute
 from progressive.camera import Camera, auto_camera
 from progressive.loaders import CloudLoader
-from progressive.packing import pack_records
+from progressive.loaders.records import pack_records
+from progressive.permutation import BATCH_POINTS
 from progressive.pointstore import EMPTY_WORD
 from progressive.reference import EMPTY, covered_agreement, reference_ids
 from progressive.renderer import Raster, Renderer
@@ -67,8 +69,8 @@ def test_compute_matches_float64_reference(gl, name):
 
 def test_chunked_store_renders_the_same(gl):
     single, info = load(gl, SAMPLE)
-    chunked, _ = load(gl, SAMPLE, chunk_points=25_000)
-    assert len(chunked.store.buffers) == 5
+    chunked, _ = load(gl, SAMPLE, chunk_points=60_000)
+    assert chunked.store.chunks == 2 and len(chunked.store.buffers) == 8    # four planes of two buffers
     cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
     a = single.render(cam, W, H, single.style())
     b = chunked.render(cam, W, H, chunked.style())
@@ -78,11 +80,49 @@ def test_chunked_store_renders_the_same(gl):
     chunked.release()
 
 
-def test_distribute_writes_permuted_records(gl):
-    r, info = load(gl, SAMPLE, chunk_points=30_000)
+def test_distribute_writes_permuted_words(gl):
+    """Each slot holds its point's words: 30-bit cells of the point's float32 position
+    in the frame of its batch's box (numpy over laspy's coordinates here), and the
+    attribute word; decoded, every position is within half a cell of the file's."""
+    r, info = load(gl, SAMPLE, chunk_points=60_000)
+    assert r.store.words
     with CloudLoader([SAMPLE]) as loader:
         loader.start()
         batches = sorted(loader, key=lambda b: b.start)
+    records = np.concatenate([pack_records(b, r.attribute, float(info.origin[2])) for b in batches])
+    xyz = (file_xyz(SAMPLE) - info.origin).astype(np.float32)
+    batch = np.arange(info.points) // BATCH_POINTS
+    lo = np.stack([np.minimum.reduceat(xyz[:, a], np.flatnonzero(np.r_[True, np.diff(batch) > 0])) for a in range(3)], 1)
+    hi = np.stack([np.maximum.reduceat(xyz[:, a], np.flatnonzero(np.r_[True, np.diff(batch) > 0])) for a in range(3)], 1)
+    step = (hi.astype(np.float64) - lo) / (encoding.CELLS - 1)
+    assert np.allclose(r.store.frames[: batch[-1] + 1, 0:3], lo) and np.allclose(r.store.frames[: batch[-1] + 1, 4:7], step, rtol=1e-6)
+    held = r.store.read_words()
+    slots = r.store.permutation.forward(np.arange(info.points)).astype(np.int64)
+    cells = encoding.unpack_cells(held[slots, :3])
+    exact = (xyz.astype(np.float64) - lo[batch]) / r.store.frames[batch, 4:7]
+    assert np.abs(cells - exact).max() <= 0.5 + 1e-3
+    assert np.array_equal(held[slots, 3], records[:, 3])
+    empty = np.ones(r.store.capacity, dtype=bool)
+    empty[slots] = False
+    assert (held[empty] == EMPTY_WORD).all()     # the layout's padding stays empty
+    decoded = r.store.read_records()[slots, :3].view(np.float32)
+    # float32 decoding (base + q·step): float(q), the product and the sum each round once
+    frames = r.store.frames[batch]
+    assert (np.abs(decoded - xyz) <= 2 * np.spacing(np.abs(frames[:, 0:3]) + np.abs(xyz)) + frames[:, 4:7]).all()
+    assert r.store.buffers[0].label == "words0[0]"
+    r.release()
+
+
+def test_float_records_hold_permuted_records(gl):
+    """The float-record store (the baseline) holds each point's float32 record."""
+    with CloudLoader([SAMPLE], batch_points=40_000) as loader:
+        info = loader.info
+        r = Renderer(gl, info, default_attribute(info), width=W, height=H, chunk_points=30_000,
+                     position_encoding=encoding.Encoding.FLOAT)
+        loader.start()
+        batches = sorted(loader, key=lambda b: b.start)
+        for b in batches:
+            r.add_batch(b)
     records = np.concatenate([pack_records(b, r.attribute, float(info.origin[2])) for b in batches])
     expected = np.full((r.store.capacity, 4), EMPTY_WORD, dtype=np.uint32)     # the layout's padding stays empty
     expected[r.store.permutation.forward(np.arange(info.points))] = records
@@ -106,7 +146,7 @@ def test_unloaded_slots_never_render(gl):
 
 def test_points_baseline_agrees_with_compute(gl):
     compute, info = load(gl, SAMPLE)
-    points, _ = load(gl, SAMPLE, Raster.POINTS, chunk_points=50_000)
+    points, _ = load(gl, SAMPLE, Raster.POINTS, chunk_points=60_000)
     for cam in cameras(info):
         a = compute.render(cam, W, H, compute.style())
         b = points.render(cam, W, H, points.style())

@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from progressive import encoding
 from progressive.attributes import find_attribute
 from progressive.camera import auto_camera
 from progressive.packing import pack_records
@@ -67,7 +68,8 @@ def test_records_batch_after_batch_render_as_in_slot_order(gl, cloud, raster, sh
 
 def test_the_gpu_writes_each_record_where_the_twin_says(gl, cloud):
     """The raw buffers, in record order: batch b's block holds exactly the kept points of
-    file batch b, each record where StoreLayout.record_index puts its slot."""
+    file batch b, each record (its words, as the encoding twin gives them) where
+    StoreLayout.record_index puts its slot."""
     info, batches = cloud
     perm = Permutation.for_count(info.points, order=FillOrder.BATCHED)
     capacity = int(perm.slots * 0.61)
@@ -77,13 +79,16 @@ def test_the_gpu_writes_each_record_where_the_twin_says(gl, cloud):
         for b in batches:
             scene.add_batch(b)
         store = scene.store
-        raw = np.concatenate([np.frombuffer(buf.read(), dtype=np.uint32).reshape(-1, 4) for buf in store.buffers])
+        raw = store.raw_words()
         expected = np.concatenate([pack_records(b, attribute, float(info.origin[2])) for b in batches])
         ids = np.arange(info.points)
         slots = perm.forward(ids).astype(np.int64)
         kept = slots < capacity
         where = store.layout.record_index(slots[kept])
-        assert np.array_equal(raw[where], expected[kept])
+        assert np.array_equal(raw[where, 3], expected[kept, 3])
+        frames = store.frames[ids[kept] // BATCH_POINTS]
+        cells = encoding.quantize(expected[kept, :3].view(np.float32), frames)
+        assert np.array_equal(raw[where, :3], encoding.pack_words(cells))
         starts = store.layout.batch_record(np.arange(perm.batches + 1))
         file_batch = ids[kept] // BATCH_POINTS
         assert np.all((where >= starts[file_batch]) & (where < starts[file_batch + 1]))

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from progressive.attributes import default_attribute
+from progressive.encoding import Encoding
 from progressive.glext import GL_ALREADY_SIGNALED
 from progressive.loaders.types import Batch, nonfinite_records
 from progressive.packing import batch_words, pack_into, pack_records
@@ -83,7 +84,8 @@ def test_store_equals_packed_records(gl, sample_batches, staging, load):
     ctx = gl if staging is Staging.RING else without_buffer_storage(gl)
     capacity = 45_000 if load == "limited" else None
     loaded = batches[:3] if load == "partial" else batches
-    scene = Scene(ctx, info, default_attribute(info), capacity=capacity, class_filter=True)
+    scene = Scene(ctx, info, default_attribute(info), capacity=capacity, class_filter=True,
+                  position_encoding=Encoding.FLOAT)
     assert scene.distribute.staging is staging
     for b in loaded:
         scene.add_batch(b)
@@ -97,19 +99,29 @@ def test_store_equals_packed_records(gl, sample_batches, staging, load):
     scene.release()
 
 
+@pytest.mark.parametrize("encoding", list(Encoding), ids=lambda e: e.name.lower())
 @pytest.mark.parametrize("staging", list(Staging))
 @pytest.mark.parametrize("source", ["las", "fast"])
-def test_hidden_points_through_staging(gl, sample_batches, staging, source):
-    """Non-finite coordinates and shown values: the same records and the same count of
-    points never drawn as pack_records and nonfinite_records give."""
+def test_hidden_points_through_staging(gl, sample_batches, staging, source, encoding):
+    """Non-finite coordinates and shown values: the same records (the word store's
+    decoded, within its rounding) and the same count of points never drawn as
+    pack_records and nonfinite_records give."""
     info, batches = sample_batches
     attribute = info.attribute("intensity")
     bad = hostile(batches, info)
     loaded = fast(bad, info, attribute) if source == "fast" else bad
-    scene = Scene(gl if staging is Staging.RING else without_buffer_storage(gl), info, attribute)
+    scene = Scene(gl if staging is Staging.RING else without_buffer_storage(gl), info, attribute,
+                  position_encoding=encoding)
     for b in loaded:
         scene.add_batch(b)
-    assert np.array_equal(scene.store.read_records(), expected_store(scene, loaded))
+    held, expected = scene.store.read_records(), expected_store(scene, loaded)
+    if encoding is Encoding.FLOAT:
+        assert np.array_equal(held, expected)
+    else:
+        assert np.array_equal(held[:, 3], expected[:, 3])
+        shown = np.isfinite(expected[:, :3].view(np.float32)).all(axis=1)
+        assert np.array_equal((held[:, :3] == EMPTY_WORD).all(axis=1), ~shown)
+        assert np.allclose(held[shown, :3].view(np.float32), expected[shown, :3].view(np.float32), rtol=1e-6, atol=1e-4)
     assert scene.skipped == hidden(scene, loaded) > 0
     scene.release()
 
@@ -150,7 +162,9 @@ class Fences:
 
 
 def small_ring(ctx, info, attribute, piece: int, slots: int) -> Scene:
-    scene = Scene(ctx, info, attribute)
+    """Float records: each batch goes through in whole pieces (the word store also sends
+    again the parts of batches that loader batches split)."""
+    scene = Scene(ctx, info, attribute, position_encoding=Encoding.FLOAT)
     scene.distribute.release()
     scene.distribute = DistributePass(ctx, scene.store, batch_points=piece, ring_slots=slots)
     return scene

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from progressive import shaderlib
 from progressive.camera import ViewUniforms
 from progressive.context import GLContext
+from progressive.encoding import Precision
 from progressive.gpu import grid, set_view
 from progressive.passes.handles import Culling, FillPieces, Meta, Reprojection, Source, StateWord, Visibility
 from progressive.pointstore import PointStore
@@ -50,10 +51,13 @@ class ComputeRaster:
     its sources before pass 1, so the index pass sees the final depths."""
 
     def __init__(self, glc: GLContext, store: PointStore, vis: Visibility, *, atomic64: bool,
-                 culling: Culling | None = None, tuning: ComputeTuning = DEFAULT_TUNING):
+                 culling: Culling | None = None, tuning: ComputeTuning = DEFAULT_TUNING,
+                 precision: Precision = Precision.EXACT):
         """culling: the cull pass (made by the composition, released with the raster)
         whose flags skip batches outside the view in ranges and fill pieces, not in the
-        reprojection list, whose points were visible; None draws every batch."""
+        reprojection list, whose points were visible; None draws every batch.
+        precision: the position words a batch walk reads (Precision; the cull pass
+        chooses them per batch, so without culling or batch groups every word)."""
         if atomic64 and not glc.caps.atomic_int64:
             raise ValueError("64-bit atomics requested but GL_NV_shader_atomic_int64 is missing")
         self.glc, self.store, self.vis = glc, store, vis
@@ -62,6 +66,7 @@ class ComputeRaster:
         self.batch_groups = tuning.batch_groups and store.batched
         self.culling = culling if store.batched else None
         self.passes = 1 if atomic64 else 2
+        self.precision = precision
         self._programs: dict[tuple[Source, int], object] = {}
         for source in Source:
             for pass_index in range(self.passes):
@@ -90,7 +95,7 @@ class ComputeRaster:
     def begin_frame(self, view: ViewUniforms) -> None:
         """Flag the batches in view (the frame loop clears the visibility buffer)."""
         if self.culling is not None:
-            self.culling.run(view)
+            self.culling.run(view, self.precision)
 
     def end_frame(self, view: ViewUniforms) -> None:
         """Nothing to gather: atomics wrote the visibility buffer directly."""

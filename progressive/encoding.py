@@ -1,0 +1,237 @@
+"""Positions as 30-bit integers relative to their batch (the 2-billion-points paper,
+§3.4), GPU-free: the twin of shaders/points.glsl's decoding and of what distribute
+uploads.
+
+Each batch has a frame: a base (its box's least corner, float32 relative to the
+cloud origin, exactly what the GPU adds) and a step per axis (its extent over
+2^30 - 1 cells). A point is q = round((p - base) / step) in [0, 2^30) per axis,
+stored as three words of 10+10+10 bits: word 0 holds the top 10 bits of x, y and z,
+word 1 the middle ones, word 2 the low ones. So a pass can read 1, 2 or 3 words of a
+point (10-, 20- or 30-bit precision): a distant batch is drawn from one 4-byte word a
+point. The words of a point never drawn (non-finite coordinates or shown value) are
+HIDDEN_WORD, which no position has (bits 30 and 31 are always clear). Distribute
+encodes on the GPU, in float64, from the float records staged as for the float store."""
+
+from __future__ import annotations
+
+import enum
+
+import numpy as np
+
+from progressive.permutation import BATCH_POINTS
+
+LEVEL_BITS = 10
+"""Bits of each axis in one word."""
+LEVELS = 3
+"""Words a position takes; reading k of them gives 10·k-bit precision."""
+BITS = LEVEL_BITS * LEVELS
+CELLS = 1 << BITS
+HIDDEN_WORD = 0xFFFFFFFF
+FRAME_FLOATS = 8
+"""A frame on the GPU: base xyz, a pad, step xyz, a pad (two std430 vec4)."""
+POSITION_WORDS = LEVELS
+PLANES = POSITION_WORDS + 1
+"""The planes of the word store: the position words, then the attribute word."""
+
+
+class Encoding(enum.Enum):
+    """How the store keeps a point's position (16 bytes a point either way). WORDS:
+    30-bit integers relative to the batch, one buffer per word, so a pass reads only
+    the words it needs; FLOAT: float32 xyz relative to the cloud origin beside the
+    attribute word in one record (the layouts without batches, and the bench's baseline)."""
+
+    WORDS = "30-bit words relative to the batch"
+    FLOAT = "float32 records"
+
+
+class Precision(enum.Enum):
+    """How many words of each batch a render reads. EXACT: all three (the render
+    contract's ids). ADAPTIVE: the fewest whose position error, projected, stays
+    under ADAPTIVE_ERROR_PX of a pixel for every point of the batch."""
+
+    EXACT = "exact"
+    ADAPTIVE = "adaptive"
+
+
+ADAPTIVE_ERROR_PX = 0.5
+"""The adaptive precision's bound: no point drawn further than this from where its
+exact position projects, in pixels."""
+
+
+def empty_frames(batches: int) -> np.ndarray:
+    """(batches, FRAME_FLOATS) float32 frames of batches not yet encoded."""
+    return np.zeros((batches, FRAME_FLOATS), dtype=np.float32)
+
+
+def quantize(positions: np.ndarray, frames: np.ndarray) -> np.ndarray:
+    """(n, 3) int64 cells of positions, each in its frame ((n, FRAME_FLOATS), or one
+    row for all), rounded to the nearest (even) in float64 as shaders/distribute.comp
+    does; -1 rows for non-finite positions."""
+    p = np.asarray(positions, dtype=np.float64)
+    frames = np.asarray(frames).reshape(-1, FRAME_FLOATS)
+    base, step = frames[:, 0:3].astype(np.float64), frames[:, 4:7].astype(np.float64)
+    with np.errstate(invalid="ignore"):
+        q = np.rint((p - base) / step)
+    bad = ~np.isfinite(q).all(axis=1)
+    q = np.clip(np.where(np.isfinite(q), q, 0), 0, CELLS - 1).astype(np.int64)
+    q[bad] = -1
+    return q
+
+
+def pack_words(q: np.ndarray) -> np.ndarray:
+    """(n, 3) uint32 words of (n, 3) cells; rows with a negative cell (a point never
+    drawn) get HIDDEN_WORD in every word (shaders/distribute.comp encode_words, the twin)."""
+    q = np.asarray(q, dtype=np.int64)
+    out = np.empty((q.shape[0], LEVELS), dtype=np.uint32)
+    mask = (1 << LEVEL_BITS) - 1
+    for level in range(LEVELS):
+        part = (q >> (LEVEL_BITS * (LEVELS - 1 - level))) & mask
+        out[:, level] = (part[:, 0] << (2 * LEVEL_BITS)) | (part[:, 1] << LEVEL_BITS) | part[:, 2]
+    out[(q < 0).any(axis=1)] = HIDDEN_WORD
+    return out
+
+
+def unpack_cells(words: np.ndarray, levels: int = LEVELS) -> np.ndarray:
+    """(n, 3) int64 cells the GPU decodes from the first `levels` words: the cell's
+    centre at coarser levels (the lowest bits half way), exact at LEVELS."""
+    w = np.asarray(words, dtype=np.int64)
+    mask = (1 << LEVEL_BITS) - 1
+    q = np.zeros((w.shape[0], 3), dtype=np.int64)
+    for level in range(levels):
+        shift = LEVEL_BITS * (LEVELS - 1 - level)
+        for axis in range(3):
+            q[:, axis] |= ((w[:, level] >> (LEVEL_BITS * (2 - axis))) & mask) << shift
+    if levels < LEVELS:
+        q += 1 << (LEVEL_BITS * (LEVELS - levels) - 1)
+    return q
+
+
+def decode_frames(words: np.ndarray, frames: np.ndarray, levels: int = LEVELS) -> np.ndarray:
+    """(n, 3) float32 positions relative to the origin as shaders/points.glsl computes
+    them from each point's words and its batch's frame ((n, FRAME_FLOATS)): base +
+    float(q)·step, each operation rounded to float32 (`precise` there), NaN where
+    word 0 is HIDDEN_WORD."""
+    q = unpack_cells(words, levels).astype(np.float32)
+    frames = np.asarray(frames, dtype=np.float32)
+    p = frames[:, 0:3] + q * frames[:, 4:7]
+    p[np.asarray(words)[:, 0] == HIDDEN_WORD] = np.nan
+    return p
+
+
+def cell_size(frames: np.ndarray, levels: int) -> np.ndarray:
+    """(batches, 3) extent of a cell read from `levels` words."""
+    return frames[:, 4:7].astype(np.float64) * float(1 << (LEVEL_BITS * (LEVELS - levels)))
+
+
+class BatchAssembler:
+    """Which points to (re-)encode as loader batches arrive. A batch's frame is of all
+    its points, but loader batches end wherever their reads do (and threads deliver
+    them in any order): the whole batches of what is added are encoded at once, while
+    the parts of a batch shared with a neighbour are kept (a few thousand points a
+    boundary) and the batch is encoded again, all its parts so far in one frame, each
+    time a part arrives, until it is complete. So every point loaded is drawn at once,
+    and a complete batch ends in the frame of its own points."""
+
+    def __init__(self, points: int):
+        self.points = points
+        self._parts: dict[int, list] = {}
+        self._have: dict[int, int] = {}
+
+    def expected(self, b: int) -> int:
+        return min(BATCH_POINTS, self.points - b * BATCH_POINTS)
+
+    @property
+    def held(self) -> int:
+        """Points kept of incomplete batches."""
+        return sum(self._have.values())
+
+    def held_of(self, b: int) -> int:
+        return self._have.get(b, 0)
+
+    def add(self, start: int, count: int, part) -> list:
+        """Groups to encode now, each in frames of its own points: [(held, [(start,
+        count, [(part, lo, hi), ...]), ...]), ...], runs of consecutive file indices from
+        rows lo..hi of the objects added. A group is one run of whole batches (held
+        None), or every part kept so far of batch `held` (as its contiguous runs)."""
+        groups: list = []
+        run_lo = None
+        for b in range(start // BATCH_POINTS, -(-(start + count) // BATCH_POINTS) if count else 0):
+            lo = max(start, b * BATCH_POINTS) - start
+            hi = min(start + count, (b + 1) * BATCH_POINTS) - start
+            if hi - lo == self.expected(b):
+                run_lo = lo if run_lo is None else run_lo
+                continue
+            if run_lo is not None:
+                groups.append((None, [(start + run_lo, lo - run_lo, [(part, run_lo, lo)])]))
+                run_lo = None
+            groups.append((b, self._hold(b, start + lo, part, lo, hi)))
+        if run_lo is not None:
+            groups.append((None, [(start + run_lo, count - run_lo, [(part, run_lo, count)])]))
+        return groups
+
+    def _hold(self, b: int, at: int, part, lo: int, hi: int) -> list:
+        pieces = self._parts.setdefault(b, [])
+        pieces.append((at, part, lo, hi))
+        pieces.sort(key=lambda x: x[0])
+        self._have[b] = self._have.get(b, 0) + hi - lo
+        if self._have[b] >= self.expected(b):
+            del self._parts[b], self._have[b]
+        runs = [[pieces[0]]]
+        for piece in pieces[1:]:
+            at, _, lo, hi = runs[-1][-1]
+            if piece[0] == at + hi - lo:
+                runs[-1].append(piece)
+            else:
+                runs.append([piece])
+        return [(r[0][0], sum(hi - lo for _, _, lo, hi in r), [(part, lo, hi) for _, part, lo, hi in r])
+                for r in runs]
+
+
+def frames_from_boxes(boxes: np.ndarray) -> np.ndarray:
+    """(k, FRAME_FLOATS) frames of k batches' boxes (progressive/batches.py, float32):
+    base the least corner, step the extent over CELLS - 1 rounded up (so the far corner
+    is a cell), 1 on a flat axis (any step encodes q = 0) or an empty box."""
+    lo, hi = boxes[:, 0:3], boxes[:, 4:7]
+    empty = ~(lo <= hi).all(axis=1)
+    lo = np.where(empty[:, None], np.float32(0), lo)
+    hi = np.where(empty[:, None], np.float32(0), hi)
+    step = ((hi.astype(np.float64) - lo) / (CELLS - 1)).astype(np.float32)
+    short = lo.astype(np.float64) + step.astype(np.float64) * (CELLS - 1) < hi
+    step = np.where(short, np.nextafter(step, np.float32(np.inf)), step)
+    frames = empty_frames(boxes.shape[0])
+    frames[:, 0:3], frames[:, 4:7] = lo, np.where(step > 0, step, np.float32(1))
+    return frames
+
+
+ERROR_SLACK = 1e-3
+"""Relative slack on the cell's half diagonal, far above float32 rounding of the decode."""
+
+
+def glsl_defines() -> str:
+    return f"#define ERROR_SLACK {ERROR_SLACK!r}\n"
+
+
+def pixel_scale(view) -> float:
+    """Pixels a displacement of one unit may move a drawn point, at depth 1 where
+    perspective (ViewUniforms): a point's column moves by W/2·(sx·|dx| + |dz|)/z, its
+    row by H/2·(sy·|dy| + |dz|)/z, as |x/z| <= 1/sx inside the image; orthographic
+    W/2·sx·|dx| and H/2·sy·|dy|."""
+    sx, sy = float(view.projection[0]), float(view.projection[1])
+    w, h = view.size
+    extra = 1.0 if view.perspective else 0.0
+    return float(np.float32(np.hypot(0.5 * w * (sx + extra), 0.5 * h * (sy + extra))))
+
+
+def levels_needed(frames: np.ndarray, depth_min: np.ndarray, view, bound: float = ADAPTIVE_ERROR_PX) -> np.ndarray:
+    """The fewest words (1..LEVELS) of each batch whose position error, projected,
+    stays under `bound` pixels (shaders/cull.comp batch_levels, the twin): a cell's half
+    diagonal e (with ERROR_SLACK) times pixel_scale over the least depth a drawn point
+    of the batch can have, its box's least corner depth and near - e."""
+    scale = pixel_scale(view)
+    near = float(view.projection[2])
+    levels = np.full(frames.shape[0], LEVELS, dtype=np.uint32)
+    for k in range(LEVELS - 1, 0, -1):
+        e = 0.5 * np.linalg.norm(cell_size(frames, k), axis=1) * (1 + ERROR_SLACK)
+        z = np.maximum(depth_min, near - e) if view.perspective else np.ones_like(e)
+        levels = np.where((z > 0) & (e * scale <= bound * z), k, levels)
+    return levels
