@@ -29,8 +29,8 @@ from progressive.frame_loop import FrameStats, ProgressiveOptions, ProgressiveRe
 from progressive.loaders.copc import CopcStatus, copc_status
 from progressive.loaders.crs import file_crs
 from progressive.loaders.lookup import read_record
+from progressive.loaders.records import attribute_word
 from progressive.loaders.types import AttributeInfo, AttributeKind
-from progressive.packing import attribute_word
 from progressive.passes.visibility import EMPTY
 from progressive.pointstore import CLASS_BYTES, GPUMemoryError
 from progressive.renderer import Frame, Raster, Renderer, ids_for

@@ -10,7 +10,7 @@ from conftest import SAMPLE, shared_file
 from progressive.attributes import default_attribute
 from progressive.camera import Camera, auto_camera
 from progressive.loaders import CloudLoader
-from progressive.packing import pack_records
+from progressive.loaders.records import pack_records
 from progressive.pointstore import EMPTY_WORD
 from progressive.reference import EMPTY, covered_agreement, reference_ids
 from progressive.renderer import Raster, Renderer
