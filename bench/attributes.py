@@ -13,7 +13,7 @@ from bench.report import Table
 from bench.synthetic import SAMPLE
 from progressive.context import GLContext
 from progressive.loaders import CloudLoader
-from progressive.packing import attribute_word
+from progressive.loaders.records import attribute_word
 from progressive.scene import Scene
 
 CASES = (("intensity", "1 (uint16)"), ("gps_time", "1 (float64)"), ("rgb", "3 (uint16 each, packed to RGBA8)"),

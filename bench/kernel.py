@@ -23,7 +23,7 @@ from bench.synthetic import SAMPLE, load, tiled
 from progressive import shaderlib
 from progressive.camera import auto_camera
 from progressive.context import GLContext, create_context
-from progressive.packing import RECORD_BYTES
+from progressive.loaders.records import RECORD_BYTES
 from progressive.passes.cull import CullPass
 from progressive.passes.raster_compute import ComputeRaster
 from progressive.permutation import BATCH_SLOTS, SLICE_POINTS, FillOrder

@@ -25,7 +25,7 @@ from progressive.camera import Camera, auto_camera, view_uniforms
 from progressive.context import GLContext, create_context
 from progressive.encoding import Encoding, Precision
 from progressive.gpu import grid
-from progressive.packing import RECORD_BYTES
+from progressive.loaders.records import RECORD_BYTES
 from progressive.passes.raster_compute import ComputeTuning, subgroup_reduction_available
 from progressive.permutation import FillOrder
 from progressive.pointstore import RecordOrder

@@ -19,8 +19,8 @@ from progressive.attributes import default_attribute
 from progressive.context import GLContext, create_context
 from progressive.encoding import Encoding
 from progressive.loaders import CloudLoader
+from progressive.loaders.records import pack_records
 from progressive.loaders.types import AttributeInfo, Batch, CloudInfo
-from progressive.packing import pack_records
 from progressive.permutation import LAYOUT, FillOrder
 from progressive.pointstore import RecordOrder
 from progressive.scene import Scene

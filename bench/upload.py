@@ -45,7 +45,7 @@ def child(staging: str, path: str, width: int, height: int) -> dict:
         s.frame(s.auto_camera())
         s.glc.ctx.finish()
         done = time.perf_counter()
-        used = s.renderer.scene.distribute.staging.value
+        used = s.status().staging.value
         out = {"import": imported - t0, **s.startup, "context": context - imported, "in_process": done - t0,
                "staging": used, "epoch_done": time.time(), "device": s.glc.caps.as_dict()}
     glc.release()
@@ -105,7 +105,10 @@ def run(sizes: list[int], repeats: int, startup_repeats: int, size: tuple[int, i
     starts = {s: [] for s in Staging}
     for _ in range(startup_repeats):
         for s in Staging:
-            starts[s].append(start(s.value, SAMPLE, size, env))
+            got = start(s.value, SAMPLE, size, env)
+            if got["staging"] != s.value:
+                raise RuntimeError(f"asked for {s.value} staging, the session used {got['staging']}")
+            starts[s].append(got)
     first = {s: {k: statistics.median(r[k] for r in starts[s]) for k in ("process", "upload")} for s in Staging}
     best = {s: min(r["process"] for r in starts[s]) for s in Staging}
     load_after = os.getloadavg()[0]

@@ -8,8 +8,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from progressive.loaders.pipeline import CloudLoader
+from progressive.loaders.records import ELEVATION
 from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, CloudInfo, FileInfo
-from progressive.packing import ELEVATION
 
 
 @dataclass

@@ -30,7 +30,7 @@ from progressive.loaders.types import (
     nonfinite_rows,
     quiet_nans,
 )
-from progressive.loaders.validate import check_addressable, fail, open_binary, shown
+from progressive.loaders.validate import fail, open_binary, shown
 
 MAGIC = b"ASTM-E57"
 CARTESIAN = ("cartesianX", "cartesianY", "cartesianZ")
@@ -273,7 +273,6 @@ def open_e57(path: str | os.PathLike, *, partial: bool = False) -> E57Source:
     total = sum(s.info.points for s in scans)
     if total == 0:
         raise fail(path, f"has no points ({len(scans)} scans)")
-    check_addressable(path, total)
     loaded = [s for s in scans if s.info.points]
     names = [n for n, fields in ATTRIBUTE_FIELDS.items() if all(set(fields) <= set(s.fields) for s in loaded)]
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)

@@ -21,6 +21,7 @@ import numpy as np
 
 from progressive.errors import InputError
 from progressive.loaders.las import BOUNDS_SAMPLE, attribute_kind
+from progressive.loaders.records import ELEVATION, RECORD_BYTES, pack_records
 from progressive.loaders.types import (
     BATCH_POINTS,
     AttributeInfo,
@@ -31,8 +32,7 @@ from progressive.loaders.types import (
     nonfinite_records,
     quiet_nans,
 )
-from progressive.loaders.validate import BOUNDS_SLACK, check_addressable, contradicted_bounds, fail, open_binary, shown
-from progressive.packing import ELEVATION, RECORD_BYTES, pack_records
+from progressive.loaders.validate import BOUNDS_SLACK, contradicted_bounds, fail, open_binary, shown
 
 MAGIC = b"PRGSPC\x00\x01"
 VERSION = 1
@@ -161,7 +161,6 @@ def open_fast(path: str | os.PathLike, *, partial: bool = False) -> FastSource:
             raise fail(path, problem)
         warnings.append(f"{shown(path)}: {problem}; read the first {complete} points")
         count = complete
-    check_addressable(path, count)
     origin, lo, hi = (tuple(floats[i:i + 3]) for i in (0, 3, 6))
     info = FileInfo(path=path, format="PRGS", version=str(version), point_format=-1, points=count,
                     scale=(1.0, 1.0, 1.0), offset=(0.0, 0.0, 0.0), bounds_min=lo, bounds_max=hi,

@@ -2,8 +2,9 @@
 
 laspy reads the header and decodes damaged or unusual files; this module adds the checks
 laspy does not make (size against the header count, LAS version, empty files) so that
-every bad file fails with one clear line, and a way to read what is left of a damaged LAZ
-when the caller asks for partial input.
+every bad file fails with one clear line. Repairing what laspy would refuse, and reading
+what is left of a damaged LAZ when the caller asks for partial input, is
+loaders/salvage.py's.
 
 Points are numpy structured arrays of the point format's dtype. An uncompressed file's
 records are read by the parser threads themselves, a batch in one read that releases the
@@ -26,9 +27,18 @@ import lazrs
 import numpy as np
 
 from progressive.errors import InputError
-from progressive.loaders.laz import LazLayout, Patch, decode_chunks, laz_layout, open_patched
+from progressive.loaders.laz import LazLayout, decode_chunks, laz_layout, open_patched
+from progressive.loaders.salvage import (
+    VLR_HEADER,
+    checked_count,
+    is_decode_error,
+    salvaged,
+    text_patches,
+    unreachable_bounds,
+)
 from progressive.loaders.types import (
     BATCH_POINTS,
+    FIRST_BATCH_POINTS,
     RGB8_MAX,
     AttributeInfo,
     AttributeKind,
@@ -41,8 +51,6 @@ from progressive.loaders.types import (
     quiet_nans,
 )
 from progressive.loaders.validate import (
-    BOUNDS_SLACK,
-    check_addressable,
     contradicted_bounds,
     fail,
     one_line,
@@ -55,18 +63,12 @@ MAX_POINT_FORMAT = 10
 MAX_MINOR_VERSION = 4
 HEADER_PREFIX = 375                     # the LAS 1.4 header; older ones are shorter
 MIN_HEADER = {0: 227, 1: 227, 2: 227, 3: 235, 4: 375}
-VLR_HEADER = 54                         # bytes of each VLR before its data
-VLR_TEXT = ((2, 16), (22, 32))          # user_id, description: offset, length in the VLR header
-EXTRA_BYTES_STRUCT = 192                # one extra-bytes dimension in the LASF_Spec VLR 4
-EXTRA_BYTES_TEXT = ((4, 32), (160, 32))  # name, description
 SCAN_ANGLE_STEP = 0.006                 # degrees per unit of the PF 6-10 scan_angle
 PROBE_PIECE = 65_536                    # points per read while looking for 16-bit colour
 BOUNDS_SAMPLE = 4_096                   # first points checked against the header bounds
 PARSE_BLOCK_BYTES = 1 << 21
 """Records parsed at a time: each attribute is a strided pass over the records, and over
 a block that stays in the CPU's cache the passes after the first cost little."""
-SALVAGE_PIECE = 1_000                   # points per read while salvaging a damaged LAZ
-RECORD_INT = (-2**31, 2**31 - 1)        # the int32 X, Y, Z of a point record
 STANDARD = (
     "rgb", "intensity", "classification", "elevation", "return_number",
     "number_of_returns", "gps_time", "point_source_id", "user_data", "scan_angle",
@@ -95,11 +97,6 @@ class TruncatedInput(InputError):
     def __init__(self, message: str, read: int):
         super().__init__(message)
         self.read = read
-
-
-def is_decode_error(exc: BaseException) -> bool:
-    """Anything laspy/lazrs raise on bad data, including lazrs panics (BaseExceptions)."""
-    return isinstance(exc, Exception) or type(exc).__name__ == "PanicException"
 
 
 def header_error(path: str, exc: Exception) -> InputError:
@@ -224,15 +221,18 @@ class LasSource:
     def chunks(self, batch_points: int, *, salvage: bool = False,
                names: tuple[str, ...] | None = None) -> Iterator[np.ndarray | Span]:
         """Record arrays of at most batch_points, info.points in total, else TruncatedInput;
+        the first of about FIRST_BATCH_POINTS, so that the first image comes soon;
         with salvage, a damaged LAZ first yields what still decodes. An uncompressed file
         yields Spans, which parse() reads. Given the attribute `names` that will be
         parsed, a LAZ of point format 6-10 decodes only the layers they need (what
         `selection` says); the other fields of its records hold no meaningful values."""
+        head = min(batch_points, FIRST_BATCH_POINTS)
         if self.laz is None:
             count = self.info.points
-            return (Span(first, min(batch_points, count - first)) for first in range(0, count, batch_points))
+            starts = [0, *range(head, count, batch_points)]
+            return (Span(first, min(count, end) - first) for first, end in zip(starts, [*starts[1:], count], strict=True))
         return decode(self.info.path, self.laz, self.records, self.info.points, batch_points, salvage=salvage,
-                      selection=None if names is None else selection(names))
+                      selection=None if names is None else selection(names), head=head)
 
     def parse(self, chunk: np.ndarray | Span, start: int, origin: np.ndarray, names: tuple[str, ...]) -> Batch:
         """A Batch of the named attributes; positions are computed in float64 as laspy
@@ -311,30 +311,34 @@ def _read_records(stream, path: str, records: Records, span: Span, count: int) -
 
 
 def _pieces(path: str, laz: LazLayout | None, records: Records, count: int, piece: int,
-            layers: lazrs.DecompressionSelection | None) -> Iterator[np.ndarray]:
-    """The first `count` records in file order, in arrays of any size: read straight into
-    numpy (the text patches of an uncompressed file lie before its points), decoded by
-    lazrs over several chunks at once (only the `layers` selected), or else through laspy
-    (every field)."""
+            layers: lazrs.DecompressionSelection | None, head: int) -> Iterator[np.ndarray]:
+    """The first `count` records in file order, in arrays of any size, the first of about
+    `head` points: read straight into numpy (the text patches of an uncompressed file lie
+    before its points), decoded by lazrs over several chunks at once (only the `layers`
+    selected), or else through laspy (every field)."""
     if laz is None:
         with open_binary(path) as stream:
-            for first in range(0, count, piece):
-                yield _read_records(stream, path, records, Span(first, min(piece, count - first)), count)
+            for first in [0, *range(head, count, piece)]:
+                yield _read_records(stream, path, records, Span(first, min(head if first == 0 else piece, count - first)),
+                                    count)
     elif laz.chunks:
-        yield from decode_chunks(path, laz, count, piece, records.dtype, available_cores(), layers)
+        yield from decode_chunks(path, laz, count, head, records.dtype, available_cores(), layers)
     else:
         with _reader(laz.open(path), path, laz.backend, count) as reader:
+            yield reader.read_points(min(head, count)).array
             for chunk in reader.chunk_iterator(piece):
                 yield chunk.array
 
 
 def decode(path: str, laz: LazLayout | None, records: Records, count: int, piece: int, *,
-           salvage: bool = False, selection: lazrs.DecompressionSelection | None = None) -> Iterator[np.ndarray]:
-    """Record arrays of at most `piece` points, `count` in total, else TruncatedInput;
-    a LAZ decoded in parallel decodes only the layers of `selection` (None: all)."""
+           salvage: bool = False, selection: lazrs.DecompressionSelection | None = None,
+           head: int | None = None) -> Iterator[np.ndarray]:
+    """Record arrays of at most `piece` points, `count` in total, else TruncatedInput,
+    the first of about `head` (default `piece`; a LAZ's whole chunks); a LAZ decoded in
+    parallel decodes only the layers of `selection` (None: all)."""
     read = 0
     try:
-        for part in _pieces(path, laz, records, count, piece, selection):
+        for part in _pieces(path, laz, records, count, piece, selection, piece if head is None else head):
             for at in range(0, len(part), piece):
                 chunk = part[at:at + piece]
                 read += len(chunk)
@@ -343,81 +347,13 @@ def decode(path: str, laz: LazLayout | None, records: Records, count: int, piece
         if not is_decode_error(exc) or isinstance(exc, InputError):
             raise
         if salvage and laz is not None:
-            for chunk in _salvage(path, laz, count, read, piece):
+            for chunk in salvaged(path, laz, count, read, piece):
                 read += len(chunk)
                 yield chunk
         raise TruncatedInput(f"{shown(path)}: point data is truncated or corrupt after {read} of "
                              f"{count} points ({one_line(exc)})", read) from exc
     if read != count:
         raise TruncatedInput(f"{shown(path)}: header says {count} points but only {read} could be read", read)
-
-
-def _salvage(path: str, laz: LazLayout, count: int, start: int, piece: int) -> Iterator[np.ndarray]:
-    """Decode again with lazrs's sequential decoder and yield, in chunks of `piece`, every
-    point from `start` on that decodes before its first failure. The decoder cannot go on
-    (or back) after a failed read, and a failed read of n points tells nothing of how many
-    decoded: so the read that failed first (start to start + piece) is read again one point
-    at a time, further on reads are of SALVAGE_PIECE, and should one of those fail, the
-    decoder starts over and reads its points one at a time."""
-    at, careful = start, min(start + piece, count)
-    while at < count:
-        stream = laz.salvage_stream(path)
-        if stream is None:
-            return
-        failed = 0
-        with stream:
-            try:
-                decoder = _Sequential(stream, laz, at, piece)
-            except BaseException as exc:
-                if not is_decode_error(exc):
-                    raise
-                return
-            buffer, filled = bytearray(piece * decoder.size), 0
-            while at < count:
-                n = 1 if at < careful else min(SALVAGE_PIECE, count - at, piece - filled)
-                try:
-                    decoder.read_into(buffer, filled, n)
-                except BaseException as exc:
-                    if not is_decode_error(exc):
-                        raise
-                    failed = n
-                    break
-                at, filled = at + n, filled + n
-                if filled == piece:
-                    yield decoder.records(buffer, filled)
-                    filled = 0
-            if filled:
-                yield decoder.records(buffer, filled)
-        if failed <= 1:
-            return
-        careful = at + failed
-
-
-class _Sequential:
-    """lazrs's sequential decoder on a salvage stream, at a given point, and what turns
-    its bytes into laspy records. It skips points by decoding them, never by seeking: a
-    seek trusts the byte offsets of a chunk table that may be the damaged part."""
-
-    def __init__(self, stream, laz: LazLayout, at: int, piece: int):
-        header = laspy.LasHeader.read_from(stream, read_evlrs=False)
-        self._dtype = header.point_format.dtype()
-        self.size = header.point_format.size
-        stream.seek(laz.point_data)
-        self._decoder = lazrs.LasZipDecompressor(stream, laz.vlr_data)
-        scratch, skipped = bytearray(min(at, piece) * self.size), 0
-        while skipped < at:
-            n = min(piece, at - skipped)
-            self.read_into(scratch, 0, n)
-            skipped += n
-
-    def read_into(self, buffer: bytearray, first: int, n: int) -> None:
-        """Decode n points into buffer, from point slot `first` on."""
-        with memoryview(buffer) as view:
-            self._decoder.decompress_many(view[first * self.size:(first + n) * self.size])
-
-    def records(self, buffer: bytearray, n: int) -> np.ndarray:
-        """The first n points of buffer, copied."""
-        return np.frombuffer(buffer[:n * self.size], dtype=self._dtype).copy()
 
 
 def _reader(stream, path: str, backend: laspy.LazBackend | None, count: int) -> laspy.LasReader:
@@ -458,8 +394,7 @@ def open_las(path: str | os.PathLike, *, partial: bool = False) -> LasSource:
             laz = laz_layout(path, stream, header, raw.record_length, count, size, patches, partial, warnings)
             count = laz.points
         else:
-            count = _checked_count(path, raw, size, partial, warnings)
-    check_addressable(path, count)
+            count = checked_count(path, raw, size, partial, warnings)
     pf = header.point_format
     records = Records(pf, header.offset_to_point_data, np.asarray(header.scales, np.float64),
                       np.asarray(header.offsets, np.float64))
@@ -482,7 +417,7 @@ def open_las(path: str | os.PathLike, *, partial: bool = False) -> LasSource:
     names = tuple(n for n in STANDARD if n in columns or n in ("scan_angle", "elevation")
                   or (n == "rgb" and has_rgb)) + tuple(n for n in columns if n not in STANDARD)
     first_gps = float(first["gps_time"][0]) if "gps_time" in columns else None
-    if wrong := _unreachable_bounds(header) or contradicted_bounds(header.mins, header.maxs, seen,
+    if wrong := unreachable_bounds(header) or contradicted_bounds(header.mins, header.maxs, seen,
                                                                   np.abs(header.scales)):
         lo, hi = _data_bounds(path, laz, records, count, partial)
         info = dataclasses.replace(info, bounds_min=lo, bounds_max=hi)
@@ -494,40 +429,6 @@ def open_las(path: str | os.PathLike, *, partial: bool = False) -> LasSource:
         for n in names
     )
     return dataclasses.replace(source, attributes=attributes)
-
-
-def text_patches(stream, raw: RawHeader) -> tuple[tuple[Patch, ...], list[str]]:
-    """Patches that make every VLR user_id and description, and every extra-bytes name and
-    description, valid UTF-8 ('?' for each bad byte, so lengths stay), and the fields they
-    fix. laspy decodes these strictly and rejected the whole file (a Latin-1 'é' in a
-    VLR's user_id, say); patching what laspy reads leaves laspy itself untouched."""
-    patches: list[Patch] = []
-    bad: list[str] = []
-
-    def check(at: int, field: bytes, name: str) -> None:
-        text = field.decode("utf-8", errors="surrogateescape")
-        if any("\udc80" <= c <= "\udcff" for c in text):
-            patches.append((at, "".join("?" if "\udc80" <= c <= "\udcff" else c for c in text).encode()))
-            bad.append(f"{name} {field.rstrip(bytes(1))!r}")
-
-    at = raw.header_size
-    for index in range(raw.vlr_count):
-        stream.seek(at)
-        head = stream.read(VLR_HEADER)
-        if len(head) < VLR_HEADER:
-            break
-        for (offset, length), name in zip(VLR_TEXT, ("user_id", "description"), strict=True):
-            check(at + offset, head[offset:offset + length], f"VLR {index} {name}")
-        record_id, length = struct.unpack_from("<HH", head, 18)
-        if head[2:18].rstrip(bytes(1)) == b"LASF_Spec" and record_id == 4:
-            data = stream.read(length)
-            for i in range(len(data) // EXTRA_BYTES_STRUCT):
-                base = i * EXTRA_BYTES_STRUCT
-                for (offset, size), name in zip(EXTRA_BYTES_TEXT, ("name", "description"), strict=True):
-                    check(at + VLR_HEADER + base + offset, data[base + offset:base + offset + size],
-                          f"extra bytes {i} {name}")
-        at += VLR_HEADER + length
-    return tuple(patches), bad
 
 
 def _check_numbers(path: str, header: laspy.LasHeader) -> None:
@@ -543,21 +444,6 @@ def _check_numbers(path: str, header: laspy.LasHeader) -> None:
     if not all(map(math.isfinite, reach)):
         raise fail(path, f"invalid LAS header: scale {', '.join(map(str, header.scales))} and offset "
                          f"{', '.join(map(str, header.offsets))} make the coordinates overflow")
-
-
-def _unreachable_bounds(header: laspy.LasHeader) -> str | None:
-    """The header bounds no int32 record coordinate can give under the header's scale and
-    offset, described, or None. Such bounds (1e300, say) must not set the cloud's origin:
-    positions relative to it would overflow float32."""
-    bad = []
-    for axis, name in enumerate("xyz"):
-        scale, offset = float(header.scales[axis]), float(header.offsets[axis])
-        lo, hi = sorted(offset + scale * v for v in RECORD_INT)
-        slack = abs(scale) + BOUNDS_SLACK * max(abs(lo), abs(hi))
-        for bound, value in (("min", header.mins[axis]), ("max", header.maxs[axis])):
-            if not lo - slack <= value <= hi + slack:
-                bad.append(f"{bound} {name} {float(value):g} is outside [{lo:g}, {hi:g}]")
-    return f"cannot be reached with its scale and offset ({'; '.join(bad)})" if bad else None
 
 
 def _data_bounds(path: str, laz: LazLayout | None, records: Records, count: int,
@@ -595,30 +481,6 @@ def _columns(pf: laspy.PointFormat) -> dict[str, Column]:
         else:
             columns.update({f"{dim.name}[{i}]": Column(dim.name, i) for i in range(dim.num_elements)})
     return columns
-
-
-def _checked_count(path: str, raw: RawHeader, size: int, partial: bool, warnings: list[str]) -> int:
-    """The header count, checked against the bytes the point records occupy."""
-    if raw.record_length <= 0:
-        raise fail(path, "has a point record length of 0")
-    available = max(raw.data_end(size) - raw.point_data, 0)
-    expected = raw.count * raw.record_length
-    if available == expected:
-        return raw.count
-    complete = available // raw.record_length
-    if available < expected:
-        problem = (f"is truncated: header says {raw.count} points but the file holds "
-                   f"{complete} ({available} of {expected} bytes of point data)")
-        if partial and complete > 0:
-            warnings.append(f"{shown(path)}: {problem}; read the first {complete} points")
-            return complete
-    else:
-        problem = (f"header says {raw.count} points but the file holds more point data "
-                   f"({available} bytes, {expected} expected)")
-        if partial:
-            warnings.append(f"{shown(path)}: {problem}; read the first {raw.count} points")
-            return raw.count
-    raise fail(path, problem)
 
 
 def _probe(path: str, laz: LazLayout | None, records: Records, count: int, has_rgb: bool,

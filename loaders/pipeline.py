@@ -28,7 +28,7 @@ from progressive.loaders.fastformat import FastSource, is_fast, open_fast
 from progressive.loaders.las import LasSource, TruncatedInput, open_las
 from progressive.loaders.ply import PlySource, is_ply, open_ply
 from progressive.loaders.types import BATCH_POINTS, AttributeInfo, Batch, CloudInfo, available_cores
-from progressive.loaders.validate import check_addressable, fail, shown
+from progressive.loaders.validate import fail, shown
 
 Source = LasSource | FastSource | E57Source | PlySource
 OPENERS = ((is_fast, open_fast), (is_e57, open_e57), (is_ply, open_ply), (is_copc, open_copc))
@@ -205,7 +205,6 @@ class CloudLoader(BatchQueue):
             raise ValueError("batch_points and parser_threads must be at least 1")
         self.info, self._sources = open_sources(paths, partial=partial, point_budget=point_budget)
         self.attributes = self._chosen(attributes)
-        check_addressable(self.info.files[-1].path, self.info.points)
         self.batch_points = batch_points
         self.parser_threads = parser_threads
         self.partial = partial

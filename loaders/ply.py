@@ -29,7 +29,7 @@ from progressive.loaders.types import (
     nonfinite_rows,
     quiet_nans,
 )
-from progressive.loaders.validate import check_addressable, fail, open_binary, shown
+from progressive.loaders.validate import fail, open_binary, shown
 
 MAGIC = (b"ply\n", b"ply\r")
 VERTEX = "vertex"
@@ -197,7 +197,6 @@ def open_ply(path: str | os.PathLike, *, partial: bool = False) -> PlySource:
     vertices = element.data
     if len(vertices) == 0:
         raise fail(path, "has no vertices")
-    check_addressable(path, len(vertices))
     if data.text:
         _ascii_rows(path, data)
     else:

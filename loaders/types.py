@@ -10,6 +10,9 @@ import numpy as np
 
 BATCH_POINTS = 500_000
 """Largest batch a reader yields; also the size of the GPU distribute buffer."""
+FIRST_BATCH_POINTS = 100_000
+"""Largest first batch of a LAS/LAZ file: the first image waits for it to be read (two
+LAZ chunks of the usual 50,000 points), while later batches are large for throughput."""
 
 
 RGB8_MAX = 255

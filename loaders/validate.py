@@ -16,7 +16,6 @@ import struct
 import numpy as np
 
 from progressive.errors import InputError
-from progressive.permutation import LAYOUT, Permutation
 
 NOT_REGULAR = {stat.S_IFIFO: "a FIFO", stat.S_IFCHR: "a character device", stat.S_IFBLK: "a block device",
                stat.S_IFSOCK: "a socket", stat.S_IFDIR: "a directory"}
@@ -135,14 +134,3 @@ def contradicted_bounds(mins, maxs, seen, step) -> str | None:
         if low < lo - tol or high > hi + tol:
             bad.append(f"{name} of the points is {low:g} to {high:g}, the header says {lo:g} to {hi:g}")
     return f"do not hold the first points ({'; '.join(bad)})" if bad else None
-
-
-def check_addressable(path: str, points: int) -> None:
-    """A cloud must fit the shuffled buffer's uint32 slots: a header declaring 4.29 G
-    points (a sparse file of that size holds them) failed deep in the renderer. Checked
-    for each file before its points are read, and for the cloud of several files."""
-    try:
-        Permutation.for_count(points, order=LAYOUT)
-    except ValueError as exc:
-        raise fail(path, f"makes a cloud of {points:,} points, more than the shuffled buffer can "
-                         f"address ({exc})") from None

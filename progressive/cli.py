@@ -621,13 +621,14 @@ COPC_SUFFIX = ".copc.laz"
 
 def cmd_convert(args) -> int:
     from progressive.attributes import default_attribute, find_attribute
-    from progressive.loaders import CloudLoader, write_fast_stream
+    from progressive.loaders import write_fast_stream
     from progressive.output import Outputs, check_outputs
+    from progressive.reproject import open_loader
 
     check_outputs([args.output], args.inputs)
     if args.output.lower().endswith(COPC_SUFFIX):
         return _convert_copc(args)
-    with CloudLoader(args.inputs, partial=args.partial) as loader, Outputs() as outputs:
+    with open_loader(args.inputs, partial=args.partial) as loader, Outputs() as outputs:
         info = loader.info
         attr = find_attribute(info, args.attribute) if args.attribute else default_attribute(info)
         loader.start()

@@ -10,8 +10,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from progressive.context import Capabilities
+from progressive.loaders.records import RECORD_BYTES
 from progressive.loaders.types import BATCH_POINTS
-from progressive.packing import RECORD_BYTES
 
 PIXEL_BYTES = 8 + 8 + 2 * (4 + 16) + 4 + 4 + 4     # visibility, reference, two lists, hint, words, image
 HEADROOM = 0.9                                     # of the free memory the driver reports

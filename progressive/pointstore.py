@@ -16,7 +16,7 @@ from progressive import batches, encoding
 from progressive.bindings import MAX_POINT_CHUNKS, Binding, UniformBinding
 from progressive.context import GLContext
 from progressive.errors import ProgressiveError
-from progressive.packing import RECORD_BYTES
+from progressive.loaders.records import RECORD_BYTES
 from progressive.permutation import LAYOUT, SLICE_POINTS, FillOrder, Permutation
 
 EMPTY_WORD = 0xFFFFFFFF

@@ -26,7 +26,8 @@ from progressive.loaders.crs import epsg_code, file_crs
 from progressive.loaders.lookup import locate, read_point
 from progressive.loaders.pipeline import JOIN_S, WAIT_S, BatchQueue
 from progressive.loaders.types import AttributeInfo, Batch, CloudInfo, FileInfo, nonfinite_rows
-from progressive.loaders.validate import check_addressable, fail, shown
+from progressive.loaders.validate import fail, shown
+from progressive.permutation import LAYOUT, Permutation
 
 AUTHORITY_CODE = re.compile(r"[A-Za-z]+:\d+")
 SNAPPED_FORMATS = ("LAS", "LAZ")
@@ -274,12 +275,30 @@ class ReprojectingLoader(BatchQueue):
         self.close()
 
 
+def check_addressable(path: str, points: int) -> None:
+    """A cloud must fit the point store's uint32 slots: a header declaring 4.29 G points
+    (a sparse file of that size holds them) failed deep in the renderer. Checked once the
+    headers are read, before any batch is loaded; `path`: the file that made it too large."""
+    try:
+        Permutation.for_count(points, order=LAYOUT)
+    except ValueError as exc:
+        raise fail(path, f"makes a cloud of {points:,} points, more than the shuffled buffer can "
+                         f"address ({exc})") from None
+
+
 def open_loader(paths, *, partial: bool = False, reproject=None, point_budget: int | None = None):
-    """The loader of a cloud: reprojected into `reproject` (a pyproj CRS) where given;
-    point_budget: see open_sources (COPC levels; not with reprojection)."""
-    if reproject is None:
-        return CloudLoader(paths, partial=partial, point_budget=point_budget)
-    return ReprojectingLoader(paths, reproject, partial=partial)
+    """The loader of a cloud, checked to fit the point store: reprojected into `reproject`
+    (a pyproj CRS) where given; point_budget: see open_sources (COPC levels; not with
+    reprojection)."""
+    if reproject is not None:
+        return ReprojectingLoader(paths, reproject, partial=partial)
+    loader = CloudLoader(paths, partial=partial, point_budget=point_budget)
+    try:
+        check_addressable(loader.info.files[-1].path, loader.info.points)
+    except BaseException:
+        loader.close()
+        raise
+    return loader
 
 
 def open_info(paths, *, partial: bool = False, reproject=None) -> CloudInfo:

@@ -16,8 +16,9 @@ from progressive.camera import Returns
 from progressive.colors import DEFAULT_PALETTE, NO_RANGE, Colormap, ColorMode, ColorStyle, Palette
 from progressive.context import GLContext
 from progressive.errors import ProgressiveError
+from progressive.loaders.records import attribute_word
 from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, CloudInfo
-from progressive.packing import attribute_word, batch_words, pack_into
+from progressive.packing import batch_words, pack_into
 from progressive.passes.distribute import DistributePass
 from progressive.passes.percentile import PercentilePass
 from progressive.permutation import BATCH_POINTS, LAYOUT, FillOrder

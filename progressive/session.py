@@ -30,8 +30,9 @@ from progressive.frame_loop import FrameStats, ProgressiveOptions, ProgressiveRe
 from progressive.loaders.copc import CopcStatus, copc_status
 from progressive.loaders.crs import file_crs
 from progressive.loaders.lookup import read_record
+from progressive.loaders.records import attribute_word
 from progressive.loaders.types import AttributeInfo, AttributeKind
-from progressive.packing import attribute_word
+from progressive.passes.distribute import Staging
 from progressive.passes.visibility import EMPTY
 from progressive.pointstore import CLASS_BYTES, GPUMemoryError
 from progressive.renderer import Frame, Raster, Renderer, ids_for
@@ -68,6 +69,7 @@ class SessionStatus:
     slots: int                  # the store's slots (a progressive fill covers them all)
     not_drawn: int              # non-finite coordinates or shown values
     raster: str                 # the rasterizer's path, in words
+    staging: Staging            # how batches reach the GPU: a mapped ring, or copies where buffer storage is missing
     frames: int                 # progressive frames issued
     loading: bool               # batches still to come from the files or waiting for a frame
     switch: SwitchStatus | None
@@ -386,6 +388,7 @@ class Session:
         return SessionStatus(
             points=self.info.points, loaded=scene.loaded, complete=scene.complete, on_gpu=scene.store.kept,
             slots=scene.store.capacity, not_drawn=scene.skipped, raster=r.raster_path,
+            staging=scene.distribute.staging,
             frames=r.frame_index if self.progressive else int(self._last is not None),
             loading=(self.loading and not self.loader.done) or pending,
             switch=None if sw is None else SwitchStatus(sw.streamed, sw.total, sw.rate, sw.done),

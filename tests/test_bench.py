@@ -57,3 +57,17 @@ def test_passes_bench_runs(tmp_path):
     assert passes.main(["--points", "20000", "--size", "96x64", "--budget", "5000", "--out", str(tmp_path)]) == 0
     table = (tmp_path / "passes_20000.md").read_text()
     assert all(f"| {name} |" in table for name in ("reproject", "fill first", "prepare", "resolve with point size 7"))
+
+
+def test_upload_bench_runs(tmp_path):
+    """bench.upload: ring and copy, each for the loads and a headless start whose session
+    reports (SessionStatus.staging) the staging it was given."""
+    from bench import upload
+    from progressive.passes.distribute import Staging
+
+    assert upload.main(["--points", "20000", "--repeats", "1", "--startup-repeats", "1", "--width", "96",
+                        "--height", "64", "--out", str(tmp_path)]) == 0
+    payload = json.loads((tmp_path / "upload.json").read_text())
+    starts = payload["raw"]["startup"]
+    assert {staging: [run["staging"] for run in runs] for staging, runs in starts.items()} == \
+        {s.value: [s.value] for s in Staging}

@@ -20,7 +20,7 @@ from progressive.camera import Camera
 from progressive.cli import main
 from progressive.loaders import CloudLoader
 from progressive.loaders.copc import ENTRY, is_copc, keep_levels, open_copc
-from progressive.packing import RECORD_BYTES
+from progressive.loaders.records import RECORD_BYTES
 from progressive.permutation import LAYOUT, Permutation
 from progressive.reference import subset_reference_ids
 

@@ -16,7 +16,7 @@ import numpy as np
 from conftest import SAMPLE
 from progressive import memory
 from progressive.cli import main
-from progressive.packing import RECORD_BYTES
+from progressive.loaders.records import RECORD_BYTES
 from progressive.permutation import LAYOUT, Permutation
 from progressive.reference import EMPTY, reference_ids, subset_reference_ids
 

@@ -216,3 +216,26 @@ def test_selection_leaves_the_other_layers_undecoded():
 def test_unknown_attribute_is_refused():
     with pytest.raises(ValueError, match="no attribute nir"):
         CloudLoader([SAMPLE], attributes=("intensity", "nir"))
+
+
+@pytest.mark.parametrize("name", [None, "pine_plot.laz", "lone-star.copc.laz"])
+def test_first_batch_is_small(name):
+    """The first image waits for a file's first batch: it holds FIRST_BATCH_POINTS (a
+    LAZ: whole chunks, at most those that first cover them), later ones up to the batch size, and
+    together they are the file's points as laspy reads them."""
+    from progressive.loaders.las import Span, read_span
+    from progressive.loaders.types import BATCH_POINTS, FIRST_BATCH_POINTS
+    path = SAMPLE if name is None else shared_file(name)
+    source = open_las(path)
+    expected = records_of(path)
+    assert len(expected) > FIRST_BATCH_POINTS, "the file should have more than a first batch"
+    chunks = [read_span(str(path), source.records, c, source.info.points) if isinstance(c, Span) else c
+              for c in source.chunks(BATCH_POINTS)]
+    if source.laz is None:
+        assert len(chunks[0]) == FIRST_BATCH_POINTS
+    else:       # whole chunks, no more than first cover FIRST_BATCH_POINTS (fewer: a read's byte limit)
+        ends = np.cumsum([n for n, _ in source.laz.chunks])
+        assert len(chunks[0]) in ends and len(chunks[0]) <= ends[np.searchsorted(ends, FIRST_BATCH_POINTS)]
+    assert len(chunks[0]) < len(expected)
+    assert all(len(c) <= BATCH_POINTS for c in chunks[1:])
+    np.testing.assert_array_equal(np.concatenate(chunks), expected)

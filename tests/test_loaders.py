@@ -19,7 +19,7 @@ from progressive.errors import InputError
 from progressive.loaders import BATCH_POINTS, CloudLoader, describe, format_text, open_cloud, write_fast
 from progressive.loaders.fastformat import HEADER_BYTES
 from progressive.loaders.las import LasSource
-from progressive.packing import pack_records
+from progressive.loaders.records import pack_records
 
 LARGE = 2_000_000
 """Files above this many points stay out of the full comparison to keep the suite quick."""

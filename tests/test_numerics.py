@@ -120,8 +120,8 @@ def test_one_centimetre_apart_resolves_at_any_distance(gl, distance, raster):
 def test_nonfinite_values_and_positions_are_never_drawn(gl):
     """A NaN or infinite shown value, or coordinate, is skipped and counted; such a point
     must not hide the point behind it."""
+    from progressive.loaders.records import pack_records
     from progressive.loaders.types import nonfinite_records
-    from progressive.packing import pack_records
 
     n = 6
     xyz = np.array([[0.0, 5.0, 0.0], [0.0, 6.0, 0.0], [0.3, 5.0, 0.0], [0.3, 6.0, 0.0], [-0.3, 5.0, 0.0],
@@ -147,8 +147,8 @@ def test_nonfinite_values_and_positions_are_never_drawn(gl):
 
 
 def test_fast_format_records_with_nonfinite_shown_values_are_hidden():
+    from progressive.loaders.records import pack_records
     from progressive.loaders.types import nonfinite_records
-    from progressive.packing import pack_records
 
     attr = AttributeInfo("reflectance", AttributeKind.SCALAR, np.dtype("f4"))
     words = np.array([1.0, np.nan, 2.0, np.inf], dtype=np.float32).view(np.uint32)

@@ -11,7 +11,7 @@ from hypothesis.extra import numpy as hnp
 
 from progressive import quantiles
 from progressive.colors import ColorMode
-from progressive.packing import pack_records
+from progressive.loaders.records import pack_records
 from progressive.scene import RANGE_GROWTH, Scene
 
 float32s = hnp.arrays(np.float32, st.integers(1, 400),

@@ -11,7 +11,7 @@ import pytest
 from progressive import encoding
 from progressive.attributes import find_attribute
 from progressive.camera import auto_camera
-from progressive.packing import pack_records
+from progressive.loaders.records import pack_records
 from progressive.permutation import BATCH_POINTS, SLICE_POINTS, FillOrder, Permutation
 from progressive.pointstore import RecordOrder, StoreLayout
 from progressive.renderer import Raster, Renderer

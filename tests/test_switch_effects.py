@@ -14,7 +14,7 @@ from progressive.colors import ColorStyle
 from progressive.effects import Effects, EyeDome, footprint
 from progressive.errors import ProgressiveError
 from progressive.frame_loop import ProgressiveOptions, ProgressiveRenderer
-from progressive.packing import attribute_word
+from progressive.loaders.records import attribute_word
 from progressive.reference import EMPTY
 from progressive.renderer import Renderer
 

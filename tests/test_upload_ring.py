@@ -14,8 +14,9 @@ import pytest
 from progressive.attributes import default_attribute
 from progressive.encoding import Encoding
 from progressive.glext import GL_ALREADY_SIGNALED
+from progressive.loaders.records import pack_records
 from progressive.loaders.types import Batch, nonfinite_records
-from progressive.packing import batch_words, pack_into, pack_records
+from progressive.packing import batch_words, pack_into
 from progressive.passes.distribute import DistributePass, Staging, without_buffer_storage
 from progressive.pointstore import EMPTY_WORD
 from progressive.scene import Scene, point_flags

@@ -127,7 +127,7 @@ def test_switching_attribute_changes_the_image_and_streams_the_words(viewer):
     switch = s.renderer.scene.switch
     assert switch.done and switch.rate > 0
     words = s.renderer.store.read_records()[:, 3]
-    from progressive.packing import attribute_word
+    from progressive.loaders.records import attribute_word
 
     expected = np.concatenate([attribute_word(b, s.attribute, float(s.info.origin[2]))
                                for b in sorted(s.renderer.scene.batches, key=lambda b: b.start)])

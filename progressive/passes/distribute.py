@@ -20,8 +20,8 @@ from progressive.bindings import Binding
 from progressive.context import GLContext
 from progressive.glext import GL_SHADER_STORAGE_BUFFER_OFFSET_ALIGNMENT, BufferStorage
 from progressive.gpu import grid
+from progressive.loaders.records import RECORD_BYTES
 from progressive.loaders.types import BATCH_POINTS
-from progressive.packing import RECORD_BYTES
 from progressive.pointstore import PointStore
 
 RING_SLOTS = 4

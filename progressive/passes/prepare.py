@@ -9,7 +9,7 @@ from progressive import shaderlib
 from progressive.bindings import Binding
 from progressive.context import GLContext
 from progressive.gpu import dispatch_defines, grid_2d
-from progressive.packing import RECORD_BYTES
+from progressive.loaders.records import RECORD_BYTES
 from progressive.passes.handles import Meta, Reprojection, Visibility
 from progressive.pointstore import PointStore
 
