@@ -28,6 +28,8 @@ from progressive.effects import Effects
 from progressive.frame_loop import FrameStats, ProgressiveOptions, ProgressiveRenderer
 from progressive.loaders.copc import CopcStatus, copc_status
 from progressive.loaders.crs import file_crs
+from progressive.loaders.http import DEFAULTS as HTTP_DEFAULTS
+from progressive.loaders.http import HttpOptions
 from progressive.loaders.lookup import read_record
 from progressive.loaders.records import attribute_word
 from progressive.loaders.types import AttributeInfo, AttributeKind
@@ -96,6 +98,8 @@ class SessionOptions:
     value_range: tuple[float, float] | None = None   # the first attribute's values at the colormap's ends; None: percentiles
     class_filter: bool = False              # keep classification on the GPU (where the cloud has it): any colouring filters
     palette: Palette = DEFAULT_PALETTE      # colours of classification codes
+    http: HttpOptions = HTTP_DEFAULTS
+    """How http(s):// URLs of COPC files are fetched (loaders/http.py): timeout, requests in flight."""
     reproject: str | None = None
     """A CRS code (EPSG:32610): load files in any CRSs as one cloud in it (float64,
     pyproj); None: files whose EPSG codes differ are refused."""
@@ -110,7 +114,8 @@ class Session:
         self.target = target_crs(options.reproject) if options.reproject else None
         budget = None if options.gpu_memory_limit is None else memory.points_within(
             options.gpu_memory_limit, options.width * options.height, CLASS_BYTES if options.class_filter else 0)
-        self.loader = open_loader(paths, partial=options.partial, reproject=self.target, point_budget=budget)
+        self.loader = open_loader(paths, partial=options.partial, reproject=self.target, point_budget=budget,
+                                  http=options.http)
         self._given_range = options.value_range
         self._early: list = []
         self._notes: list[str] = []
