@@ -16,25 +16,37 @@ Nodes are read by the hierarchy either way, so a node whose chunk does not decod
 one line (InputError), or with partial a skipped node (its points not loaded, the
 others at their own indices) and a warning at the end of the file. The file's
 CopcFileInfo tallies what the reader has read, for a session's status.
+
+An http(s):// URL of a COPC file is read the same way by range requests
+(loaders/http.py): its header, VLRs, chunk table and hierarchy, then the kept nodes'
+chunks, a few requests in flight ahead of the decoder. The checks are the local
+file's, so the same file gives the same source either way. A node whose connection
+drops on every try is, with partial, skipped as a damaged one is.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import io
 import os
 import struct
 import threading
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
+import laspy
 import lazrs
 import numpy as np
 
 from progressive.errors import InputError
+from progressive.loaders import las
+from progressive.loaders.http import DEFAULTS as HTTP_DEFAULTS
+from progressive.loaders.http import FetchFailed, HttpOptions, Prefetch, RemoteFile, Tally, is_url
 from progressive.loaders.las import LasSource, TruncatedInput, is_decode_error, open_las, selection
-from progressive.loaders.laz import TABLE_OFFSET_BYTES
-from progressive.loaders.types import Batch, FileInfo
-from progressive.loaders.validate import fail, one_line, open_binary, shown
+from progressive.loaders.laz import TABLE_OFFSET_BYTES, laz_layout
+from progressive.loaders.types import BATCH_POINTS, RGB8_MAX, AttributeInfo, Batch, FileInfo
+from progressive.loaders.validate import contradicted_bounds, fail, one_line, open_binary, shown
 
 HEADER_14 = 375                          # bytes of a LAS 1.4 header
 VLR_HEADER = 54
@@ -67,6 +79,11 @@ def is_copc(path: str | os.PathLike) -> bool:
             head = stream.read(HEADER_14 + VLR_HEADER)
     except (OSError, InputError):
         return False
+    return copc_head(head)
+
+
+def copc_head(head: bytes) -> bool:
+    """is_copc of a file's first HEADER_14 + VLR_HEADER bytes."""
     if len(head) < HEADER_14 + VLR_HEADER or head[:4] != b"LASF" or head[24:26] != b"\x01\x04":
         return False
     (header_size,) = struct.unpack_from("<H", head, 94)
@@ -134,28 +151,32 @@ def read_hierarchy(path: str, point_data: int, points: int) -> Hierarchy:
     from its start in file order, and their points adding up to the header's `points`.
     InputError naming what is wrong otherwise."""
     with open_binary(path) as stream:
-        size = os.fstat(stream.fileno()).st_size
-        stream.seek(HEADER_14 + VLR_HEADER)
-        raw = stream.read(INFO.size)
-        if len(raw) < INFO.size:
-            raise fail(path, "COPC info VLR is cut short")
-        info = CopcInfo.parse(raw)
-        if not (np.isfinite(info.halfsize) and info.halfsize > 0 and all(np.isfinite(info.center))):
-            raise fail(path, f"COPC info VLR: invalid octree cube (centre {info.center}, halfsize {info.halfsize})")
-        pages, seen, found = [(info.root_offset, info.root_size)], set(), []
-        while pages:
-            offset, length = pages.pop()
-            if offset in seen:
-                raise fail(path, f"COPC hierarchy page at {offset} is referenced twice")
-            seen.add(offset)
-            if length <= 0 or length % ENTRY.itemsize or offset + length > size or offset < HEADER_14:
-                raise fail(path, f"COPC hierarchy page at {offset} of {length} bytes is outside the file "
-                                 f"or not a whole number of {ENTRY.itemsize}-byte entries")
-            stream.seek(offset)
-            page = np.frombuffer(stream.read(length), ENTRY)
-            children = page[page["point_count"] == PAGE]
-            pages += [(int(e["offset"]), int(e["byte_size"])) for e in children]
-            found.append(page[page["point_count"] != PAGE])
+        return hierarchy_of(path, stream, os.fstat(stream.fileno()).st_size, point_data, points)
+
+
+def hierarchy_of(path: str, stream, size: int, point_data: int, points: int) -> Hierarchy:
+    """read_hierarchy from a stream of the file (of `size` bytes)."""
+    stream.seek(HEADER_14 + VLR_HEADER)
+    raw = stream.read(INFO.size)
+    if len(raw) < INFO.size:
+        raise fail(path, "COPC info VLR is cut short")
+    info = CopcInfo.parse(raw)
+    if not (np.isfinite(info.halfsize) and info.halfsize > 0 and all(np.isfinite(info.center))):
+        raise fail(path, f"COPC info VLR: invalid octree cube (centre {info.center}, halfsize {info.halfsize})")
+    pages, seen, found = [(info.root_offset, info.root_size)], set(), []
+    while pages:
+        offset, length = pages.pop()
+        if offset in seen:
+            raise fail(path, f"COPC hierarchy page at {offset} is referenced twice")
+        seen.add(offset)
+        if length <= 0 or length % ENTRY.itemsize or offset + length > size or offset < HEADER_14:
+            raise fail(path, f"COPC hierarchy page at {offset} of {length} bytes is outside the file "
+                             f"or not a whole number of {ENTRY.itemsize}-byte entries")
+        stream.seek(offset)
+        page = np.frombuffer(stream.read(length), ENTRY)
+        children = page[page["point_count"] == PAGE]
+        pages += [(int(e["offset"]), int(e["byte_size"])) for e in children]
+        found.append(page[page["point_count"] != PAGE])
     entries = np.concatenate(found)
     return _checked(path, info, entries, point_data, points)
 
@@ -194,15 +215,15 @@ class NodeReads:
     def __init__(self):
         self._lock = threading.Lock()
         self.nodes = self.points = self.bytes = 0
-        self.skipped: list[tuple[tuple[int, int, int, int], int]] = []     # (key, points) of each damaged node
+        self.skipped: list[tuple[tuple[int, int, int, int], int, str]] = []    # (key, points, why) of each
 
     def read(self, nodes: int, points: int, nbytes: int) -> None:
         with self._lock:
             self.nodes, self.points, self.bytes = self.nodes + nodes, self.points + points, self.bytes + nbytes
 
-    def skip(self, key: tuple[int, int, int, int], points: int) -> None:
+    def skip(self, key: tuple[int, int, int, int], points: int, why: str) -> None:
         with self._lock:
-            self.skipped.append((key, points))
+            self.skipped.append((key, points, why))
 
     def snapshot(self) -> tuple[int, int, int, tuple]:
         with self._lock:
@@ -213,7 +234,9 @@ class NodeReads:
 class CopcStatus:
     """One COPC file at one moment: levels, nodes and points kept for the GPU (whole
     levels from the root) of the file's, what has been read of them (compressed bytes
-    of its nodes' chunks) and the damaged nodes skipped (their points not loaded)."""
+    of its nodes' chunks) and the damaged nodes skipped (their points not loaded). Over
+    HTTP, what was fetched: bytes of every answer (headers, hierarchy and nodes), requests
+    answered and in flight; 0 for a local file."""
 
     levels: int
     levels_kept: int
@@ -226,6 +249,9 @@ class CopcStatus:
     bytes_read: int
     nodes_skipped: int
     points_skipped: int
+    bytes_fetched: int = 0
+    requests: int = 0
+    requests_in_flight: int = 0
 
 
 @dataclass(frozen=True)
@@ -239,11 +265,13 @@ class CopcFileInfo(FileInfo):
     levels_kept: int = 0
     nodes_kept: int = 0
     reads: NodeReads = field(default_factory=NodeReads, compare=False, repr=False)
+    fetches: Tally | None = field(default=None, compare=False, repr=False)     # over HTTP
 
     def status(self) -> CopcStatus:
         nodes, points, nbytes, skipped = self.reads.snapshot()
+        fetched = (0, 0, 0) if self.fetches is None else self.fetches.snapshot()
         return CopcStatus(self.copc_levels, self.levels_kept, self.copc_nodes, self.nodes_kept, self.copc_points,
-                          self.points, nodes, points, nbytes, len(skipped), sum(n for _, n in skipped))
+                          self.points, nodes, points, nbytes, len(skipped), sum(n for _, n, _ in skipped), *fetched)
 
 
 def copc_status(info: FileInfo) -> CopcStatus | None:
@@ -266,39 +294,46 @@ class AfterGap:
 @dataclass(frozen=True)
 class CopcSource(LasSource):
     """A COPC file: its LAZ source, its hierarchy (None where it could not be used: the
-    file is then read as the plain LAZ it also is) and the deepest level kept (None: all)."""
+    file is then read as the plain LAZ it also is), the deepest level kept (None: all)
+    and, for a URL, the remote file its nodes are fetched from."""
 
     hierarchy: Hierarchy | None = None
     depth: int | None = None
     problem: str | None = None              # why the hierarchy cannot be used
+    remote: RemoteFile | None = field(default=None, compare=False, repr=False)
 
     def chunks(self, batch_points: int, *, salvage: bool = False,
                names: tuple[str, ...] | None = None) -> Iterator[np.ndarray | AfterGap]:
         if self.hierarchy is None:
             return super().chunks(batch_points, salvage=salvage, names=names)
-        return self._node_chunks(batch_points, None if names is None else selection(names), salvage)
+        return self._node_chunks(self.kept_nodes(), batch_points, None if names is None else selection(names), salvage)
 
     def parse(self, chunk, start: int, origin: np.ndarray, names: tuple[str, ...]) -> Batch:
         if isinstance(chunk, AfterGap):
             return super().parse(chunk.records, start + chunk.gap, origin, names)
         return super().parse(chunk, start, origin, names)
 
+    def close(self) -> None:
+        """Stop the fetches in flight (a loader that stops)."""
+        if self.remote is not None:
+            self.remote.close()
+
     def kept_nodes(self) -> np.ndarray:
         """Indices (into hierarchy.nodes, so in file order) of the nodes read."""
         level = self.hierarchy.nodes["level"]
         return np.arange(level.size) if self.depth is None else np.nonzero(level <= self.depth)[0]
 
-    def _node_chunks(self, batch_points: int, chosen, salvage: bool) -> Iterator[np.ndarray | AfterGap]:
-        """The kept nodes' records in file order, in pieces of at most batch_points; up to
-        READ_POINTS at a time (FIRST_READ_POINTS first) are read and decoded by lazrs on
-        every core. With salvage, damaged nodes are skipped (the next piece is an
-        AfterGap) and named at the end by a TruncatedInput (the loader's warning)."""
+    def _node_chunks(self, kept: np.ndarray, batch_points: int, chosen,
+                     salvage: bool) -> Iterator[np.ndarray | AfterGap]:
+        """The records of the nodes `kept` in file order, in pieces of at most
+        batch_points; up to READ_POINTS at a time (FIRST_READ_POINTS first) are read and
+        decoded by lazrs on every core. With salvage, damaged nodes are skipped (the next
+        piece is an AfterGap) and named at the end by a TruncatedInput (the loader's
+        warning)."""
         nodes = self.hierarchy.nodes
-        kept = self.kept_nodes()
         dtype = self.records.dtype
-        reads = self.info.reads
         gap, read = 0, 0
-        with open_binary(self.info.path) as stream:
+        with self._node_bytes(nodes[kept]) as fetch:
             at = 0
             while at < kept.size:
                 group, total, end = [], 0, at
@@ -307,44 +342,67 @@ class CopcSource(LasSource):
                     group.append(kept[end])
                     total += int(nodes["point_count"][kept[end]])
                     end += 1
-                for records, skipped in self._decode(stream, nodes[group], dtype, chosen, salvage):
+                for records, skipped in self._decode(fetch, range(at, end), nodes[group], dtype, chosen, salvage):
                     gap += skipped
                     for first in range(0, len(records), batch_points):
                         piece = records[first:first + batch_points]
                         yield AfterGap(piece, gap) if gap else piece
                         read, gap = read + len(piece), 0
                 at = end
-        _, _, _, skipped = reads.snapshot()
+        _, _, _, skipped = self.info.reads.snapshot()
         if skipped:
-            named = ", ".join(f"level {k[0]} key ({k[1]}, {k[2]}, {k[3]}) ({n:,} points)" for k, n in skipped[:NAMED_NODES])
+            named = ", ".join(f"level {k[0]} key ({k[1]}, {k[2]}, {k[3]}) ({n:,} points, {why})"
+                              for k, n, why in skipped[:NAMED_NODES])
             more = f" and {len(skipped) - NAMED_NODES} more" if len(skipped) > NAMED_NODES else ""
-            raise TruncatedInput(f"{shown(self.info.path)}: {len(skipped)} COPC node(s) whose chunk does not decode "
-                                 f"skipped, their {sum(n for _, n in skipped):,} points not loaded: {named}{more}",
-                                 read)
+            raise TruncatedInput(f"{shown(self.info.path)}: {len(skipped)} COPC node(s) skipped, their "
+                                 f"{sum(n for _, n, _ in skipped):,} points not loaded: {named}{more}", read)
 
-    def _decode(self, stream, group: np.ndarray, dtype: np.dtype, chosen,
-                salvage: bool) -> Iterator[tuple[np.ndarray, int]]:
-        """(records, damaged points skipped before them) of the group's nodes: decoded in
-        one call, or where that fails node by node to find the damaged ones (InputError
-        naming the first without salvage)."""
-        compressed = bytearray(int(group["byte_size"].astype(np.int64).sum()))
-        view, filled = memoryview(compressed), 0
-        for offset, n in zip(group["offset"].tolist(), group["byte_size"].tolist()):
-            stream.seek(offset)
-            if stream.readinto(view[filled:filled + n]) != n:
-                raise fail(self.info.path, "the file ends inside a COPC node's chunk")
-            filled += n
-        counts, sizes = group["point_count"].tolist(), group["byte_size"].tolist()
-        self.info.reads.read(len(group), sum(counts), filled)
-        records = np.empty(sum(counts), dtype)
-        if self._decoded(compressed, records, list(zip(counts, sizes)), chosen) is None:
-            yield records, 0
+    @contextlib.contextmanager
+    def _node_bytes(self, nodes: np.ndarray):
+        """fetch(k): the compressed chunk of nodes[k], the nodes asked for in order: read
+        from the file, or fetched ahead by range requests (FetchFailed where a node's
+        connection drops on every try)."""
+        if self.remote is not None:
+            with Prefetch(self.remote, list(zip(nodes["offset"].tolist(), nodes["byte_size"].tolist()))) as ahead:
+                yield ahead.take
             return
-        skipped, at = 0, 0
-        for node, count, size in zip(group, counts, sizes):
+        with open_binary(self.info.path) as stream:
+            def read(k: int) -> bytes:
+                stream.seek(int(nodes["offset"][k]))
+                data = stream.read(int(nodes["byte_size"][k]))
+                if len(data) != int(nodes["byte_size"][k]):
+                    raise fail(self.info.path, "the file ends inside a COPC node's chunk")
+                return data
+            yield read
+
+    def _decode(self, fetch, positions: range, group: np.ndarray, dtype: np.dtype, chosen,
+                salvage: bool) -> Iterator[tuple[np.ndarray, int]]:
+        """(records, damaged points skipped before them) of the group's nodes, whose
+        compressed bytes fetch(k) gives for k in `positions`: decoded in one call,
+        or where a node cannot be fetched or that call fails node by node to find the
+        damaged ones (InputError naming the first without salvage)."""
+        counts, sizes = group["point_count"].tolist(), group["byte_size"].tolist()
+        parts: list[bytes | str] = []
+        for k, node in zip(positions, group):
+            try:
+                parts.append(fetch(k))
+            except FetchFailed as exc:
+                problem = one_line(exc).removeprefix(shown(self.info.path) + ": ")
+                if not salvage:
+                    raise fail(self.info.path, f"COPC node of level {node['level']} key ({node['x']}, {node['y']}, "
+                                               f"{node['z']}) could not be fetched ({problem})") from None
+                parts.append(f"not fetched: {problem}")
+        fetched = [i for i, p in enumerate(parts) if isinstance(p, bytes)]
+        self.info.reads.read(len(fetched), sum(counts[i] for i in fetched), sum(sizes[i] for i in fetched))
+        if len(fetched) == len(parts):
+            records = np.empty(sum(counts), dtype)
+            if self._decoded(b"".join(parts), records, list(zip(counts, sizes)), chosen) is None:
+                yield records, 0
+                return
+        skipped = 0
+        for node, count, size, part in zip(group, counts, sizes, parts):
             one = np.empty(count, dtype)
-            problem = self._decoded(view[at:at + size], one, [(count, size)], chosen)
-            at += size
+            problem = part if isinstance(part, str) else self._decoded(part, one, [(count, size)], chosen)
             if problem is None:
                 yield one, skipped
                 skipped = 0
@@ -353,7 +411,7 @@ class CopcSource(LasSource):
             if not salvage:
                 raise fail(self.info.path, f"COPC node of level {key[0]} key ({key[1]}, {key[2]}, {key[3]}) "
                                            f"does not decode ({problem})")
-            self.info.reads.skip(key, count)
+            self.info.reads.skip(key, count, problem if isinstance(part, str) else "does not decode")
             skipped += count
         if skipped:
             yield np.empty(0, dtype), skipped
@@ -420,6 +478,131 @@ def open_copc(path: str | os.PathLike, *, partial: bool = False) -> CopcSource:
     return CopcSource(**{**fields, "warnings": warnings}, hierarchy=hierarchy, problem=problem)
 
 
+def open_copc_url(url: str, *, partial: bool = False, http: HttpOptions = HTTP_DEFAULTS) -> CopcSource:
+    """A COPC file at an http(s):// URL, checked as open_copc and open_las check a local
+    one, so the source is the local file's but for where its nodes come from. Over HTTP
+    a COPC file is read by its hierarchy only: a file that is not COPC, or whose
+    hierarchy cannot be used, is one line."""
+    remote = RemoteFile.open(url, http)
+    try:
+        return _remote_source(remote, partial)
+    except BaseException:
+        remote.close()
+        raise
+
+
+def _remote_source(remote: RemoteFile, partial: bool) -> CopcSource:
+    url, size = remote.url, remote.size
+    head = remote.cached(0, HEADER_14 + VLR_HEADER)
+    raw = las.RawHeader.parse(url, head[:las.HEADER_PREFIX])
+    if not copc_head(head) or not raw.compressed:
+        raise fail(url, "is not a COPC file (a LAZ 1.4 whose first VLR is the COPC info VLR): only COPC files "
+                        "are read over HTTP")
+    if raw.count == 0:
+        raise fail(url, "has no points")
+    prefix = bytearray(remote.cached(0, raw.point_data))
+    patches, bad_text = las.text_patches(io.BytesIO(prefix), raw)
+    for at, patch in patches:
+        prefix[at:at + len(patch)] = patch
+    try:
+        header = laspy.LasHeader.read_from(io.BytesIO(bytes(prefix)), read_evlrs=False)
+    except Exception as exc:
+        raise las.header_error(url, exc) from exc
+    warnings = [f"{shown(url)}: {len(bad_text)} text field(s) of its VLRs are not UTF-8 ({bad_text[0]}"
+                f"{', ...' if len(bad_text) > 1 else ''}); read them with '?' for the bad bytes"] if bad_text else []
+    las._check_numbers(url, header)
+    stream = remote.stream()
+    laz = laz_layout(url, stream, header, raw.record_length, raw.count, size, patches, partial, warnings)
+    count = laz.points
+    try:
+        hierarchy = hierarchy_of(url, stream, size, laz.point_data, count)
+    except InputError as exc:
+        raise InputError(f"{one_line(exc)} (over HTTP a COPC file is read by its hierarchy)") from None
+    pf = header.point_format
+    records = las.Records(pf, header.offset_to_point_data, np.asarray(header.scales, np.float64),
+                          np.asarray(header.offsets, np.float64))
+    has_rgb = "red" in pf.dimension_names
+    columns = las._columns(pf)
+    info = CopcFileInfo(
+        path=url, format="LAZ", version=f"{raw.version[0]}.{raw.version[1]}", point_format=raw.point_format,
+        points=count, scale=tuple(float(v) for v in header.scales), offset=tuple(float(v) for v in header.offsets),
+        bounds_min=tuple(float(v) for v in header.mins), bounds_max=tuple(float(v) for v in header.maxs),
+        rgb_16bit=None, crs=las.crs_name(header), copc_levels=hierarchy.levels, copc_nodes=int(hierarchy.nodes.size),
+        copc_points=count, levels_kept=hierarchy.levels, nodes_kept=int(hierarchy.nodes.size), fetches=remote.tally)
+    source = CopcSource(info, (), columns, None, laz, records, (), hierarchy=hierarchy, remote=remote)
+    max_rgb, first, seen = _probe(source, has_rgb, partial)
+    if wrong := las.unreachable_bounds(header) or contradicted_bounds(header.mins, header.maxs, seen,
+                                                                      np.abs(header.scales)):
+        lo, hi = _node_bounds(source, partial)
+        info = dataclasses.replace(info, bounds_min=lo, bounds_max=hi)
+        warnings.append(f"{shown(url)}: header bounds {wrong}; ignored them and used the bounds of the points")
+    info = dataclasses.replace(info, rgb_16bit=max_rgb > RGB8_MAX if has_rgb else None, reads=NodeReads())
+    names = tuple(n for n in las.STANDARD if n in columns or n in ("scan_angle", "elevation")
+                  or (n == "rgb" and has_rgb)) + tuple(n for n in columns if n not in las.STANDARD)
+    source = dataclasses.replace(source, info=info, warnings=tuple(warnings),
+                                 first_gps_time=float(first["gps_time"][0]) if "gps_time" in columns else None)
+    sample = source.parse(first, 0, np.zeros(3), names).attributes
+    attributes = tuple(
+        AttributeInfo(n, las.attribute_kind(n), np.dtype(np.float64) if n == "elevation" else sample[n].dtype)
+        for n in names
+    )
+    return dataclasses.replace(source, attributes=attributes)
+
+
+def _leading(source: CopcSource, points: int) -> np.ndarray:
+    """The first nodes in file order that hold `points` points."""
+    ends = np.cumsum(source.hierarchy.nodes["point_count"].astype(np.int64))
+    return np.arange(int(np.searchsorted(ends, points)) + 1)
+
+
+def _probe(source: CopcSource, has_rgb: bool, partial: bool) -> tuple[int, np.ndarray, np.ndarray]:
+    """las._probe's max of R, G, B over the file's first BATCH_POINTS points (stopping
+    once it exceeds 255), first point and min and max of the first PROBE_PIECE
+    coordinates, from the file's first nodes: the first piece's nodes fetched first, the
+    rest only where colours are still 8-bit."""
+    count = source.info.points
+    wanted = min(count, BATCH_POINTS if has_rgb else las.BOUNDS_SAMPLE)
+    piece = min(wanted, las.PROBE_PIECE)
+    rgb = ("red", "green", "blue")
+    head = _node_records(source, _leading(source, piece), partial)
+    records = [head]
+    if has_rgb and wanted > len(head) and max(int(head[c].max()) for c in rgb) <= RGB8_MAX:
+        records.append(_node_records(source, _leading(source, wanted)[_leading(source, piece).size:], partial))
+    first = np.concatenate(records)[:wanted]
+    max_rgb = max(int(first[c].max()) for c in rgb) if has_rgb else 0
+    with np.errstate(over="ignore", invalid="ignore"):
+        coords = [source.records.coordinates(first[:piece], axis) for axis in range(3)]
+    seen = np.array([[c.min() for c in coords], [c.max() for c in coords]])
+    return max_rgb, first[:1].copy(), seen
+
+
+def _node_records(source: CopcSource, kept: np.ndarray, partial: bool) -> np.ndarray:
+    """Every record of the nodes `kept` (damaged ones left out with partial)."""
+    pieces = []
+    try:
+        for chunk in source._node_chunks(kept, BATCH_POINTS, None, partial):
+            pieces.append(chunk.records if isinstance(chunk, AfterGap) else chunk)
+    except TruncatedInput:
+        pass                # skipped nodes, partial: the rest is what there is
+    if not sum(len(p) for p in pieces):
+        raise fail(source.info.path, "no point of its first COPC nodes can be read")
+    return np.concatenate(pieces)
+
+
+def _node_bounds(source: CopcSource, partial: bool) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """las._data_bounds from every node: exact min and max of the file coordinates."""
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    try:
+        for chunk in source._node_chunks(np.arange(source.hierarchy.nodes.size), BATCH_POINTS, None, partial):
+            records = chunk.records if isinstance(chunk, AfterGap) else chunk
+            for axis in range(3):
+                coords = source.records.coordinates(records, axis)
+                lo[axis], hi[axis] = min(lo[axis], coords.min()), max(hi[axis], coords.max())
+    except TruncatedInput:
+        pass
+    return tuple(map(float, lo)), tuple(map(float, hi))
+
+
 def keep_levels(sources: tuple, point_budget: int | None) -> tuple:
     """Where the cloud has more points than `point_budget` (what fits on the GPU), its
     COPC files read down to the deepest level at which the whole cloud fits (at least the
@@ -439,9 +622,13 @@ def keep_levels(sources: tuple, point_budget: int | None) -> tuple:
     return tuple(s.through(depth, point_budget) if id(s) in chosen else s for s in sources)
 
 
-def describe_hierarchy(path: str | os.PathLike) -> dict | None:
+def describe_hierarchy(path: str | os.PathLike, http: HttpOptions = HTTP_DEFAULTS) -> dict | None:
     """The hierarchy summary of a COPC file for `info` (None for other files), or
     {"error": ...} where it cannot be used."""
+    if is_url(path):
+        source = open_copc_url(path, http=http)
+        source.close()
+        return source.hierarchy.summary()
     if not is_copc(path):
         return None
     source = open_copc(path)

@@ -5,7 +5,8 @@ the spans of an uncompressed file (each parser reads its own, without the GIL), 
 points decoded by lazrs several chunks at a time on every core, the chunks of the other
 formats. Parsed batches wait in a queue of parser_threads slots. So at most about
 2 x parser_threads + 2 batches (and one LAZ read) are in memory at once, however large
-the cloud is. Parser threads default to the cores this process may use.
+the cloud is. Parser threads default to the cores this process may use. An http(s)://
+URL is a COPC file read by range requests (`http` says how: loaders/http.py).
 """
 
 from __future__ import annotations
@@ -22,9 +23,11 @@ from collections.abc import Callable, Iterable, Iterator
 import numpy as np
 
 from progressive.errors import InputError
-from progressive.loaders.copc import is_copc, keep_levels, open_copc
+from progressive.loaders.copc import CopcSource, is_copc, keep_levels, open_copc, open_copc_url
 from progressive.loaders.e57 import E57Source, is_e57, open_e57
 from progressive.loaders.fastformat import FastSource, is_fast, open_fast
+from progressive.loaders.http import DEFAULTS as HTTP_DEFAULTS
+from progressive.loaders.http import HttpOptions, is_url
 from progressive.loaders.las import LasSource, TruncatedInput, open_las
 from progressive.loaders.ply import PlySource, is_ply, open_ply
 from progressive.loaders.types import BATCH_POINTS, AttributeInfo, Batch, CloudInfo, available_cores
@@ -41,18 +44,29 @@ _END = object()
 """Sentinel: no more tasks (to parsers) or this parser has finished (to the consumer)."""
 
 
-def open_cloud(paths: Iterable[str | os.PathLike] | str | os.PathLike, *, partial: bool = False) -> CloudInfo:
+def open_cloud(paths: Iterable[str | os.PathLike] | str | os.PathLike, *, partial: bool = False,
+               http: HttpOptions = HTTP_DEFAULTS) -> CloudInfo:
     """The cloud's description from the file headers (and each file's first batch)."""
-    return open_sources(paths, partial=partial)[0]
+    info, sources = open_sources(paths, partial=partial, http=http)
+    close_sources(sources)
+    return info
 
 
-def open_sources(paths, *, partial: bool = False, point_budget: int | None = None) -> tuple[CloudInfo, tuple[Source, ...]]:
+def open_sources(paths, *, partial: bool = False, point_budget: int | None = None,
+                 http: HttpOptions = HTTP_DEFAULTS) -> tuple[CloudInfo, tuple[Source, ...]]:
     """point_budget: the points that fit on the GPU; a larger cloud's COPC files are read
     down to a level of detail (loaders/copc.py)."""
     paths = [paths] if isinstance(paths, (str, os.PathLike)) else list(paths)
     if not paths:
         raise InputError("no input files given")
-    sources = keep_levels(tuple(_open(p, partial) for p in paths), point_budget)
+    opened: list[Source] = []
+    try:
+        for p in paths:
+            opened.append(_open(p, partial, http))
+    except BaseException:
+        close_sources(opened)
+        raise
+    sources = keep_levels(tuple(opened), point_budget)
     files = tuple(s.info for s in sources)
     lo = np.min([f.bounds_min for f in files], axis=0).astype(np.float64)
     hi = np.max([f.bounds_max for f in files], axis=0).astype(np.float64)
@@ -94,9 +108,18 @@ def crs_warnings(files) -> list[str]:
     return [f"the files name different coordinate systems ({'; '.join(sorted(labels))}); drawn as one cloud as they are"]
 
 
-def _open(path, partial: bool) -> Source:
+def _open(path, partial: bool, http: HttpOptions) -> Source:
+    if is_url(path):
+        return open_copc_url(path, partial=partial, http=http)
     opener = next((open_ for is_format, open_ in OPENERS if is_format(path)), open_las)
     return opener(path, partial=partial)
+
+
+def close_sources(sources) -> None:
+    """Stop what sources fetch in flight (COPC over HTTP); other sources hold nothing open."""
+    for source in sources:
+        if isinstance(source, CopcSource):
+            source.close()
 
 
 def _fast_cloud(sources: tuple[FastSource, ...]) -> tuple[np.ndarray, tuple[AttributeInfo, ...]]:
@@ -199,11 +222,12 @@ class CloudLoader(BatchQueue):
 
     def __init__(self, paths, *, batch_points: int = BATCH_POINTS,
                  parser_threads: int | None = None, partial: bool = False,
-                 attributes: tuple[str, ...] | None = None, point_budget: int | None = None):
+                 attributes: tuple[str, ...] | None = None, point_budget: int | None = None,
+                 http: HttpOptions = HTTP_DEFAULTS):
         parser_threads = available_cores() if parser_threads is None else parser_threads
         if batch_points < 1 or parser_threads < 1:
             raise ValueError("batch_points and parser_threads must be at least 1")
-        self.info, self._sources = open_sources(paths, partial=partial, point_budget=point_budget)
+        self.info, self._sources = open_sources(paths, partial=partial, point_budget=point_budget, http=http)
         self.attributes = self._chosen(attributes)
         self.batch_points = batch_points
         self.parser_threads = parser_threads
@@ -251,8 +275,10 @@ class CloudLoader(BatchQueue):
         return self
 
     def close(self) -> None:
-        """Stop the threads; they notice within WAIT_S or after the chunk being decoded."""
+        """Stop the threads; they notice within WAIT_S or after the chunk being decoded
+        (fetches in flight fail at once)."""
         self._stop.set()
+        close_sources(self._sources)
         for thread in self._threads:
             if thread is not threading.current_thread():
                 thread.join(JOIN_S)

@@ -78,6 +78,14 @@ def float_arg(text: str) -> float:
         raise argparse.ArgumentTypeError(f"{shown(text)} is not a number") from None
 
 
+def seconds_arg(text: str) -> float:
+    """A positive number of seconds."""
+    value = float_arg(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"{shown(text)} is not a positive number of seconds")
+    return value
+
+
 def bounded_int(limit: int):
     """An integer in 1..limit."""
     def parse(text: str) -> int:
@@ -198,11 +206,26 @@ def add_cloud_args(parser) -> None:
                         "whole levels of its COPC files, else a uniform random subset (the free memory the driver "
                         "reports also counts)")
     add_reproject_arg(parser)
+    add_http_arg(parser)
     parser.add_argument("--precision", type=enum_arg(Precision), default=Precision.EXACT,
                         help="exact (every point's full 30-bit position: the render contract) or adaptive (a distant "
                              "batch's points from fewer bits, each within half a pixel of where it projects)")
     parser.add_argument("--palette", type=path_arg, metavar="FILE.json",
                         help='classification colours overriding the default ones: {"2": [166, 116, 66], "6": "#ff8c1e"}')
+
+
+def add_http_arg(parser) -> None:
+    from progressive.loaders.http import TIMEOUT_S
+
+    parser.add_argument("--http-timeout", type=seconds_arg, default=TIMEOUT_S, metavar="SECONDS",
+                        help=f"how long a request for an http(s):// COPC file may wait for the server "
+                             f"(default {TIMEOUT_S:g})")
+
+
+def http_from(args):
+    from progressive.loaders.http import HttpOptions
+
+    return HttpOptions(timeout_s=args.http_timeout)
 
 
 def add_reproject_arg(parser) -> None:
@@ -386,7 +409,7 @@ def session_options(args):
                           progressive=progressive, color_by=args.color_by,
                           colormap=args.colormap, background=args.background, partial=args.partial,
                           gpu_memory_limit=args.gpu_memory_limit, value_range=args.value_range,
-                          class_filter=filters(args), palette=palette_from(args), reproject=args.reproject,
+                          class_filter=filters(args), palette=palette_from(args), reproject=args.reproject, http=http_from(args),
                           precision=args.precision)
 
 
@@ -563,7 +586,8 @@ def check_cloud(paths: list[str], args) -> None:
     from progressive.attributes import find_attribute
     from progressive.reproject import open_info, target_crs
 
-    info = open_info(paths, partial=args.partial, reproject=target_crs(args.reproject) if args.reproject else None)
+    info = open_info(paths, partial=args.partial, reproject=target_crs(args.reproject) if args.reproject else None,
+                     http=http_from(args))
     if args.color_by:
         find_attribute(info, args.color_by)
 
@@ -574,7 +598,7 @@ def view_session_options(args):
 
     return SessionOptions(width=args.width, height=args.height, color_by=args.color_by, partial=args.partial,
                           gpu_memory_limit=args.gpu_memory_limit, value_range=args.value_range,
-                          class_filter=filters(args), palette=palette_from(args), reproject=args.reproject,
+                          class_filter=filters(args), palette=palette_from(args), reproject=args.reproject, http=http_from(args),
                           precision=args.precision)
 
 

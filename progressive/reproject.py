@@ -23,6 +23,8 @@ import numpy as np
 from progressive.errors import InputError, ProgressiveError
 from progressive.loaders import CloudLoader
 from progressive.loaders.crs import epsg_code, file_crs
+from progressive.loaders.http import DEFAULTS as HTTP_DEFAULTS
+from progressive.loaders.http import HttpOptions
 from progressive.loaders.lookup import locate, read_point
 from progressive.loaders.pipeline import JOIN_S, WAIT_S, BatchQueue
 from progressive.loaders.types import AttributeInfo, Batch, CloudInfo, FileInfo, nonfinite_rows
@@ -286,13 +288,14 @@ def check_addressable(path: str, points: int) -> None:
                          f"address ({exc})") from None
 
 
-def open_loader(paths, *, partial: bool = False, reproject=None, point_budget: int | None = None):
+def open_loader(paths, *, partial: bool = False, reproject=None, point_budget: int | None = None,
+                http: HttpOptions = HTTP_DEFAULTS):
     """The loader of a cloud, checked to fit the point store: reprojected into `reproject`
     (a pyproj CRS) where given; point_budget: see open_sources (COPC levels; not with
     reprojection)."""
     if reproject is not None:
         return ReprojectingLoader(paths, reproject, partial=partial)
-    loader = CloudLoader(paths, partial=partial, point_budget=point_budget)
+    loader = CloudLoader(paths, partial=partial, point_budget=point_budget, http=http)
     try:
         check_addressable(loader.info.files[-1].path, loader.info.points)
     except BaseException:
@@ -301,9 +304,9 @@ def open_loader(paths, *, partial: bool = False, reproject=None, point_budget: i
     return loader
 
 
-def open_info(paths, *, partial: bool = False, reproject=None) -> CloudInfo:
+def open_info(paths, *, partial: bool = False, reproject=None, http: HttpOptions = HTTP_DEFAULTS) -> CloudInfo:
     """The cloud's description (headers read, no points loaded)."""
-    with open_loader(paths, partial=partial, reproject=reproject) as loader:
+    with open_loader(paths, partial=partial, reproject=reproject, http=http) as loader:
         return loader.info
 
 

@@ -29,6 +29,8 @@ from progressive.encoding import Precision
 from progressive.frame_loop import FrameStats, ProgressiveOptions, ProgressiveRenderer
 from progressive.loaders.copc import CopcStatus, copc_status
 from progressive.loaders.crs import file_crs
+from progressive.loaders.http import DEFAULTS as HTTP_DEFAULTS
+from progressive.loaders.http import HttpOptions
 from progressive.loaders.lookup import read_record
 from progressive.loaders.records import attribute_word
 from progressive.loaders.types import AttributeInfo, AttributeKind
@@ -101,6 +103,8 @@ class SessionOptions:
     """The position words a compute raster reads of each batch (progressive/encoding.py):
     all, or with ADAPTIVE the fewest that keep every point within
     encoding.ADAPTIVE_ERROR_PX of where it projects."""
+    http: HttpOptions = HTTP_DEFAULTS
+    """How http(s):// URLs of COPC files are fetched (loaders/http.py): timeout, requests in flight."""
     reproject: str | None = None
     """A CRS code (EPSG:32610): load files in any CRSs as one cloud in it (float64,
     pyproj); None: files whose EPSG codes differ are refused."""
@@ -115,7 +119,8 @@ class Session:
         self.target = target_crs(options.reproject) if options.reproject else None
         budget = None if options.gpu_memory_limit is None else memory.points_within(
             options.gpu_memory_limit, options.width * options.height, CLASS_BYTES if options.class_filter else 0)
-        self.loader = open_loader(paths, partial=options.partial, reproject=self.target, point_budget=budget)
+        self.loader = open_loader(paths, partial=options.partial, reproject=self.target, point_budget=budget,
+                                  http=options.http)
         self._given_range = options.value_range
         self._early: list = []
         self._notes: list[str] = []

@@ -443,7 +443,8 @@ def test_stats_and_panel_report_levels_nodes_points_and_bytes(tmp_path, capsys):
         assert s["copc"][0] == {"levels": levels, "levels_kept": depth + 1, "nodes": len(theirs),
                                 "nodes_kept": len(kept), "points": total, "points_kept": points,
                                 "nodes_read": len(kept), "points_read": points,
-                                "bytes_read": sum(n.byte_size for n in kept), "nodes_skipped": 0, "points_skipped": 0}
+                                "bytes_read": sum(n.byte_size for n in kept), "nodes_skipped": 0, "points_skipped": 0,
+                                "bytes_fetched": 0, "requests": 0, "requests_in_flight": 0}
         assert s["copc"][1:] == [None] * (len(files) - 1)
         lines = copc_lines(CopcStatus(**s["copc"][0]))
         assert lines[0].strip() == f"COPC levels {depth + 1} / {levels}, nodes {len(kept):,} / {len(theirs):,}"

@@ -1,0 +1,135 @@
+"""An HTTP server on 127.0.0.1 serving files by range requests, in a thread, for the
+COPC-over-HTTP tests: the standard library's http.server with a Range handler, and the
+faults of bad networks on demand (ranges ignored, connections dropped mid-answer, slow
+answers). It counts what it answers, for the status the reader reports.
+"""
+
+from __future__ import annotations
+
+import re
+import socket
+import threading
+import time
+from dataclasses import dataclass, field
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+
+RANGE = re.compile(r"bytes=(\d+)-(\d*)")
+
+
+@dataclass
+class Faults:
+    """What goes wrong, set by a test before (or while) the server answers."""
+
+    ignore_ranges: bool = False
+    drops: dict[int, int] = field(default_factory=dict)
+    """Range start -> times an answer for it ends after half its bytes (-1: always)."""
+    delays: dict[int, float] = field(default_factory=dict)
+    """Range start -> seconds its answers wait before they start."""
+
+
+class RangeServer:
+    """`with RangeServer({"name": path}) as server: server.url("name")`."""
+
+    def __init__(self, files: dict[str, Path]):
+        self.files = {name: Path(path).read_bytes() for name, path in files.items()}
+        self.faults = Faults()
+        self.lock = threading.Lock()
+        self.requests = 0           # answered, faults included
+        self.bytes = 0              # body bytes sent
+        self.ranges: list[tuple[int, int]] = []
+        self.active = self.most_active = 0      # requests being answered now, and at most so far
+        self._server = _Server(("127.0.0.1", 0), _Handler)
+        self._server.daemon_threads = True
+        self._server.block_on_close = False
+        self._server.owner = self
+        self._thread = threading.Thread(target=self._server.serve_forever, kwargs={"poll_interval": 0.05},
+                                        daemon=True)
+
+    def url(self, name: str) -> str:
+        return f"http://127.0.0.1:{self._server.server_address[1]}/{name}"
+
+    def counts(self) -> tuple[int, int]:
+        with self.lock:
+            return self.requests, self.bytes
+
+    def reset(self) -> None:
+        with self.lock:
+            self.requests, self.bytes, self.ranges, self.most_active = 0, 0, [], 0
+
+    def __enter__(self) -> RangeServer:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._server.shutdown()
+        self._server.server_close()
+
+
+class _Server(ThreadingHTTPServer):
+    def handle_error(self, request, client_address) -> None:
+        """A client that went away (a timeout, a refused answer): nothing to print."""
+
+
+class _Handler(BaseHTTPRequestHandler):
+    protocol_version = "HTTP/1.1"
+
+    def log_message(self, *args) -> None:
+        pass
+
+    def do_GET(self) -> None:
+        owner: RangeServer = self.server.owner
+        with owner.lock:
+            owner.active += 1
+            owner.most_active = max(owner.most_active, owner.active)
+        try:
+            self._get(owner)
+        finally:
+            with owner.lock:
+                owner.active -= 1
+
+    def _get(self, owner: RangeServer) -> None:
+        faults = owner.faults
+        data = owner.files.get(self.path.lstrip("/"))
+        wanted = RANGE.fullmatch(self.headers.get("Range", ""))
+        start = int(wanted.group(1)) if wanted else 0
+        if faults.delays.get(start):
+            time.sleep(faults.delays[start])
+        try:
+            if data is None:
+                self._answer(owner, 404, b"not found\n", {})
+            elif faults.ignore_ranges or wanted is None:
+                self._answer(owner, 200, data, {})
+            elif start >= len(data):
+                self._answer(owner, 416, b"", {"Content-Range": f"bytes */{len(data)}"})
+            else:
+                end = min(int(wanted.group(2)) if wanted.group(2) else len(data) - 1, len(data) - 1)
+                with owner.lock:
+                    owner.ranges.append((start, end))
+                    drops = faults.drops.get(start, 0)
+                    if drops > 0:
+                        faults.drops[start] = drops - 1
+                    drops = drops != 0
+                body = data[start:end + 1]
+                self._answer(owner, 206, body, {"Content-Range": f"bytes {start}-{end}/{len(data)}"},
+                             cut=len(body) // 2 if drops else None)
+        except (BrokenPipeError, ConnectionResetError):
+            self.close_connection = True
+
+    def _answer(self, owner: RangeServer, status: int, body: bytes, headers: dict, cut: int | None = None) -> None:
+        """Send the answer; `cut`: only that many bytes of the body, then close."""
+        with owner.lock:
+            owner.requests += 1
+        self.send_response(status)
+        for name, value in {"Content-Length": str(len(body)), "Accept-Ranges": "bytes", **headers}.items():
+            self.send_header(name, value)
+        self.end_headers()
+        sent = body if cut is None else body[:cut]
+        for at in range(0, len(sent), 1 << 16):
+            self.wfile.write(sent[at:at + (1 << 16)])
+            with owner.lock:
+                owner.bytes += len(sent[at:at + (1 << 16)])
+        self.wfile.flush()
+        if cut is not None:
+            self.close_connection = True
+            self.connection.shutdown(socket.SHUT_WR)

@@ -1,0 +1,329 @@
+"""COPC over HTTP: view, render and info on an http:// URL read by range requests from a
+server on 127.0.0.1 (tests/range_server.py), against the same file read locally (itself
+tested against laspy in test_copc.py) and against what the server counted; and the bad
+networks (ranges ignored, connections dropped, a slow server, nothing there), each
+within a bound on its time."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import socket
+import threading
+import time
+
+import laspy
+import numpy as np
+import pytest
+from range_server import Faults, RangeServer
+from test_copc import SMALL, damaged_copc, limit_for, nodes_of, plain_copy
+
+from conftest import SAMPLE, SHARED_DATA
+from progressive.cli import main
+from progressive.errors import InputError
+from progressive.loaders import CloudLoader
+from progressive.loaders.copc import open_copc, open_copc_url
+from progressive.loaders.http import HttpOptions
+
+COPC_FILES = ("lone-star.copc.laz", "lion_takanawa.copc.laz")
+BOUND_S = 30.0
+"""Longest any one load, render or failure here may take on a slow machine (llvmpipe, 2
+cores); a hang fails the test instead of stalling the suite."""
+SHORT_TIMEOUT = HttpOptions(timeout_s=0.5)
+
+
+def bounded(call, seconds: float = BOUND_S):
+    """call() run on a thread that must end within `seconds`: its result (or exception)
+    and the time it took."""
+    outcome: dict = {}
+
+    def run():
+        try:
+            outcome["value"] = call()
+        except BaseException as exc:        # handed to the test
+            outcome["error"] = exc
+
+    began = time.monotonic()
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    thread.join(seconds)
+    assert not thread.is_alive(), f"did not end within {seconds} s"
+    if "error" in outcome:
+        raise outcome["error"]
+    return outcome["value"], time.monotonic() - began
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    """Name -> local path of every COPC file served: the sample converted, and the real
+    COPC files of ../shared/data that are there."""
+    sample = tmp_path_factory.mktemp("http") / "sample.copc.laz"
+    assert main(["convert", str(SAMPLE), str(sample)]) == 0
+    found = {name: SHARED_DATA / name for name in COPC_FILES if (SHARED_DATA / name).is_file()}
+    return {"sample.copc.laz": sample, "plain.las": SAMPLE, **found}
+
+
+@pytest.fixture(scope="module")
+def served(files):
+    with RangeServer(files) as server:
+        yield server
+
+
+@pytest.fixture
+def server(served):
+    """The module's server with its counts reset and no faults."""
+    served.faults = Faults()
+    served.reset()
+    yield served
+    served.faults = Faults()
+
+
+def copc_names():
+    return ["sample.copc.laz", *(n for n in COPC_FILES if (SHARED_DATA / n).is_file())]
+
+
+def run_cli(args, capsys, seconds: float = BOUND_S):
+    """(exit status, stdout, stderr, seconds) of the CLI, within `seconds`."""
+    code, took = bounded(lambda: main(args), seconds)
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err, took
+
+
+def batches_of(path, **kwargs):
+    with CloudLoader([path], **kwargs) as loader:
+        batches = sorted(loader, key=lambda b: b.start)
+        return loader.info, batches, loader.warnings
+
+
+@pytest.mark.parametrize("name", copc_names())
+def test_url_source_equals_the_local_file(name, server, files):
+    """Opened by URL, a COPC file gives the local file's source (header facts, attributes,
+    hierarchy, decoder layout) but for its path; loaded, the same batches, with no limit
+    and cut to whole levels under one."""
+    url = server.url(name)
+    remote, local = open_copc_url(url), open_copc(files[name])
+    skip = {"path", "reads", "fetches"}
+    for f in dataclasses.fields(local.info):
+        if f.name not in skip:
+            assert getattr(remote.info, f.name) == getattr(local.info, f.name), f.name
+    for f in ("attributes", "columns", "first_gps_time", "laz", "depth", "problem"):
+        assert getattr(remote, f) == getattr(local, f), f
+    assert [w.replace(url, "FILE") for w in remote.warnings] == [w.replace(str(files[name]), "FILE")
+                                                                 for w in local.warnings]
+    assert remote.records.dtype == local.records.dtype and remote.records.point_data == local.records.point_data
+    np.testing.assert_array_equal(remote.hierarchy.nodes, local.hierarchy.nodes)
+    np.testing.assert_array_equal(remote.hierarchy.first, local.hierarchy.first)
+    levels = local.hierarchy.per_level()
+    for budget in (None, sum(p for _, p in levels[:-1])):
+        (info, mine, _), _ = bounded(lambda b=budget: batches_of(url, point_budget=b))
+        theirs_info, theirs, _ = batches_of(files[name], point_budget=budget)
+        assert info.points == theirs_info.points and info.files[0].runs == theirs_info.files[0].runs
+        assert [b.start for b in mine] == [b.start for b in theirs]
+        for a, b in zip(mine, theirs, strict=True):
+            np.testing.assert_array_equal(a.positions, b.positions)
+            assert a.attributes.keys() == b.attributes.keys()
+            for key in a.attributes:
+                np.testing.assert_array_equal(a.attributes[key], b.attributes[key])
+
+
+@pytest.mark.parametrize("name", ["sample.copc.laz", "lone-star.copc.laz"])
+def test_render_over_http_equals_local_and_plain_laz(name, server, files, tmp_path, capsys):
+    """render --ids of the URL equals the local file's and, with no limit, the same bytes
+    read as plain LAZ; under a limit, the local file's cut to the same levels."""
+    if not files.get(name):
+        pytest.skip(f"{name} not available")
+    levels = open_copc(files[name]).hierarchy.per_level()
+    cut = ["--gpu-memory-limit", str(limit_for(sum(p for _, p in levels[:-1]) + levels[-1][1] // 2))]
+    for limit in ([], cut):
+        ids = []
+        for source in (server.url(name), str(files[name]), *([] if limit else [str(plain_copy(files[name], tmp_path))])):
+            out = tmp_path / "ids.npy"
+            code, _, err, _ = run_cli(["render", *SMALL, source, *limit, "--ids", str(out), "--color-by", "intensity"],
+                                      capsys)
+            assert code == 0, err
+            ids.append(np.load(out))
+        for other in ids[1:]:
+            np.testing.assert_array_equal(ids[0], other)
+        assert (ids[0] != 0xFFFFFFFF).sum() > 500
+
+
+def test_stats_count_what_the_server_sent(server, files, tmp_path, capsys):
+    """--stats "copc" of a URL: bytes fetched and requests answered as the server counted
+    them, none in flight at the end; the kept nodes read with their chunks' bytes as
+    laspy's hierarchy gives them."""
+    name = "lone-star.copc.laz" if "lone-star.copc.laz" in files else "sample.copc.laz"
+    theirs = [n for n in nodes_of(files[name]) if n.point_count > 0]
+    stats = tmp_path / "s.json"
+    code, _, err, _ = run_cli(["render", *SMALL, server.url(name), "--stats", str(stats)], capsys)
+    assert code == 0, err
+    copc = json.loads(stats.read_text())["copc"][0]
+    requests, sent = server.counts()
+    assert (copc["bytes_fetched"], copc["requests"], copc["requests_in_flight"]) == (sent, requests, 0)
+    assert copc["nodes_read"] == len(theirs) and copc["bytes_read"] == sum(n.byte_size for n in theirs)
+    assert copc["bytes_read"] < copc["bytes_fetched"] <= files[name].stat().st_size + sum(n.byte_size for n in theirs)
+
+
+def test_requests_in_flight_are_bounded(files):
+    """Nodes are fetched a few at a time: with every node's answer slowed, the server (one
+    of this test's own) holds exactly `in_flight` requests at once, never more, and the
+    status says so while it does."""
+    name = "lone-star.copc.laz" if "lone-star.copc.laz" in files else "sample.copc.laz"
+    nodes = open_copc(files[name]).hierarchy.nodes
+    in_flight = 3
+    assert nodes.size > in_flight
+    with RangeServer({name: files[name]}) as own:
+        loader = CloudLoader([own.url(name)], http=HttpOptions(in_flight=in_flight))
+        own.faults.delays = {int(offset): 0.2 for offset in nodes["offset"]}
+        with loader:
+            loader.start()
+            deadline = time.monotonic() + BOUND_S
+            while own.active < in_flight and time.monotonic() < deadline:
+                time.sleep(0.005)
+            seen = loader.info.files[0].status().requests_in_flight
+            count = sum(b.count for b in loader)
+        assert count == loader.info.points
+        assert own.most_active == in_flight and seen == in_flight
+        assert loader.info.files[0].status().requests_in_flight == 0
+
+
+def test_info_over_http_equals_local(server, files, capsys):
+    """info --json of the URL is the local file's but for the path and the CRS, which
+    loaders/crs.py reads again from a local file only (a URL's gets its label's)."""
+    name = "sample.copc.laz"
+    descs = []
+    for source in (server.url(name), str(files[name])):
+        code, out, err, _ = run_cli(["info", "--json", source], capsys)
+        assert code == 0, err
+        desc = json.loads(out.replace(json.dumps(source)[1:-1], "FILE"))
+        for d in (desc, *desc["files"]):
+            d.pop("crs_name"), d.pop("epsg")
+        descs.append(desc)
+    assert descs[0] == descs[1]
+    assert descs[0]["files"][0]["copc"]["levels"] == open_copc(files[name]).hierarchy.levels
+
+
+def assert_one_error(code, err, *phrases):
+    assert code == 2 and err.count("\n") == 1 and err.startswith("progressive: error: "), err
+    for phrase in phrases:
+        assert phrase in err, err
+
+
+def test_server_that_ignores_ranges(server, tmp_path, capsys):
+    server.faults.ignore_ranges = True
+    out = tmp_path / "out.png"
+    code, _, err, took = run_cli(["render", *SMALL, server.url("sample.copc.laz"), "--out", str(out)], capsys)
+    assert_one_error(code, err, "ignores range requests", "200")
+    assert not out.exists() and took < BOUND_S
+
+
+def test_nothing_there(server, tmp_path, capsys):
+    """404, a port nobody listens on, a file that is not COPC: one line each, no output."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        closed = f"http://127.0.0.1:{probe.getsockname()[1]}/x.copc.laz"
+    out = tmp_path / "out.png"
+    for url, phrase in ((server.url("missing.copc.laz"), "HTTP 404"), (closed, "cannot connect"),
+                        (server.url("plain.las"), "is not a COPC file")):
+        code, _, err, _ = run_cli(["render", *SMALL, url, "--out", str(out)], capsys)
+        assert_one_error(code, err, url, phrase)
+        assert not out.exists()
+        code, _, err, _ = run_cli(["info", url], capsys)
+        assert_one_error(code, err, url, phrase)
+
+
+def test_connection_dropped_once_is_tried_again(server, files, tmp_path, capsys):
+    """A node's answer cut in the middle once: fetched again, every point loaded as from
+    the local file; the retry is a request the status counts."""
+    name = "lone-star.copc.laz" if "lone-star.copc.laz" in files else "sample.copc.laz"
+    node = sorted((n for n in nodes_of(files[name]) if n.point_count > 0), key=lambda n: n.offset)[-2]
+    server.faults.drops = {node.offset: 1}
+    ids, stats = tmp_path / "ids.npy", tmp_path / "s.json"
+    code, _, err, _ = run_cli(["render", *SMALL, server.url(name), "--ids", str(ids), "--stats", str(stats)], capsys)
+    assert code == 0 and not err, err
+    assert server.ranges.count((node.offset, node.offset + node.byte_size - 1)) == 2
+    copc = json.loads(stats.read_text())["copc"][0]
+    assert (copc["requests"], copc["bytes_fetched"]) == server.counts() and copc["nodes_skipped"] == 0
+    local = tmp_path / "local.npy"
+    assert main(["render", *SMALL, str(files[name]), "--ids", str(local)]) == 0
+    np.testing.assert_array_equal(np.load(ids), np.load(local))
+
+
+def test_connection_dropped_every_time(server, tmp_path, capsys):
+    """A node whose answer is always cut: one line naming it, exit 2, nothing written; with
+    --partial one warning naming it and its points, and the image of the local file whose
+    same node does not decode (test_copc: every other point at its own index)."""
+    path, damaged, node = damaged_copc(tmp_path)
+    with RangeServer({"a.copc.laz": path}) as own:
+        own.faults.drops = {node.offset: -1}
+        url, out = own.url("a.copc.laz"), tmp_path / "ids.npy"
+        key = f"level {node.key.level} key ({node.key.x}, {node.key.y}, {node.key.z})"
+        code, _, err, _ = run_cli(["render", *SMALL, url, "--ids", str(out)], capsys)
+        assert_one_error(code, err, key, "could not be fetched", "dropped")
+        assert not out.exists()
+        assert own.ranges.count((node.offset, node.offset + node.byte_size - 1)) == 2     # one retry
+        stats = tmp_path / "s.json"
+        code, _, err, _ = run_cli(["render", *SMALL, url, "--partial", "--ids", str(out), "--stats", str(stats)],
+                                  capsys)
+        assert code == 0 and err.count("\n") == 1 and err.startswith("progressive: warning: "), err
+        assert key in err and f"{node.point_count:,} points not loaded" in err and "dropped" in err
+    copc = json.loads(stats.read_text())["copc"][0]
+    assert (copc["nodes_skipped"], copc["points_skipped"]) == (1, node.point_count)
+    local = tmp_path / "local.npy"
+    assert main(["render", *SMALL, str(damaged), "--partial", "--ids", str(local)]) == 0
+    np.testing.assert_array_equal(np.load(out), np.load(local))
+    total = laspy.open(path).header.point_count
+    assert json.loads(stats.read_text())["points_loaded"] == total - node.point_count
+
+
+def test_slow_server_times_out(server, files, tmp_path, capsys):
+    """A server that answers node requests later than the timeout: one line within the
+    bound (the loader does not wait for the slow answers still in flight), from the CLI's
+    --http-timeout as from HttpOptions; so does a server slow to send the header."""
+    name = "sample.copc.laz"
+    nodes = open_copc(files[name]).hierarchy.nodes
+    delay = 4.0
+    server.faults.delays = {int(offset): delay for offset in nodes["offset"][1:]}     # the root: the probe
+    out = tmp_path / "out.png"
+    code, _, err, took = run_cli(["render", *SMALL, server.url(name), "--http-timeout", "0.5", "--out", str(out)],
+                                 capsys)
+    assert_one_error(code, err, "no answer", "within 0.5 s")
+    assert took < delay and not out.exists()
+    for bad in ("0", "-1", "soon"):
+        code, _, err, _ = run_cli(["render", *SMALL, server.url(name), "--http-timeout", bad], capsys)
+        assert_one_error(code, err, "--http-timeout")
+    with pytest.raises(InputError, match="within 0.5 s") as caught:
+        bounded(lambda: batches_of(server.url(name), http=SHORT_TIMEOUT), delay)
+    assert "\n" not in str(caught.value)
+    server.faults.delays = {0: delay}
+    began = time.monotonic()
+    with pytest.raises(InputError, match="within 0.5 s"):
+        bounded(lambda: open_copc_url(server.url(name), http=SHORT_TIMEOUT), delay)
+    assert time.monotonic() - began < delay
+
+
+def test_session_survives_a_failed_fetch(server, files, gl):
+    """The viewer's loading path: a node that cannot be fetched fails the frame that pumps
+    it with an InputError (the viewer shows it and calls stop_loading); the session then
+    keeps drawing the points read before."""
+    from progressive.session import Session, SessionOptions
+
+    name = "lone-star.copc.laz"        # no RGB: opening it reads its root node only
+    if name not in files:
+        pytest.skip(f"{name} not available")
+    nodes = open_copc(files[name]).hierarchy.nodes
+    assert nodes.size > 2
+    server.faults.drops = {int(nodes["offset"][-1]): -1}
+    options = SessionOptions(width=160, height=120, http=HttpOptions(timeout_s=5))
+
+    began = time.monotonic()            # on this thread: the GL context is current here
+    with Session([server.url(name)], options, glc=gl) as s:
+        camera = s.auto_camera()
+        with pytest.raises(InputError, match="could not be fetched"):
+            for _ in range(10_000):
+                s.frame(camera)
+        s.stop_loading()
+        s.frame(camera)
+        loaded = s.status().loaded
+        shown = int((s.ids() != 0xFFFFFFFF).sum())
+    assert time.monotonic() - began < BOUND_S
+    assert 0 < loaded <= int(nodes["point_count"][:-1].sum()) and shown > 0
