@@ -1,8 +1,8 @@
 """Reading a file over HTTP by range requests: what COPC over http(s):// URLs needs.
 
-Only the bytes asked for are fetched (the standard library's http.client, one
-connection a request), so a COPC file on object storage is read by its header,
-hierarchy and kept nodes alone. Every answer is checked: a server that ignores ranges
+Only the bytes asked for are fetched (the standard library's http.client; connections
+are kept alive for the next request, one per request in flight), so a COPC file on
+object storage is read by its header, hierarchy and kept nodes alone. Every answer is checked: a server that ignores ranges
 (200 with the whole file), an error status, a connection that cannot be made or a
 server silent for `timeout_s` are one line (InputError) at once; a connection dropped
 before the bytes asked for arrive is tried again `retries` times, then is a
@@ -79,6 +79,11 @@ class Dropped(Exception):
     """The connection ended before the bytes asked for (tried again)."""
 
 
+class _Stale(Exception):
+    """A connection kept alive that the server has closed since (sent again at once, on a
+    new connection: that is no drop)."""
+
+
 class Tally:
     """Bytes received, requests answered and in flight, of one remote file; written by the
     fetching threads, read by a session at any moment."""
@@ -117,6 +122,7 @@ class RemoteFile:
         self._target = url                  # where redirects led
         self._lock = threading.Lock()
         self._open: set = set()             # connections of requests in flight
+        self._idle: dict[tuple, list] = {}  # (scheme, host, port) -> connections kept alive
         self._closed = False
         self._cache: list[tuple[int, bytes]] = []
 
@@ -129,12 +135,17 @@ class RemoteFile:
         return remote
 
     def close(self) -> None:
-        """Fail the requests in flight now (their sockets shut) and refuse new ones."""
+        """Fail the requests in flight now (their sockets shut), close the connections kept
+        alive and refuse new requests."""
         with self._lock:
             self._closed = True
             connections = list(self._open)
+            idle = [conn for kept in self._idle.values() for conn in kept]
+            self._idle.clear()
         for conn in connections:
             _shut(conn)
+        for conn in idle:
+            conn.close()
 
     def read(self, offset: int, length: int) -> bytes:
         """Bytes [offset, offset + length), all of them, or InputError (FetchFailed where
@@ -169,16 +180,6 @@ class RemoteFile:
     def stream(self) -> RemoteStream:
         return RemoteStream(self)
 
-    def _connection(self, target: str):
-        parts = urllib.parse.urlsplit(target)
-        kind = http.client.HTTPSConnection if parts.scheme.lower() == "https" else http.client.HTTPConnection
-        try:
-            conn = kind(parts.hostname or "", parts.port, timeout=self.options.timeout_s)
-        except ValueError as exc:           # a port that is not a number
-            raise fail(self.url, f"is not a valid URL ({exc})") from None
-        path = parts.path or "/"
-        return conn, path + (f"?{parts.query}" if parts.query else ""), parts
-
     def _fetch(self, offset: int, length: int) -> bytes:
         with self._lock:
             if self._closed:
@@ -186,31 +187,66 @@ class RemoteFile:
         self.tally.begin()
         try:
             for _ in range(REDIRECTS + 1):
-                conn, path, parts = self._connection(self._target)
-                with self._lock:
-                    self._open.add(conn)
-                try:
-                    moved = self._ask(conn, path, parts, offset, length)
-                    if isinstance(moved, bytes):
-                        return moved
-                    self._target = urllib.parse.urljoin(self._target, moved)
-                finally:
-                    with self._lock:
-                        self._open.discard(conn)
-                    conn.close()
+                answer = self._exchange(urllib.parse.urlsplit(self._target), offset, length)
+                if isinstance(answer, bytes):
+                    return answer
+                self._target = urllib.parse.urljoin(self._target, answer)
             raise fail(self.url, f"more than {REDIRECTS} redirects")
         finally:
             self.tally.end()
 
-    def _ask(self, conn, path: str, parts, offset: int, length: int) -> bytes | str:
-        """The range's bytes, or where a redirect points."""
+    def _exchange(self, parts, offset: int, length: int) -> bytes | str:
+        """One request, on a connection kept alive from an earlier one where there is one,
+        else (or where the server had closed that one) on a new connection."""
+        key = (parts.scheme.lower(), parts.hostname, parts.port)
+        with self._lock:
+            kept = self._idle.get(key)
+            conn = kept.pop() if kept else None
+        if conn is not None:
+            try:
+                return self._over(conn, key, parts, offset, length, reused=True)
+            except _Stale:
+                pass
+        kind = http.client.HTTPSConnection if key[0] == "https" else http.client.HTTPConnection
+        try:
+            conn = kind(parts.hostname or "", parts.port, timeout=self.options.timeout_s)
+        except ValueError as exc:           # a port that is not a number
+            raise fail(self.url, f"is not a valid URL ({exc})") from None
+        return self._over(conn, key, parts, offset, length, reused=False)
+
+    def _over(self, conn, key: tuple, parts, offset: int, length: int, reused: bool) -> bytes | str:
+        """The request on `conn`, which is kept alive afterwards where the answer allows."""
+        with self._lock:
+            self._open.add(conn)
+        keep = False
+        try:
+            answer, keep = self._ask(conn, parts, offset, length, reused)
+            return answer
+        finally:
+            with self._lock:
+                self._open.discard(conn)
+                keep = keep and not self._closed
+                if keep:
+                    self._idle.setdefault(key, []).append(conn)
+            if not keep:
+                conn.close()
+
+    def _ask(self, conn, parts, offset: int, length: int, reused: bool) -> tuple[bytes | str, bool]:
+        """The range's bytes, or where a redirect points; and whether the connection may
+        serve another request. _Stale where a kept-alive connection turns out closed."""
         where = f"{parts.hostname}:{parts.port or conn.default_port}"
+        path = (parts.path or "/") + (f"?{parts.query}" if parts.query else "")
         last = offset + length - 1
         try:
-            conn.request("GET", path, headers={"Range": f"bytes={offset}-{last}", "Accept-Encoding": "identity"})
-            response = conn.getresponse()
+            try:
+                conn.request("GET", path, headers={"Range": f"bytes={offset}-{last}", "Accept-Encoding": "identity"})
+                response = conn.getresponse()
+            except (http.client.RemoteDisconnected, ConnectionResetError, BrokenPipeError, ConnectionAbortedError):
+                if reused:
+                    raise _Stale() from None
+                raise
             if response.status in (301, 302, 303, 307, 308) and response.getheader("Location"):
-                return response.getheader("Location")
+                return response.getheader("Location"), False
             if response.status == 200:
                 raise fail(self.url, "the server ignores range requests (it answered 200 with the whole file, not "
                                      "206 with the bytes asked for); COPC over HTTP needs a server that serves ranges")
@@ -221,7 +257,8 @@ class RemoteFile:
             first, end, total = self._content_range(response.getheader("Content-Range") or "")
             if first != offset or end > last or (end < last and end + 1 != total):
                 raise fail(self.url, f"the server answered bytes {first}-{end} to a request for {offset}-{last}")
-            return self._body(response, end - first + 1)
+            data = self._body(response, end - first + 1)
+            return data, response.isclosed() and not response.will_close
         except TimeoutError:
             raise fail(self.url, f"no answer from {where} within {self.options.timeout_s:g} s") from None
         except (http.client.RemoteDisconnected, http.client.IncompleteRead, ConnectionResetError,

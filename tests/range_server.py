@@ -26,6 +26,9 @@ class Faults:
     """Range start -> times an answer for it ends after half its bytes (-1: always)."""
     delays: dict[int, float] = field(default_factory=dict)
     """Range start -> seconds its answers wait before they start."""
+    close_idle: bool = False
+    """Close every connection after its answer, without saying so (as a server that drops
+    idle kept-alive connections does)."""
 
 
 class RangeServer:
@@ -39,6 +42,7 @@ class RangeServer:
         self.bytes = 0              # body bytes sent
         self.ranges: list[tuple[int, int]] = []
         self.active = self.most_active = 0      # requests being answered now, and at most so far
+        self.connections = 0                    # accepted
         self._server = _Server(("127.0.0.1", 0), _Handler)
         self._server.daemon_threads = True
         self._server.block_on_close = False
@@ -55,7 +59,7 @@ class RangeServer:
 
     def reset(self) -> None:
         with self.lock:
-            self.requests, self.bytes, self.ranges, self.most_active = 0, 0, [], 0
+            self.requests, self.bytes, self.ranges, self.most_active, self.connections = 0, 0, [], 0, 0
 
     def __enter__(self) -> RangeServer:
         self._thread.start()
@@ -76,6 +80,11 @@ class _Handler(BaseHTTPRequestHandler):
 
     def log_message(self, *args) -> None:
         pass
+
+    def setup(self) -> None:
+        super().setup()
+        with self.server.owner.lock:
+            self.server.owner.connections += 1
 
     def do_GET(self) -> None:
         owner: RangeServer = self.server.owner
@@ -130,6 +139,8 @@ class _Handler(BaseHTTPRequestHandler):
             with owner.lock:
                 owner.bytes += len(sent[at:at + (1 << 16)])
         self.wfile.flush()
+        if owner.faults.close_idle:
+            self.close_connection = True
         if cut is not None:
             self.close_connection = True
             self.connection.shutdown(socket.SHUT_WR)

@@ -186,6 +186,24 @@ def test_requests_in_flight_are_bounded(files):
         assert loader.info.files[0].status().requests_in_flight == 0
 
 
+def test_connections_are_kept_alive(files):
+    """Requests reuse their connections (one per request in flight at most); a server that
+    closes them after each answer costs a new connection each, not a retry or a node."""
+    name = "lone-star.copc.laz" if "lone-star.copc.laz" in files else "sample.copc.laz"
+    options = HttpOptions(in_flight=2)
+    for close_idle in (False, True):
+        with RangeServer({name: files[name]}) as own:
+            own.faults.close_idle = close_idle
+            (info, batches, warnings), _ = bounded(lambda: batches_of(own.url(name), http=options))
+            status = info.files[0].status()
+            assert sum(b.count for b in batches) == info.points and not warnings and status.nodes_skipped == 0
+            assert (status.requests, status.bytes_fetched) == own.counts()
+            if close_idle:
+                assert own.connections == status.requests
+            else:
+                assert own.connections <= options.in_flight < status.requests
+
+
 def test_info_over_http_equals_local(server, files, capsys):
     """info --json of the URL is the local file's but for the path and the CRS, which
     loaders/crs.py reads again from a local file only (a URL's gets its label's)."""
