@@ -295,12 +295,14 @@ class AfterGap:
 class CopcSource(LasSource):
     """A COPC file: its LAZ source, its hierarchy (None where it could not be used: the
     file is then read as the plain LAZ it also is), the deepest level kept (None: all)
-    and, for a URL, the remote file its nodes are fetched from."""
+    and, for a URL, the remote file its nodes are fetched from and the chunks fetched
+    while it was opened (by offset; read from here, not fetched again)."""
 
     hierarchy: Hierarchy | None = None
     depth: int | None = None
     problem: str | None = None              # why the hierarchy cannot be used
     remote: RemoteFile | None = field(default=None, compare=False, repr=False)
+    held: dict[int, bytes] = field(default_factory=dict, compare=False, repr=False)
 
     def chunks(self, batch_points: int, *, salvage: bool = False,
                names: tuple[str, ...] | None = None) -> Iterator[np.ndarray | AfterGap]:
@@ -363,8 +365,11 @@ class CopcSource(LasSource):
         from the file, or fetched ahead by range requests (FetchFailed where a node's
         connection drops on every try)."""
         if self.remote is not None:
-            with Prefetch(self.remote, list(zip(nodes["offset"].tolist(), nodes["byte_size"].tolist()))) as ahead:
-                yield ahead.take
+            spans = list(zip(nodes["offset"].tolist(), nodes["byte_size"].tolist()))
+            wanted = [k for k, (offset, _) in enumerate(spans) if offset not in self.held]
+            order = {k: i for i, k in enumerate(wanted)}
+            with Prefetch(self.remote, [spans[k] for k in wanted]) as ahead:
+                yield lambda k: self.held[spans[k][0]] if k not in order else ahead.take(order[k])
             return
         with open_binary(self.info.path) as stream:
             def read(k: int) -> bytes:
@@ -564,16 +569,34 @@ def _probe(source: CopcSource, has_rgb: bool, partial: bool) -> tuple[int, np.nd
     wanted = min(count, BATCH_POINTS if has_rgb else las.BOUNDS_SAMPLE)
     piece = min(wanted, las.PROBE_PIECE)
     rgb = ("red", "green", "blue")
-    head = _node_records(source, _leading(source, piece), partial)
+    first_nodes = _leading(source, piece)
+    _hold(source, first_nodes)
+    head = _node_records(source, first_nodes, partial)
     records = [head]
     if has_rgb and wanted > len(head) and max(int(head[c].max()) for c in rgb) <= RGB8_MAX:
-        records.append(_node_records(source, _leading(source, wanted)[_leading(source, piece).size:], partial))
+        rest = _leading(source, wanted)[first_nodes.size:]
+        _hold(source, rest)
+        records.append(_node_records(source, rest, partial))
     first = np.concatenate(records)[:wanted]
     max_rgb = max(int(first[c].max()) for c in rgb) if has_rgb else 0
     with np.errstate(over="ignore", invalid="ignore"):
         coords = [source.records.coordinates(first[:piece], axis) for axis in range(3)]
     seen = np.array([[c.min() for c in coords], [c.max() for c in coords]])
     return max_rgb, first[:1].copy(), seen
+
+
+def _hold(source: CopcSource, kept: np.ndarray) -> None:
+    """Fetch the chunks of the nodes `kept` into source.held, the first image's nodes:
+    loading reads them from there. A node that cannot be fetched is left to the read
+    that follows (which names it, or skips it with partial)."""
+    nodes = source.hierarchy.nodes[kept]
+    spans = list(zip(nodes["offset"].tolist(), nodes["byte_size"].tolist()))
+    with Prefetch(source.remote, spans) as ahead:
+        for i, (offset, _) in enumerate(spans):
+            try:
+                source.held[offset] = ahead.take(i)
+            except FetchFailed:
+                pass
 
 
 def _node_records(source: CopcSource, kept: np.ndarray, partial: bool) -> np.ndarray:
