@@ -47,6 +47,11 @@ ROUNDS_PER_READ = 2
 chunks, and a read short (lazrs holds the GIL for all of it)."""
 READ_BYTES = 1 << 27
 """Most decoded bytes in one read, however many cores there are."""
+SHORT_READS_POINTS = 1_000_000
+"""Points after the first read that are decoded in reads of one chunk per core: lazrs
+holds the GIL through a read, and while the consumer builds its renderer and draws the
+first image (about what the loader's queues hold ahead of it) a short read lets it run
+sooner; later reads hold ROUNDS_PER_READ chunks per core."""
 
 
 @dataclass(frozen=True)
@@ -102,16 +107,14 @@ class LazLayout:
 def decode_chunks(path: str, laz: LazLayout, points: int, first_read: int, dtype: np.dtype, cores: int,
                   selection: lazrs.DecompressionSelection | None = None) -> Iterator[np.ndarray]:
     """The first `points` points of laz.chunks in file order, as structured arrays of
-    `dtype`, one per read of up to ROUNDS_PER_READ chunks per core, decoded by lazrs on
-    every core; the compressed bytes are read without the GIL. The first read holds
-    only the chunks of the first `first_read` points (a first batch, or a probe of the
-    file's first points, comes sooner). Fields that `selection` leaves out are not
-    decoded: they hold no values of the file's (a chunk's first point's, say)."""
+    `dtype`, one per read, decoded by lazrs on every core; the compressed bytes are read
+    without the GIL. The first read holds only the chunks of the first `first_read`
+    points (a first batch, or a probe of the file's first points, comes sooner), the
+    reads of the next SHORT_READS_POINTS one chunk per core, later ones ROUNDS_PER_READ
+    (each at most READ_BYTES). Fields that `selection` leaves out are not decoded: they
+    hold no values of the file's (a chunk's first point's, say)."""
     chunks = clipped(list(laz.chunks), points, None)
-    largest = max((n for n, _ in chunks), default=0) * dtype.itemsize
-    per_read = max(1, min(cores * ROUNDS_PER_READ, READ_BYTES // max(largest, 1)))
-    head = len(clipped(chunks, first_read, None))
-    starts = [0, *range(min(head, per_read), len(chunks), per_read)]
+    starts = read_starts(chunks, first_read, dtype.itemsize, cores)
     with open_binary(path) as stream:
         stream.seek(laz.point_data + TABLE_OFFSET_BYTES)
         for first, end in zip(starts, [*starts[1:], len(chunks)], strict=True):
@@ -123,6 +126,20 @@ def decode_chunks(path: str, laz: LazLayout, points: int, first_read: int, dtype
             lazrs.decompress_points_with_chunk_table(compressed, laz.vlr_data, memoryview(records).cast("B"),
                                                      list(group), selection)
             yield records
+
+
+def read_starts(chunks: tuple[Chunk, ...], first_read: int, record_bytes: int, cores: int) -> list[int]:
+    """Index of the first chunk of each read (see decode_chunks)."""
+    largest = max((n for n, _ in chunks), default=0) * record_bytes
+    per_read = max(1, min(cores * ROUNDS_PER_READ, READ_BYTES // max(largest, 1)))
+    short = min(cores, per_read)
+    head = max(1, min(len(clipped(chunks, first_read, None)), per_read))
+    short_until = len(clipped(chunks, sum(n for n, _ in chunks[:head]) + SHORT_READS_POINTS, None))
+    starts, at = [0], head
+    while at < len(chunks):
+        starts.append(at)
+        at += short if at < short_until else per_read
+    return starts
 
 
 def clipped(table: list[Chunk], points: int, chunk_size: int | None) -> tuple[Chunk, ...]:

@@ -49,17 +49,26 @@ def test_decode_chunks_equals_laspy_for_every_core_count(name):
         np.testing.assert_array_equal(partial, expected[:cut])
 
 
-def test_reads_hold_rounds_of_chunks_per_core():
-    """A read holds the first read's chunks, then ROUNDS_PER_READ chunks per core."""
-    from progressive.loaders.laz import ROUNDS_PER_READ
+@pytest.mark.parametrize("short_chunks", [0, 3, 100])
+def test_reads_hold_rounds_of_chunks_per_core(monkeypatch, short_chunks):
+    """A read holds the first read's chunks, then one chunk per core for the next
+    SHORT_READS_POINTS (here those of `short_chunks` chunks), then ROUNDS_PER_READ
+    chunks per core; together the file's records in order."""
+    from progressive.loaders import laz as laz_module
     path = shared_file("las_with_several_extra_byte_bloc.laz")
     source = open_las(path)
     sizes = [n for n, _ in source.laz.chunks]
+    monkeypatch.setattr(laz_module, "SHORT_READS_POINTS", sum(sizes[1:1 + short_chunks]))
+    expected_records = records_of(path)
     for cores in (1, 2, 3):
-        reads = [len(r) for r in decode_chunks(str(path), source.laz, source.info.points, 1, source.records.dtype, cores)]
-        per = ROUNDS_PER_READ * cores
-        expected = [sizes[0]] + [sum(sizes[i:i + per]) for i in range(1, len(sizes), per)]
-        assert reads == expected
+        got = list(decode_chunks(str(path), source.laz, source.info.points, 1, source.records.dtype, cores))
+        expected, at = [sizes[0]], 1
+        while at < len(sizes):
+            take = cores if at < 1 + short_chunks else laz_module.ROUNDS_PER_READ * cores
+            expected.append(sum(sizes[at:at + take]))
+            at += take
+        assert [len(r) for r in got] == expected, f"{cores} cores"
+        np.testing.assert_array_equal(np.concatenate(got), expected_records)
 
 
 def assert_equals_laspy(loader, batches, las) -> None:
