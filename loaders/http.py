@@ -22,6 +22,7 @@ import io
 import re
 import socket
 import threading
+import time
 import urllib.parse
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -34,6 +35,10 @@ TIMEOUT_S = 20.0
 """Seconds a request may wait for the server's next byte (connecting included) before it
 fails: object storage answers within a second; a server silent this long is taken as
 gone, and the error says so instead of the window waiting on it."""
+SLOW_BYTES = 1 << 14
+"""Bytes an answer must bring in every timeout_s while it comes (or all it has left): a
+server that trickles its bytes (16 KiB in 20 s is 0.8 KB/s) fails as a silent one does,
+within about two timeouts, instead of holding the file for hours."""
 REQUESTS_IN_FLIGHT = 4
 """Node requests at once: enough to hide a round trip behind the others' transfers, few
 enough for any server's limit per client."""
@@ -257,7 +262,7 @@ class RemoteFile:
             first, end, total = self._content_range(response.getheader("Content-Range") or "")
             if first != offset or end > last or (end < last and end + 1 != total):
                 raise fail(self.url, f"the server answered bytes {first}-{end} to a request for {offset}-{last}")
-            data = self._body(response, end - first + 1)
+            data = self._body(response, end - first + 1, where)
             return data, response.isclosed() and not response.will_close
         except TimeoutError:
             raise fail(self.url, f"no answer from {where} within {self.options.timeout_s:g} s") from None
@@ -283,16 +288,26 @@ class RemoteFile:
             raise fail(self.url, f"changed size while being read ({self.size:,} then {total:,} bytes)")
         return first, end, total
 
-    def _body(self, response, n: int) -> bytes:
-        """n bytes of the response, counted as they come; Dropped where it ends first."""
+    def _body(self, response, n: int, where: str) -> bytes:
+        """n bytes of the response, counted as they come; Dropped where it ends first,
+        InputError where a timeout_s brings fewer than SLOW_BYTES."""
         data, got = bytearray(n), 0
         view = memoryview(data)
+        window, at_window = time.monotonic(), 0
         while got < n:
-            k = response.readinto(view[got:got + PIECE])
+            piece = response.read1(min(PIECE, n - got))       # what has come, not a full PIECE
+            k = len(piece)
+            view[got:got + k] = piece
             if not k:
                 raise Dropped(f"the connection was dropped after {got:,} of {n:,} bytes")
             got += k
             self.tally.received(k)
+            if got < n and time.monotonic() - window >= self.options.timeout_s:
+                if got - at_window < min(SLOW_BYTES, n - at_window):
+                    raise fail(self.url, f"{where} sent {got - at_window:,} bytes within "
+                                         f"{self.options.timeout_s:g} s, too slowly")
+                window, at_window = time.monotonic(), got
+        response.read()         # nothing left: marks the answer read, so the connection serves the next
         return bytes(data)
 
 

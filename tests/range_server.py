@@ -26,6 +26,8 @@ class Faults:
     """Range start -> times an answer for it ends after half its bytes (-1: always)."""
     delays: dict[int, float] = field(default_factory=dict)
     """Range start -> seconds its answers wait before they start."""
+    trickle: dict[int, float] = field(default_factory=dict)
+    """Range start -> seconds between the bytes of its answers' bodies, sent one by one."""
     close_idle: bool = False
     """Close every connection after its answer, without saying so (as a server that drops
     idle kept-alive connections does)."""
@@ -121,12 +123,14 @@ class _Handler(BaseHTTPRequestHandler):
                     drops = drops != 0
                 body = data[start:end + 1]
                 self._answer(owner, 206, body, {"Content-Range": f"bytes {start}-{end}/{len(data)}"},
-                             cut=len(body) // 2 if drops else None)
+                             cut=len(body) // 2 if drops else None, pause=faults.trickle.get(start))
         except (BrokenPipeError, ConnectionResetError):
             self.close_connection = True
 
-    def _answer(self, owner: RangeServer, status: int, body: bytes, headers: dict, cut: int | None = None) -> None:
-        """Send the answer; `cut`: only that many bytes of the body, then close."""
+    def _answer(self, owner: RangeServer, status: int, body: bytes, headers: dict, cut: int | None = None,
+                pause: float | None = None) -> None:
+        """Send the answer; `cut`: only that many bytes of the body, then close; `pause`:
+        the body's bytes one at a time, this many seconds apart."""
         with owner.lock:
             owner.requests += 1
         self.send_response(status)
@@ -134,10 +138,14 @@ class _Handler(BaseHTTPRequestHandler):
             self.send_header(name, value)
         self.end_headers()
         sent = body if cut is None else body[:cut]
-        for at in range(0, len(sent), 1 << 16):
-            self.wfile.write(sent[at:at + (1 << 16)])
+        step = 1 if pause else 1 << 16
+        for at in range(0, len(sent), step):
+            self.wfile.write(sent[at:at + step])
             with owner.lock:
-                owner.bytes += len(sent[at:at + (1 << 16)])
+                owner.bytes += len(sent[at:at + step])
+            if pause:
+                self.wfile.flush()
+                time.sleep(pause)
         self.wfile.flush()
         if owner.faults.close_idle:
             self.close_connection = True

@@ -321,6 +321,18 @@ def test_slow_server_times_out(server, files, tmp_path, capsys):
     assert time.monotonic() - began < delay
 
 
+def test_trickling_server_times_out(server, files):
+    """A server that sends a node's bytes one at a time, 20 a second: it never falls
+    silent for the timeout, but fails for bringing too little within one (one line)."""
+    nodes = open_copc(files["sample.copc.laz"]).hierarchy.nodes
+    server.faults.trickle = {int(offset): 0.05 for offset in nodes["offset"][1:]}
+    bound = 4 * SHORT_TIMEOUT.timeout_s + 2
+    with pytest.raises(InputError, match="too slowly") as caught:
+        bounded(lambda: batches_of(server.url("sample.copc.laz"), http=SHORT_TIMEOUT), bound)
+    assert "\n" not in str(caught.value)
+    assert min(int(n) for n in nodes["byte_size"][1:]) > bound / 0.05       # more than a trickle brings by then
+
+
 def test_session_survives_a_failed_fetch(server, files, gl):
     """The viewer's loading path: a node that cannot be fetched fails the frame that pumps
     it with an InputError (the viewer shows it and calls stop_loading); the session then
