@@ -497,6 +497,8 @@ def open_copc_url(url: str, *, partial: bool = False, http: HttpOptions = HTTP_D
 
 
 def _remote_source(remote: RemoteFile, partial: bool) -> CopcSource:
+    """open_las's checks and facts, and open_copc's hierarchy, from the remote file's
+    bytes (las.py reads local paths); the first points from the first nodes."""
     url, size = remote.url, remote.size
     head = remote.cached(0, HEADER_14 + VLR_HEADER)
     raw = las.RawHeader.parse(url, head[:las.HEADER_PREFIX])

@@ -2,12 +2,13 @@
 
 Only the bytes asked for are fetched (the standard library's http.client; connections
 are kept alive for the next request, one per request in flight), so a COPC file on
-object storage is read by its header, hierarchy and kept nodes alone. Every answer is checked: a server that ignores ranges
-(200 with the whole file), an error status, a connection that cannot be made or a
-server silent for `timeout_s` are one line (InputError) at once; a connection dropped
-before the bytes asked for arrive is tried again `retries` times, then is a
-FetchFailed (an InputError a partial load may skip). Nothing is written anywhere;
-bytes are handed on only once a request has all of them.
+object storage is read by its header, hierarchy and kept nodes alone. Every answer is
+checked: a server that ignores ranges (200 with the whole file), an error status, a
+connection that cannot be made, or a server silent (or trickling) for `timeout_s` is
+one line (InputError) at once; a connection dropped before the bytes asked for arrive
+is tried again `retries` times, then is a FetchFailed (an InputError a partial load
+may skip). Nothing is written anywhere; bytes are handed on only once a request has
+all of them.
 
 Node chunks are fetched by `Prefetch`: a few requests in flight on daemon threads,
 ahead of the decoder by at most `ahead_bytes`. `Tally` counts what was fetched, for
@@ -49,7 +50,7 @@ AHEAD_BYTES = 1 << 25
 READ_AHEAD = 1 << 16
 """Bytes fetched at least by a read of the header, the VLRs, the chunk table or the
 hierarchy: those small reads come in runs, which one request then answers."""
-PIECE = 1 << 16                         # bytes received by one socket read
+PIECE = 1 << 16                         # bytes taken from the socket at most at a time
 REDIRECTS = 5                           # redirects followed at most (object storage signs URLs by them)
 CONTENT_RANGE = re.compile(r"bytes (\d+)-(\d+)/(\d+|\*)")
 
