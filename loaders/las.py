@@ -86,6 +86,9 @@ LAYERS = {
 """The LAZ layer (point formats 6-10) each standard attribute is decoded from; x, y and
 return numbers are in the base layer, z (positions, elevation) in its own, extra bytes
 in theirs."""
+PROBED = ("rgb", "gps_time")
+"""What opening a file reads of its first points besides the positions: the colour depth
+and the first GPS time (the offset of gps_time)."""
 PLAIN = ("intensity", "classification", "return_number", "number_of_returns",
          "gps_time", "point_source_id", "user_data")
 """Standard attributes copied from the laspy dimension of the same name."""
@@ -488,11 +491,13 @@ def _probe(path: str, laz: LazLayout | None, records: Records, count: int, has_r
     """Max of R, G, B over the first BATCH_POINTS points (the rule of FileInfo.rgb_16bit),
     read in pieces that stop once it exceeds 255; the first point; and the (2, 3) min
     and max of the first piece's coordinates (at least BOUNDS_SAMPLE points), to check
-    the header bounds against."""
+    the header bounds against. A LAZ of point format 6-10 decodes only the layers these
+    need (the first point's other fields serve for their dtypes only)."""
     wanted = min(count, BATCH_POINTS if has_rgb else BOUNDS_SAMPLE)
     max_rgb, first, seen = 0, None, None
     try:
-        for chunk in decode(path, laz, records, wanted, min(wanted, PROBE_PIECE), salvage=partial):
+        for chunk in decode(path, laz, records, wanted, min(wanted, PROBE_PIECE), salvage=partial,
+                            selection=selection(PROBED)):
             if first is None:
                 first = chunk[:1].copy()
                 with np.errstate(over="ignore", invalid="ignore"):

@@ -105,6 +105,9 @@ def test_matches_laspy(path: Path):
     has_rgb = "red" in las.point_format.dimension_names
     assert ("rgb" in names) == has_rgb
     assert (info.files[0].rgb_16bit is None) == (not has_rgb)
+    if has_rgb:     # opening decodes only the layers it needs of a LAZ of point format 6-10
+        first = slice(0, BATCH_POINTS)
+        assert info.files[0].rgb_16bit == bool(max(las.red[first].max(), las.green[first].max(), las.blue[first].max()) > 255)
 
 
 def test_colour_depth_detection():
