@@ -55,17 +55,24 @@ uvec3 point_cells(uvec3 words, uint levels) {
 }
 
 // A point's position relative to the origin as float bits (EMPTY for a point never
-// drawn), read from the first `levels` words at record `index` of batch b: base +
-// float(q)·step, each rounded (progressive/encoding.py decode_frames, bit for bit).
-uvec3 decode_position(uint b, uint index, uint levels) {
-    uvec3 words = uvec3(point_word(index, 0u), 0u, 0u);
+// drawn) from its first `levels` words, loaded already, in its batch's frame: base +
+// float(q)·step, each operation rounded (progressive/encoding.py decode_frames, bit
+// for bit).
+uvec3 position_bits(uvec3 words, uint levels, vec3 base, vec3 step) {
     if (words.x == HIDDEN_WORD) return uvec3(EMPTY);
-    if (levels > 1u) words.y = point_word(index, 1u);
-    if (levels > 2u) words.z = point_word(index, 2u);
     // precise: no fused multiply-add, so every stage (and the numpy twin) rounds alike.
-    precise vec3 offset = vec3(point_cells(words, levels)) * batch_frames[2u * b + 1u].xyz;
-    precise vec3 p = batch_frames[2u * b].xyz + offset;
+    precise vec3 offset = vec3(point_cells(words, levels)) * step;
+    precise vec3 p = base + offset;
     return floatBitsToUint(p);
+}
+
+// The first `levels` words of record `index`, loaded together (none waits on another).
+uvec3 point_words(uint index, uint levels) {
+    return uvec3(point_word(index, 0u), levels > 1u ? point_word(index, 1u) : 0u, levels > 2u ? point_word(index, 2u) : 0u);
+}
+
+uvec3 decode_position(uint b, uint index, uint levels) {
+    return position_bits(point_words(index, levels), levels, batch_frames[2u * b].xyz, batch_frames[2u * b + 1u].xyz);
 }
 
 uvec4 load_point(uint slot) {

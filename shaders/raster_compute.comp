@@ -91,6 +91,9 @@ void main() {
 #else
     uint levels = 3u;
 #endif
+#if WORD_PLANES
+    vec3 frame_base = batch_frames[2u * b].xyz, frame_step = batch_frames[2u * b + 1u].xyz;
+#endif
     uint stride = u_batches * SLICE_POINTS;
     uint base = b * SLICE_POINTS + gl_LocalInvocationID.x;
     // The batch's records: one contiguous block (RecordOrder.BATCHES), else in slot order.
@@ -100,20 +103,33 @@ void main() {
     uint k = first > base ? (first - base + stride - 1u) / stride : 0u;
     for (; k < ROUNDS && base + k * stride <= last; k += PREFETCH) {
         uint slots[PREFETCH];
+#if WORD_PLANES
+        uvec3 words[PREFETCH];
+        uint attributes[PREFETCH];
+#else
         uvec4 loaded[PREFETCH];
+#endif
         for (uint j = 0u; j < PREFETCH; ++j) {
             // k + j < ROUNDS first: past the last round the product could wrap around.
             slots[j] = k + j < ROUNDS ? base + (k + j) * stride : EMPTY;
             uint index = records + (k + j) * record_stride;
+            bool held = slots[j] <= last;
 #if WORD_PLANES
-            // The attribute word only where a filter reads it (a category's code).
-            loaded[j] = slots[j] <= last ? uvec4(decode_position(b, index, levels),
-                                                 u_filtering != 0u ? attribute_word(index) : EMPTY) : uvec4(EMPTY);
+            // Every word is loaded before any is decoded; the attribute word only where a
+            // filter reads it (a category's code).
+            words[j] = held ? point_words(index, levels) : uvec3(HIDDEN_WORD);
+            attributes[j] = held && u_filtering != 0u ? attribute_word(index) : EMPTY;
 #else
-            loaded[j] = slots[j] <= last ? load_record(index) : uvec4(EMPTY);
+            loaded[j] = held ? load_record(index) : uvec4(EMPTY);
 #endif
         }
-        for (uint j = 0u; j < PREFETCH; ++j) raster(slots[j], slots[j], loaded[j]);
+        for (uint j = 0u; j < PREFETCH; ++j) {
+#if WORD_PLANES
+            raster(slots[j], slots[j], uvec4(position_bits(words[j], levels, frame_base, frame_step), attributes[j]));
+#else
+            raster(slots[j], slots[j], loaded[j]);
+#endif
+        }
     }
 }
 #else
