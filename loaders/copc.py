@@ -254,10 +254,51 @@ class CopcStatus:
     requests_in_flight: int = 0
 
 
+class RemoteCopc:
+    """A URL's COPC file read again once loaded (its loader may have closed): one point
+    for a pick, from the node its hierarchy says holds it (one range request; the last
+    node kept, as a pick reads its point twice), and the header with its EVLRs for the
+    CRS. Each read has a RemoteFile of its own, counted in the file's tally."""
+
+    def __init__(self, url: str, options: HttpOptions, tally: Tally, hierarchy: Hierarchy, vlr_data: bytes,
+                 point_format: laspy.PointFormat, scales: np.ndarray, offsets: np.ndarray):
+        self.url, self.options, self.tally, self.hierarchy = url, options, tally, hierarchy
+        self.vlr_data, self.point_format, self.scales, self.offsets = vlr_data, point_format, scales, offsets
+        self._lock = threading.Lock()
+        self._node: tuple[int, bytes] | None = None         # (node, its compressed chunk) last fetched
+
+    def node_of(self, index: int) -> tuple[bytes, int, int]:
+        """(compressed chunk, points, the point's index in it) of the node holding the
+        file-order point `index`; InputError where it cannot be fetched."""
+        k = int(np.searchsorted(self.hierarchy.first, index, side="right")) - 1
+        node = self.hierarchy.nodes[k]
+        at, count = index - int(self.hierarchy.first[k]), int(node["point_count"])
+        if not (0 <= index and at < count):
+            raise IndexError(f"point {index} outside the COPC nodes of {self.url}")
+        with self._lock:
+            if self._node is None or self._node[0] != k:
+                remote = RemoteFile(self.url, self.options, self.tally)
+                try:
+                    self._node = (k, remote.read(int(node["offset"]), int(node["byte_size"])))
+                finally:
+                    remote.close()
+            return self._node[1], count, at
+
+    def header(self) -> laspy.LasHeader:
+        """The header, VLRs and EVLRs as laspy reads them (laspy's errors as it raises them;
+        InputError where the server fails)."""
+        remote = RemoteFile.open(self.url, self.options, self.tally)
+        try:
+            return laspy.LasHeader.read_from(remote.stream(), read_evlrs=True)
+        finally:
+            remote.close()
+
+
 @dataclass(frozen=True)
 class CopcFileInfo(FileInfo):
     """The FileInfo of a COPC file read by its hierarchy (`points` counts the kept
-    nodes' points), with the hierarchy's totals and the reader's tally."""
+    nodes' points), with the hierarchy's totals and the reader's tally; over HTTP, what
+    reads the file again (picks, the CRS)."""
 
     copc_levels: int = 0
     copc_nodes: int = 0
@@ -266,6 +307,7 @@ class CopcFileInfo(FileInfo):
     nodes_kept: int = 0
     reads: NodeReads = field(default_factory=NodeReads, compare=False, repr=False)
     fetches: Tally | None = field(default=None, compare=False, repr=False)     # over HTTP
+    remote: RemoteCopc | None = field(default=None, compare=False, repr=False)  # over HTTP
 
     def status(self) -> CopcStatus:
         nodes, points, nbytes, skipped = self.reads.snapshot()
@@ -535,7 +577,9 @@ def _remote_source(remote: RemoteFile, partial: bool) -> CopcSource:
         points=count, scale=tuple(float(v) for v in header.scales), offset=tuple(float(v) for v in header.offsets),
         bounds_min=tuple(float(v) for v in header.mins), bounds_max=tuple(float(v) for v in header.maxs),
         rgb_16bit=None, crs=las.crs_name(header), copc_levels=hierarchy.levels, copc_nodes=int(hierarchy.nodes.size),
-        copc_points=count, levels_kept=hierarchy.levels, nodes_kept=int(hierarchy.nodes.size), fetches=remote.tally)
+        copc_points=count, levels_kept=hierarchy.levels, nodes_kept=int(hierarchy.nodes.size), fetches=remote.tally,
+        remote=RemoteCopc(url, remote.options, remote.tally, hierarchy, laz.vlr_data, pf,
+                          np.asarray(header.scales, np.float64), np.asarray(header.offsets, np.float64)))
     source = CopcSource(info, (), columns, None, laz, records, (), hierarchy=hierarchy, remote=remote)
     max_rgb, first, seen = _probe(source, has_rgb, partial)
     if wrong := las.unreachable_bounds(header) or contradicted_bounds(header.mins, header.maxs, seen,

@@ -1,11 +1,13 @@
 """A file's coordinate system as pyproj reads it, for reprojection and latitude and
 longitude. FileInfo.crs is only a label (a WKT name need not carry an EPSG code), so
-LAS/LAZ headers are read again here, through laspy's own CRS parsing."""
+LAS/LAZ headers are read again here, through laspy's own CRS parsing (a URL's over
+HTTP, by range requests)."""
 
 from __future__ import annotations
 
 import re
 
+from progressive.errors import InputError
 from progressive.loaders.types import FileInfo
 
 EPSG = re.compile(r"EPSG:(\d+)")
@@ -17,13 +19,7 @@ def file_crs(info: FileInfo):
     import pyproj
 
     if info.format in ("LAS", "LAZ"):
-        import laspy
-
-        try:
-            with laspy.open(info.path) as reader:
-                crs = reader.header.parse_crs()
-        except Exception:       # laspy or pyproj refusing a malformed CRS record: the file names none usable
-            crs = None
+        crs = _header_crs(info)
         if crs is not None:
             return crs
     if not info.crs:
@@ -32,6 +28,24 @@ def file_crs(info: FileInfo):
     try:
         return pyproj.CRS.from_epsg(int(code.group(1))) if code else pyproj.CRS.from_user_input(info.crs)
     except pyproj.exceptions.CRSError:
+        return None
+
+
+def _header_crs(info: FileInfo):
+    """laspy's CRS of a LAS/LAZ header (a URL's fetched again); None where laspy or
+    pyproj refuse a malformed CRS record, as the file then names none usable."""
+    import laspy
+
+    from progressive.loaders.copc import CopcFileInfo
+
+    try:
+        if isinstance(info, CopcFileInfo) and info.remote is not None:
+            return info.remote.header().parse_crs()
+        with laspy.open(info.path) as reader:
+            return reader.header.parse_crs()
+    except InputError:          # the server failing is no missing CRS: one line
+        raise
+    except Exception:
         return None
 
 

@@ -7,6 +7,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from progressive.loaders.http import DEFAULTS as HTTP_DEFAULTS
+from progressive.loaders.http import HttpOptions
 from progressive.loaders.pipeline import CloudLoader
 from progressive.loaders.records import ELEVATION
 from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, CloudInfo, FileInfo
@@ -125,11 +127,12 @@ def _attribute(attr: AttributeInfo, bounds: _Range, ranges: dict[str, _Range]) -
     return {"kind": attr.kind.value, "min": _plain(lo), "max": _plain(hi)}
 
 
-def describe(paths, *, partial: bool = False) -> dict:
+def describe(paths, *, partial: bool = False, http: HttpOptions = HTTP_DEFAULTS) -> dict:
     """Header facts and data ranges of a cloud; top-level per-file facts (format, version,
     point format, scale, offset, CRS) are the first file's. `nonfinite_positions` counts
-    the points never drawn, `nonfinite_values` the NaN/Inf values of float attributes."""
-    with CloudLoader(paths, partial=partial) as loader:
+    the points never drawn, `nonfinite_values` the NaN/Inf values of float attributes.
+    `http`: how a URL's COPC file is fetched."""
+    with CloudLoader(paths, partial=partial, http=http) as loader:
         cloud = loader.info
         stats = [_FileStats(f) for f in cloud.files]
         ends = np.cumsum([f.points for f in cloud.files]).tolist()

@@ -119,11 +119,12 @@ class Tally:
 
 class RemoteFile:
     """A file on an HTTP server, read by range requests. `size` is known once the first
-    range has been fetched (open() fetches one)."""
+    range has been fetched (open() fetches one). `tally`: another RemoteFile's, where
+    this one reads the same file again (a pick), so that the file's status counts both."""
 
-    def __init__(self, url: str, options: HttpOptions = DEFAULTS):
+    def __init__(self, url: str, options: HttpOptions = DEFAULTS, tally: Tally | None = None):
         self.url, self.options = url, options
-        self.tally = Tally()
+        self.tally = Tally() if tally is None else tally
         self.size: int | None = None
         self._target = url                  # where redirects led
         self._lock = threading.Lock()
@@ -133,10 +134,10 @@ class RemoteFile:
         self._cache: list[tuple[int, bytes]] = []
 
     @classmethod
-    def open(cls, url: str, options: HttpOptions = DEFAULTS) -> RemoteFile:
+    def open(cls, url: str, options: HttpOptions = DEFAULTS, tally: Tally | None = None) -> RemoteFile:
         """The file, its size learnt from a first range (the file's first READ_AHEAD bytes,
         kept for the header reads that follow)."""
-        remote = cls(url, options)
+        remote = cls(url, options, tally)
         remote.cached(0, 1)
         return remote
 

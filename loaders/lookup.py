@@ -8,6 +8,7 @@ from decimal import Decimal
 
 import numpy as np
 
+from progressive.loaders.copc import CopcFileInfo
 from progressive.loaders.e57 import read_point as read_e57_point
 from progressive.loaders.fastformat import HEADER_BYTES
 from progressive.loaders.laz import TABLE_OFFSET_BYTES
@@ -41,19 +42,25 @@ def read_point(info: CloudInfo, index: int) -> np.ndarray:
         return read_ply_point(file.path, index)
     if file.format == "E57":
         return read_e57_point(file.path, index)
-    points = _las_point(file.path, index)
+    points = _las_point(file, index)
     return np.array([points.x[0], points.y[0], points.z[0]], dtype=np.float64)
 
 
-def _las_point(path: str, index: int):
-    """The one point record at `index` of a LAS/LAZ file, as laspy reads it."""
+def _las_point(file: FileInfo, index: int):
+    """The one point record at `index` of a LAS/LAZ file, as laspy reads it; of a URL's
+    COPC file, from its node fetched again."""
     import laspy
     import lazrs
 
-    with laspy.open(path) as reader:
+    if isinstance(file, CopcFileInfo) and file.remote is not None:
+        remote = file.remote
+        compressed, count, at = remote.node_of(index)
+        return _chunk_point(compressed, count, at, remote.vlr_data, remote.point_format, remote.scales,
+                            remote.offsets)
+    with laspy.open(file.path) as reader:
         laszip = reader.header.vlrs.get("LasZipVlr")
         if laszip and lazrs.LazVlr(laszip[0].record_data).uses_variable_size_chunks():
-            return _variable_chunk_point(path, reader.header, laszip[0].record_data, index)
+            return _variable_chunk_point(file.path, reader.header, laszip[0].record_data, index)
         reader.seek(index)
         return reader.read_points(1)
 
@@ -62,7 +69,6 @@ def _variable_chunk_point(path: str, header, vlr_data: bytes, index: int):
     """The point at `index` of a LAZ of variable-size chunks (COPC), decoded from its
     chunk alone: laspy's seek does not find the chunk in such files (it reads another
     point, or fails)."""
-    import laspy
     import lazrs
 
     with open_binary(path) as stream:
@@ -73,11 +79,19 @@ def _variable_chunk_point(path: str, header, vlr_data: bytes, index: int):
         chunk = int(np.searchsorted(np.cumsum(counts), index, side="right"))
         stream.seek(header.offset_to_point_data + TABLE_OFFSET_BYTES + int(sizes[:chunk].sum()))
         compressed = stream.read(int(sizes[chunk]))
-    records = np.empty(int(counts[chunk]), header.point_format.dtype())
+    return _chunk_point(compressed, int(counts[chunk]), index - int(counts[:chunk].sum()), vlr_data,
+                        header.point_format, header.scales, header.offsets)
+
+
+def _chunk_point(compressed: bytes, count: int, at: int, vlr_data: bytes, point_format, scales, offsets):
+    """Point `at` of one LAZ chunk of `count` points, decoded alone."""
+    import laspy
+    import lazrs
+
+    records = np.empty(count, point_format.dtype())
     lazrs.decompress_points_with_chunk_table(compressed, vlr_data, memoryview(records).cast("B"),
-                                             [(int(counts[chunk]), int(sizes[chunk]))], None)
-    at = index - int(counts[:chunk].sum())
-    return laspy.ScaleAwarePointRecord(records[at:at + 1].copy(), header.point_format, header.scales, header.offsets)
+                                             [(count, len(compressed))], None)
+    return laspy.ScaleAwarePointRecord(records[at:at + 1].copy(), point_format, scales, offsets)
 
 
 def decimals(value: float) -> int:
@@ -104,7 +118,7 @@ def read_record(info: CloudInfo, index: int) -> dict:
     if file.format not in ("LAS", "LAZ"):
         xyz = read_point(info, index)
     else:
-        points = _las_point(file.path, local)
+        points = _las_point(file, local)
         digits = [max(decimals(sc), decimals(of)) for sc, of in zip(file.scale, file.offset)]
         xyz = [round(float(points[axis][0]), d) for axis, d in zip("xyz", digits)]
         for name in points.point_format.dimension_names:

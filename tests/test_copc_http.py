@@ -102,7 +102,7 @@ def test_url_source_equals_the_local_file(name, server, files):
     and cut to whole levels under one."""
     url = server.url(name)
     remote, local = open_copc_url(url), open_copc(files[name])
-    skip = {"path", "reads", "fetches"}
+    skip = {"path", "reads", "fetches", "remote"}
     for f in dataclasses.fields(local.info):
         if f.name not in skip:
             assert getattr(remote.info, f.name) == getattr(local.info, f.name), f.name
@@ -151,7 +151,10 @@ def test_stats_count_what_the_server_sent(server, files, tmp_path, capsys):
     """--stats "copc" of a URL: bytes fetched and requests answered as the server counted
     them, none in flight at the end, no range fetched twice (the nodes read while opening
     the file are kept for the first image); the kept nodes read with their chunks' bytes
-    as laspy's hierarchy gives them."""
+    as laspy's hierarchy gives them; the panel's line says what was fetched."""
+    from progressive.loaders.copc import CopcStatus
+    from progressive.viewer.panel import copc_lines
+
     name = "lone-star.copc.laz" if "lone-star.copc.laz" in files else "sample.copc.laz"
     theirs = [n for n in nodes_of(files[name]) if n.point_count > 0]
     stats = tmp_path / "s.json"
@@ -163,12 +166,17 @@ def test_stats_count_what_the_server_sent(server, files, tmp_path, capsys):
     assert copc["nodes_read"] == len(theirs) and copc["bytes_read"] == sum(n.byte_size for n in theirs)
     assert copc["bytes_read"] < copc["bytes_fetched"] <= files[name].stat().st_size + READ_AHEAD    # header read-ahead
     assert len(set(server.ranges)) == len(server.ranges)        # nothing fetched twice
+    lines = copc_lines(CopcStatus(**copc))
+    assert lines[3] == f"    fetched {sent / 2**20:,.1f} MiB in {requests:,} requests, 0 in flight"
+    assert len(lines) == 4
 
 
 def test_requests_in_flight_are_bounded(files):
     """Nodes are fetched a few at a time: with every node's answer slowed, the server (one
     of this test's own) holds exactly `in_flight` requests at once, never more, and the
-    status says so while it does."""
+    status (and the panel's line) says so while it does."""
+    from progressive.viewer.panel import copc_lines
+
     name = "lone-star.copc.laz" if "lone-star.copc.laz" in files else "sample.copc.laz"
     nodes = open_copc(files[name]).hierarchy.nodes
     in_flight = 3
@@ -181,10 +189,11 @@ def test_requests_in_flight_are_bounded(files):
             deadline = time.monotonic() + BOUND_S
             while own.active < in_flight and time.monotonic() < deadline:
                 time.sleep(0.005)
-            seen = loader.info.files[0].status().requests_in_flight
+            seen = loader.info.files[0].status()
             count = sum(b.count for b in loader)
         assert count == loader.info.points
-        assert own.most_active == in_flight and seen == in_flight
+        assert own.most_active == in_flight and seen.requests_in_flight == in_flight
+        assert copc_lines(seen)[3].endswith(f" requests, {in_flight} in flight")     # the panel's
         assert loader.info.files[0].status().requests_in_flight == 0
 
 
@@ -206,20 +215,99 @@ def test_connections_are_kept_alive(files):
                 assert own.connections <= options.in_flight < status.requests
 
 
-def test_info_over_http_equals_local(server, files, capsys):
-    """info --json of the URL is the local file's but for the path and the CRS, which
-    loaders/crs.py reads again from a local file only (a URL's gets its label's)."""
-    name = "sample.copc.laz"
+@pytest.mark.parametrize("name", ["sample.copc.laz", "lone-star.copc.laz"])
+def test_info_over_http_equals_local(name, server, files, capsys):
+    """info --json of the URL is the local file's but for the path, CRS keys included:
+    pyproj's CRS read from the header fetched again (lone-star's WKT is named "unnamed"
+    and carries no EPSG code at its top, so its label alone gives pyproj nothing)."""
+    if not files.get(name):
+        pytest.skip(f"{name} not available")
     descs = []
     for source in (server.url(name), str(files[name])):
         code, out, err, _ = run_cli(["info", "--json", source], capsys)
         assert code == 0, err
-        desc = json.loads(out.replace(json.dumps(source)[1:-1], "FILE"))
-        for d in (desc, *desc["files"]):
-            d.pop("crs_name"), d.pop("epsg")
-        descs.append(desc)
+        descs.append(json.loads(out.replace(json.dumps(source)[1:-1], "FILE")))
     assert descs[0] == descs[1]
+    assert descs[0]["crs_name"] == laspy.open(files[name]).header.parse_crs().name
     assert descs[0]["files"][0]["copc"]["levels"] == open_copc(files[name]).hierarchy.levels
+
+
+def test_info_http_timeout(server, files, capsys):
+    """info --http-timeout: a server slower than it to send the header fails within it, one
+    line; a bad value is refused as render's is."""
+    server.faults.delays = {0: 4.0}
+    code, _, err, took = run_cli(["info", server.url("sample.copc.laz"), "--http-timeout", "0.5"], capsys)
+    assert_one_error(code, err, "no answer", "within 0.5 s")
+    assert took < 4.0
+    code, _, err, _ = run_cli(["info", server.url("sample.copc.laz"), "--http-timeout", "0"], capsys)
+    assert_one_error(code, err, "--http-timeout")
+
+
+def pick_at_centre(capsys, tmp_path, source, *args) -> tuple[dict, np.ndarray]:
+    """render --pick at the image's centre: the pick's JSON and the ids image."""
+    ids = tmp_path / "pick_ids.npy"
+    width, height = int(SMALL[1]), int(SMALL[3])
+    code, out, err, _ = run_cli(["render", *SMALL, source, *args, "--ids", str(ids),
+                                 f"--pick={width // 2},{height // 2}"], capsys)
+    assert code == 0, err
+    return json.loads(out), np.load(ids)
+
+
+@pytest.mark.parametrize("name", copc_names())
+def test_pick_over_http_equals_local_and_laspy(name, server, files, tmp_path, capsys):
+    """render --pick of the URL gives the local file's pick (every attribute, the CRS and
+    latitude and longitude it reads from the header fetched again), all of the point as
+    laspy reads it at that file index: with every level, and with the levels cut (the
+    cloud's index then maps to another index of the file)."""
+    las = laspy.read(files[name])
+    levels = open_copc(files[name]).hierarchy.per_level()
+    kept = sum(p for _, p in levels[:-1]) + levels[-1][1] // 2
+    with CloudLoader([files[name]], point_budget=kept) as loader:
+        moved = loader.info.files[0].runs[0][0] > 0        # the cut cloud's index 0 is not the file's
+    cut_seen = False
+    for limit in ([], ["--gpu-memory-limit", str(limit_for(kept))]):
+        got, ids = pick_at_centre(capsys, tmp_path, server.url(name), *limit)
+        theirs, local_ids = pick_at_centre(capsys, tmp_path, str(files[name]), *limit)
+        np.testing.assert_array_equal(ids, local_ids)
+        assert got["found"] and got["file"] == server.url(name) and theirs["file"] == str(files[name])
+        assert {**got, "file": None} == {**theirs, "file": None}
+        i = got["index"]
+        cut_seen |= i != got["cloud_index"]
+        for axis, scale in zip("xyz", las.header.scales):
+            assert abs(got[axis] - float(las[axis][i])) <= scale / 2, axis     # rounded to its decimals
+        dims = [d for d in las.point_format.dimension_names if d not in ("X", "Y", "Z")]
+        assert sorted(got["attributes"]) == sorted(dims)
+        for dim in dims:
+            value = np.asarray(las[dim])[i]
+            assert np.array_equal(np.asarray(got["attributes"][dim], dtype=value.dtype), value, equal_nan=True), dim
+    assert cut_seen == moved
+
+
+def test_pick_fetches_its_node_once_and_counts_it(server, files):
+    """A pick's point is read twice (record and coordinates): its node is fetched once,
+    by one range request of its chunk, which the file's status counts; a node whose
+    connection drops on every try is one line (InputError) naming the URL."""
+    from progressive.loaders import open_cloud
+    from progressive.loaders.lookup import read_point, read_record
+
+    name = "lone-star.copc.laz" if "lone-star.copc.laz" in files else "sample.copc.laz"
+    info, _ = bounded(lambda: open_cloud([server.url(name)]))
+    nodes = open_copc(files[name]).hierarchy
+    k = nodes.nodes.size // 2
+    index = int(nodes.first[k]) + 3
+    before = info.files[0].status()
+    server.reset()
+    record, point = read_record(info, index), read_point(info, index)
+    node = nodes.nodes[k]
+    assert server.ranges == [(int(node["offset"]), int(node["offset"]) + int(node["byte_size"]) - 1)]
+    assert [record[a] for a in "xyz"] == pytest.approx(point.tolist(), abs=1e-9)
+    after = info.files[0].status()
+    assert (after.requests - before.requests, after.bytes_fetched - before.bytes_fetched) == server.counts()
+    other = nodes.nodes[k + 1]
+    server.faults.drops = {int(other["offset"]): -1}
+    with pytest.raises(InputError, match="dropped") as caught:
+        read_record(info, int(nodes.first[k + 1]))
+    assert "\n" not in str(caught.value) and server.url(name) in str(caught.value)
 
 
 def assert_one_error(code, err, *phrases):

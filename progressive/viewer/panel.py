@@ -130,11 +130,10 @@ class Panel:
 
     def _files(self, s) -> None:
         if imgui.collapsing_header("Files", imgui.TreeNodeFlags_.default_open):
-            for f in s.info.files:
+            status = s.status()
+            for f, copc in zip(s.info.files, status.copc, strict=True):
                 imgui.text(f"{Path(f.path).name}: {f.points:,} points ({f.format} {f.version})")
                 imgui.text(f"    CRS: {f.crs or 'none given'}")
-            status = s.status()
-            for copc in status.copc:
                 for line in copc_lines(copc) if copc is not None else ():
                     imgui.text(line)
             loaded, total = status.loaded, status.points
@@ -509,10 +508,14 @@ class Panel:
 
 def copc_lines(c: CopcStatus) -> list[str]:
     """The Files section's lines of a COPC file: what its octree keeps on the GPU of its
-    own, what has been read, the damaged nodes skipped."""
+    own, what has been read, over HTTP what has been fetched (the network's share of a
+    slow load), the damaged nodes skipped."""
     lines = [f"    COPC levels {c.levels_kept} / {c.levels}, nodes {c.nodes_kept:,} / {c.nodes:,}",
              f"    points {c.points_kept:,} / {c.points:,} kept",
              f"    read {c.nodes_read:,} nodes, {c.bytes_read / 2**20:,.1f} MiB"]
+    if c.requests or c.requests_in_flight:
+        lines.append(f"    fetched {c.bytes_fetched / 2**20:,.1f} MiB in {c.requests:,} requests, "
+                     f"{c.requests_in_flight} in flight")
     if c.nodes_skipped:
         lines.append(f"    {c.nodes_skipped:,} damaged nodes skipped ({c.points_skipped:,} points)")
     return lines
