@@ -232,15 +232,17 @@ def test_info_over_http_equals_local(name, server, files, capsys):
     assert descs[0]["files"][0]["copc"]["levels"] == open_copc(files[name]).hierarchy.levels
 
 
-def test_info_http_timeout(server, files, capsys):
+def test_info_http_timeout(files, capsys):
     """info --http-timeout: a server slower than it to send the header fails within it, one
-    line; a bad value is refused as render's is."""
-    server.faults.delays = {0: 4.0}
-    code, _, err, took = run_cli(["info", server.url("sample.copc.laz"), "--http-timeout", "0.5"], capsys)
-    assert_one_error(code, err, "no answer", "within 0.5 s")
-    assert took < 4.0
-    code, _, err, _ = run_cli(["info", server.url("sample.copc.laz"), "--http-timeout", "0"], capsys)
-    assert_one_error(code, err, "--http-timeout")
+    line; a bad value is refused as render's is. (A server of the test's own: the slow
+    answer, which comes after the test, must not count in another test's.)"""
+    with RangeServer({"a.copc.laz": files["sample.copc.laz"]}) as own:
+        own.faults.delays = {0: 4.0}
+        code, _, err, took = run_cli(["info", own.url("a.copc.laz"), "--http-timeout", "0.5"], capsys)
+        assert_one_error(code, err, "no answer", "within 0.5 s")
+        assert took < 4.0
+        code, _, err, _ = run_cli(["info", own.url("a.copc.laz"), "--http-timeout", "0"], capsys)
+        assert_one_error(code, err, "--http-timeout")
 
 
 def pick_at_centre(capsys, tmp_path, source, *args) -> tuple[dict, np.ndarray]:
