@@ -67,7 +67,11 @@ def raster_lines(raster: dict) -> list[str]:
             continue
         # Runs before the shader copy was measured compared with the driver's copy engine only.
         share = (f"; it streams {r['share_of_copy']:.0%} of the copy bandwidth measured in the same run "
-                 f"({raster['raw']['copy_bytes_per_s'] / 1e9:.1f} GB/s)" if "copy_methods" in raster["raw"] else "")
+                 f"({raster['raw']['copy_bytes_per_s'] / 1e9:.1f} GB/s, each byte read and written)"
+                 if "copy_methods" in raster["raw"] else "")
+        if "share_of_read" in r:
+            share += (f", {r['share_of_read']:.0%} of the read bandwidth "
+                      f"({raster['raw']['read_bytes_per_s'] / 1e9:.1f} GB/s)")
         out.append(f"- Brute force, {where} ({layout} store): {r['raster']} {r['ms']:.2f} ms, "
                    f"{_rate(r['points_per_s'])}, against GL_POINTS {points['ms']:.2f} ms: "
                    f"**{_x(points['ms'] / r['ms'])} faster**{share} (`{raster['_file']}`).")

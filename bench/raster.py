@@ -72,17 +72,19 @@ def copy_bandwidth(glc: GLContext, nbytes: int, repeats: int) -> dict[str, float
     16 bytes an invocation as the rasterizers do. The larger is the reference."""
     src, dst = glc.ctx.buffer(reserve=nbytes), glc.ctx.buffer(reserve=nbytes)
     glc.gl.clear_u32(src.glo, 0x3F800000, total=nbytes)
-    program = shaderlib.compute(glc.ctx, "copy.comp", label="bench copy")
+    programs = [shaderlib.compute(glc.ctx, "copy.comp", {"READ_ONLY": k}, label=f"bench copy {k}") for k in (0, 1)]
     count = nbytes // 16
-    program["u_count"] = count
+    for program in programs:
+        program["u_count"] = count
     src.bind_to_storage_buffer(Binding.DISTRIBUTE)
     dst.bind_to_storage_buffer(Binding.COUNTERS)
     methods = {"glCopyNamedBufferSubData": lambda: glc.gl.copy_named_buffer_sub_data(src.glo, dst.glo, 0, 0, nbytes),
-               "compute shader": lambda: program.run(*grid(count))}
+               "compute shader": lambda: programs[0].run(*grid(count))}
     rates = {name: nbytes / (median_gpu_ms(glc, copy, repeats) / 1e3) for name, copy in methods.items()}
-    for obj in (src, dst, program):
+    read = nbytes / (median_gpu_ms(glc, lambda: programs[1].run(*grid(count)), repeats) / 1e3)
+    for obj in (src, dst, *programs):
         obj.release()
-    return rates
+    return rates, read
 
 
 def rasters(glc: GLContext) -> list[Raster]:
@@ -184,7 +186,7 @@ def measure(glc: GLContext, cloud: TiledCloud, layouts, sizes, repeats: int) -> 
 
 def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats: int,
         copy_bytes: int, layouts=LAYOUTS) -> Table:
-    copies = copy_bandwidth(glc, copy_bytes, repeats)
+    copies, read_rate = copy_bandwidth(glc, copy_bytes, repeats)
     copy = max(copies.values())
     rows = []
     for n in points:
@@ -193,7 +195,7 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
                   ", ".join(f"{n:,}" for n in points), (
                       "points", "size", "store order", "view", "rasterizer", "work group", "subgroup reduction",
                       "precision", "ms (median)", "Mpoints/s", "B/point read", "GB/s read",
-                      "share of copy bandwidth", "× GL_POINTS", "batches culled", "× overview", "covered pixels",
+                      "share of copy bandwidth", "share of read bandwidth", "× GL_POINTS", "batches culled", "× overview", "covered pixels",
                       "pixels ≠ first row"))
     def twin(r: dict, **keys) -> float:
         """ms of the row of the same cloud, size and layout with `keys` changed."""
@@ -207,10 +209,11 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
         r["vs_points"] = base / r["ms"] if r["view"] == "overview" else None
         r["vs_overview"] = overview / r["ms"]
         r["share_of_copy"] = r["bytes_per_s"] / copy
+        r["share_of_read"] = r["bytes_per_s"] / read_rate
         table.rows.append((r["points"], f"{r['width']}x{r['height']}", r["layout"], r["view"], r["raster"],
                            "batch" if r["batch_groups"] else "256 slots", "yes" if r["subgroup_reduction"] else "no",
                            r["precision"], r["ms"], r["points_per_s"] / 1e6, r["bytes_per_point"], r["bytes_per_s"] / 1e9,
-                           r["share_of_copy"], r["vs_points"], r["batches_culled"], r["vs_overview"], r["covered_pixels"],
+                           r["share_of_copy"], r["share_of_read"], r["vs_points"], r["batches_culled"], r["vs_overview"], r["covered_pixels"],
                            r["pixels_differing"]))
     missing = [] if glc.caps.atomic_int64 else [
         ("Compute 64-bit atomicMin: not run, this GPU lacks GL_NV_shader_atomic_int64 (llvmpipe has no 64-bit "
@@ -225,7 +228,9 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
         f"from the first rasterizer's of the same layout, size and view (exact, so the adaptive rows count what "
         f"coarser words change). Copy bandwidth, measured in this run on {copy_bytes / 2**20:.0f} MiB (each byte read "
         "and written): " + ", ".join(f"{k} {v / 1e9:.1f} GB/s" for k, v in copies.items()) +
-        f"; the share is of the faster, {copy / 1e9:.1f} GB/s. × GL_POINTS = GL_POINTS ms / this ms, "
+        f"; the share is of the faster, {copy / 1e9:.1f} GB/s (a copy counts each byte once though it reads and "
+        f"writes it, so a raster may read faster). Read bandwidth: the same shader reading only, "
+        f"{read_rate / 1e9:.1f} GB/s. × GL_POINTS = GL_POINTS ms / this ms, "
         "same cloud, size and order. Store order: file/Morton/scan = points in the buffer in that file order "
         "(FillOrder.FILE); shuffled = the paper's permutation of the whole file order; batched = the renderer's "
         "layout (shuffled inside batches of 10,240 consecutive points, slices of 256 interleaved in slot order, each "
@@ -237,7 +242,8 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
         "the store's batches the culling test leaves out (batched layouts only); × overview = overview ms / this "
         "ms, same rasterizer. Work group: batch = one work group walks one batch's slices (ComputeTuning.batch_groups), "
         "256 slots = one invocation a slot. Mpoints/s and GB/s count every point of the cloud, culled ones included.")]
-    table.raw = {"copy_bytes": copy_bytes, "copy_bytes_per_s": copy, "copy_methods": copies, "rows": rows}
+    table.raw = {"copy_bytes": copy_bytes, "copy_bytes_per_s": copy, "copy_methods": copies,
+                 "read_bytes_per_s": read_rate, "rows": rows}
     return table
 
 
