@@ -31,8 +31,7 @@ def cloud(points: int):
             if start >= points:
                 break
             n = min(b.count, points - start)
-            part = b if n == b.count else dataclasses.replace(
-                b, positions=b.positions[:n], attributes={k: v[:n] for k, v in b.attributes.items()})
+            part = b.rows(0, n)
             batches.append(dataclasses.replace(part, start=start))
             start += n
     return dataclasses.replace(info, points=points), batches

@@ -44,6 +44,7 @@ from progressive.loaders.types import (
     AttributeKind,
     Batch,
     FileInfo,
+    Grid,
     available_cores,
     channel8,
     nonfinite_count,
@@ -244,6 +245,7 @@ class LasSource:
             chunk = read_span(self.info.path, self.records, chunk, self.info.points)
         n = len(chunk)
         positions = np.empty((n, 3), dtype=np.float32)
+        cells = np.empty((n, 3), dtype=np.int32)
         lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
         attributes: dict[str, np.ndarray] = {}
         step = max(1, PARSE_BLOCK_BYTES // chunk.dtype.itemsize)
@@ -252,6 +254,7 @@ class LasSource:
                 block = chunk[at:at + step]
                 rows = slice(at, at + len(block))
                 for axis in range(3):
+                    cells[rows, axis] = block["XYZ"[axis]]
                     coords = self.records.coordinates(block, axis)
                     lo[axis], hi[axis] = np.minimum(lo[axis], coords.min()), np.maximum(hi[axis], coords.max())
                     coords -= origin[axis]
@@ -266,8 +269,9 @@ class LasSource:
         counts = {name: n for name, v in attributes.items() if (n := nonfinite_count(v))}
         for name in counts:
             quiet_nans(attributes[name])
+        grid = Grid(cells, tuple(map(float, self.records.scales)), tuple(map(float, self.records.offsets)))
         return Batch(start=start, positions=positions, attributes=attributes, bounds=(lo, hi),
-                     nonfinite_positions=nonfinite_rows(positions), nonfinite_values=counts)
+                     nonfinite_positions=nonfinite_rows(positions), nonfinite_values=counts, grid=grid)
 
     def _values(self, chunk: laspy.PackedPointRecord, name: str) -> np.ndarray:
         if name == "rgb":

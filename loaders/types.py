@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import enum
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -120,6 +120,16 @@ class CloudInfo:
 
 
 @dataclass(frozen=True)
+class Grid:
+    """A LAS batch's coordinates as the file stores them: coordinate = cell · scale +
+    offset, per axis."""
+
+    cells: np.ndarray                   # (n, 3) int32, the records' X, Y, Z
+    scale: tuple[float, float, float]
+    offset: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
 class Batch:
     """A contiguous run of points in file order (files concatenated).
 
@@ -142,10 +152,25 @@ class Batch:
     positions are not (a 1e-7 scale, or coordinates far from the origin)."""
     nonfinite_positions: int = 0
     nonfinite_values: dict[str, int] = field(default_factory=dict)
+    grid: Grid | None = None
+    """LAS only: the points' own integer coordinates, from which `positions` were
+    scaled; whoever changes `positions` drops it (the word store keeps these integers,
+    so a LAS position on the GPU is lossless)."""
 
     @property
     def count(self) -> int:
         return int(self.positions.shape[0])
+
+    def rows(self, lo: int, hi: int) -> Batch:
+        """Rows lo..hi as a batch of their own (views; the non-finite counts stay the
+        whole batch's, which only say whether the rows may hold such points)."""
+        if lo == 0 and hi == self.count:
+            return self
+        grid = None if self.grid is None else replace(self.grid, cells=self.grid.cells[lo:hi])
+        return replace(self, start=self.start + lo, positions=self.positions[lo:hi],
+                                   attributes={k: v[lo:hi] for k, v in self.attributes.items()},
+                                   records=None if self.records is None else self.records[lo:hi], bounds=None,
+                                   grid=grid)
 
 
 def channel8(values: np.ndarray, sixteen_bit: bool) -> np.ndarray:

@@ -40,14 +40,13 @@ def boxes_of(positions: np.ndarray, start: int) -> tuple[int, np.ndarray]:
     cuts = np.arange((first + 1) * BATCH_POINTS, start + n, BATCH_POINTS) - start
     edges = np.concatenate([[0], cuts]).astype(np.int64)
     p = np.asarray(positions, dtype=np.float32)
+    finite = np.isfinite(p).all(axis=1)
+    if not finite.all():        # a point with any coordinate not finite is never drawn: all of it left out
+        p = np.where(finite[:, None], p, np.float32(np.nan))
     boxes = empty_boxes(edges.size)
     with np.errstate(invalid="ignore"):
         boxes[:, 0:3] = np.fmin.reduceat(p, edges, axis=0)
         boxes[:, 4:7] = np.fmax.reduceat(p, edges, axis=0)
-        if np.isinf(boxes).any():      # a point with an infinite coordinate is never drawn either
-            p = np.where(np.isfinite(p).all(axis=1)[:, None], p, np.float32(np.nan))
-            boxes[:, 0:3] = np.fmin.reduceat(p, edges, axis=0)
-            boxes[:, 4:7] = np.fmax.reduceat(p, edges, axis=0)
     nan = np.isnan(boxes[:, 0])
     boxes[nan] = empty_boxes(int(nan.sum()))
     return first, boxes

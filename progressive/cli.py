@@ -193,8 +193,6 @@ def effects_from(args):
 
 def add_cloud_args(parser) -> None:
     """Options shared by render and view: the files, the frame size, loading, colouring."""
-    from progressive.encoding import Precision
-
     parser.add_argument("files", nargs="*", type=path_arg, help="LAS/LAZ/fast-format files, one cloud (default: the bundled sample)")
     parser.add_argument("--width", type=size_arg, default=1280)
     parser.add_argument("--height", type=size_arg, default=720)
@@ -207,9 +205,6 @@ def add_cloud_args(parser) -> None:
                         "reports also counts)")
     add_reproject_arg(parser)
     add_http_arg(parser)
-    parser.add_argument("--precision", type=enum_arg(Precision), default=Precision.EXACT,
-                        help="exact (every point's full 30-bit position: the render contract) or adaptive (a distant "
-                             "batch's points from fewer bits, each within half a pixel of where it projects)")
     parser.add_argument("--palette", type=path_arg, metavar="FILE.json",
                         help='classification colours overriding the default ones: {"2": [166, 116, 66], "6": "#ff8c1e"}')
 
@@ -429,8 +424,9 @@ def cmd_render(args) -> int:
     camera = None if args.camera == "auto" or cameras else load_camera(args.camera)
     if args.method is Method.BRUTE and (args.converge or args.reference or cameras):
         raise UsageError("--converge, --reference and --camera-path need --method progressive")
-    if (args.converge or args.reference) and args.precision is not Precision.EXACT:
-        raise UsageError("--converge and --reference compare with the exact brute-force ids: they need --precision exact")
+    if args.precision is not Precision.EXACT and args.method is not Method.BRUTE:
+        raise UsageError("--precision adaptive needs --method brute: progressive frames reproject each point at its "
+                         "exact position")
     effects, clip = effects_from(args), clip_from(args)       # bad values are one line before any work
     with Session(paths, session_options(args)) as session, Outputs() as outputs:
         check_classes(session, args)
@@ -599,8 +595,7 @@ def view_session_options(args):
 
     return SessionOptions(width=args.width, height=args.height, color_by=args.color_by, partial=args.partial,
                           gpu_memory_limit=args.gpu_memory_limit, value_range=args.value_range,
-                          class_filter=filters(args), palette=palette_from(args), reproject=args.reproject, http=http_from(args),
-                          precision=args.precision)
+                          class_filter=filters(args), palette=palette_from(args), reproject=args.reproject, http=http_from(args))
 
 
 def _view_headless(paths: list[str], effects, clip, args, options) -> int:
@@ -682,6 +677,7 @@ def _convert_copc(args) -> int:
 
 def build_parser() -> Parser:
     from progressive.colors import Colormap
+    from progressive.encoding import Precision
     from progressive.renderer import Raster
     from progressive.session import Method
 
@@ -704,6 +700,10 @@ def build_parser() -> Parser:
     render.add_argument("--background", type=rgb_arg, default=(0, 0, 0), help="R,G,B")
     render.add_argument("--raster", type=enum_arg(Raster), default=Raster.COMPUTE,
                         help="compute (64-bit atomics where available), compute32, or points (GL_POINTS baseline)")
+    render.add_argument("--precision", type=enum_arg(Precision), default=Precision.EXACT,
+                        help="exact (every point's full 30-bit position: the render contract) or adaptive (with "
+                             "--method brute: a distant batch's points from fewer bits, each within half a pixel of "
+                             "where it projects)")
     add_look_args(render)
     render.add_argument("--ids", type=path_arg, help="write the (H, W) uint32 file-order index of each pixel (.npy)")
     render.add_argument("--stats", type=path_arg, help="write timings and counts (.json)")

@@ -127,13 +127,17 @@ class BatchAssembler:
     """Which points to (re-)encode as loader batches arrive. A batch's frame is of all
     its points, but loader batches end wherever their reads do (and threads deliver
     them in any order): the whole batches of what is added are encoded at once, while
-    the parts of a batch shared with a neighbour are kept (a few thousand points a
+    the parts of a batch shared with a neighbour are kept (under a batch of points a
     boundary) and the batch is encoded again, all its parts so far in one frame, each
-    time a part arrives, until it is complete. So every point loaded is drawn at once,
+    time a part arrives, until it is complete (a batch split into k parts is sent
+    about k²/2 parts' worth: loader batches are far larger than batches). So every point loaded is drawn at once,
     and a complete batch ends in the frame of its own points."""
 
-    def __init__(self, points: int):
+    def __init__(self, points: int, keep=None):
+        """keep(part, lo, hi): what to hold of rows lo..hi of a part (a copy, so a held
+        part does not keep its whole loader batch alive); None holds the part itself."""
         self.points = points
+        self.keep = keep
         self._parts: dict[int, list] = {}
         self._have: dict[int, int] = {}
 
@@ -145,8 +149,6 @@ class BatchAssembler:
         """Points kept of incomplete batches."""
         return sum(self._have.values())
 
-    def held_of(self, b: int) -> int:
-        return self._have.get(b, 0)
 
     def add(self, start: int, count: int, part) -> list:
         """Groups to encode now, each in frames of its own points: [(held, [(start,
@@ -170,6 +172,8 @@ class BatchAssembler:
         return groups
 
     def _hold(self, b: int, at: int, part, lo: int, hi: int) -> list:
+        if self.keep is not None:
+            part, lo, hi = self.keep(part, lo, hi), 0, hi - lo
         pieces = self._parts.setdefault(b, [])
         pieces.append((at, part, lo, hi))
         pieces.sort(key=lambda x: x[0])
@@ -203,12 +207,49 @@ def frames_from_boxes(boxes: np.ndarray) -> np.ndarray:
     return frames
 
 
+def cell_shifts(least: np.ndarray, most: np.ndarray) -> np.ndarray:
+    """(k, 3) bits each batch's integers move up so that its extent fills the 30 bits:
+    the coarse words then hold the top bits of the batch, not of 2^30 cells."""
+    extent = np.asarray(most, dtype=np.int64) - np.asarray(least, dtype=np.int64)
+    width = np.where(extent > 0, np.floor(np.log2(np.maximum(extent, 1))).astype(np.int64) + 1, 0)
+    return np.clip(BITS - width, 0, BITS)
+
+
+def integer_frames(least: np.ndarray, shift: np.ndarray, scale, offset, origin: np.ndarray) -> np.ndarray:
+    """(k, FRAME_FLOATS) frames of k batches kept as a LAS file's own integers, moved up
+    `shift` bits (cell = (integer - least) · 2^shift, lossless): base the batch's least
+    integer scaled as the loader scales coordinates (float64, then float32: exactly that
+    point's float32 position), step the file's scale over 2^shift (exact in float32)."""
+    frames = empty_frames(least.shape[0])
+    base = np.asarray(least, dtype=np.float64) * np.asarray(scale, dtype=np.float64)
+    base += np.asarray(offset, dtype=np.float64)
+    base -= np.asarray(origin, dtype=np.float64)
+    frames[:, 0:3] = base
+    frames[:, 4:7] = np.ldexp(np.asarray(scale, dtype=np.float32), -np.asarray(shift, dtype=np.int32))
+    return frames
+
+
+def cell_range(cells: np.ndarray, start: int) -> tuple[int, np.ndarray, np.ndarray]:
+    """The first batch that file indices [start, start+n) touch and the least and most
+    (k, 3) int64 cells of the points in each batch touched (progressive/batches.py
+    boxes_of, for a LAS batch's integers)."""
+    n = cells.shape[0]
+    first = start // BATCH_POINTS
+    cuts = np.arange((first + 1) * BATCH_POINTS, start + n, BATCH_POINTS) - start
+    edges = np.concatenate([[0], cuts]).astype(np.int64)
+    return first, np.minimum.reduceat(cells, edges, axis=0).astype(np.int64), \
+        np.maximum.reduceat(cells, edges, axis=0).astype(np.int64)
+
+
 ERROR_SLACK = 1e-3
-"""Relative slack on the cell's half diagonal, far above float32 rounding of the decode."""
+"""Relative slack on the cell's half diagonal (the bound's own float32 arithmetic)."""
+FLOAT_ROUNDING = 2.0**-22
+"""Error of float32 decoding relative to the magnitude of the base plus the batch's
+extent: float(q), the product and the sum each round once (2^-24 each, and a margin)."""
 
 
 def glsl_defines() -> str:
-    return f"#define ERROR_SLACK {ERROR_SLACK!r}\n"
+    return f"#define ERROR_SLACK {ERROR_SLACK!r}\n#define FLOAT_ROUNDING {FLOAT_ROUNDING!r}\n"
 
 
 def pixel_scale(view) -> float:
@@ -225,13 +266,16 @@ def pixel_scale(view) -> float:
 def levels_needed(frames: np.ndarray, depth_min: np.ndarray, view, bound: float = ADAPTIVE_ERROR_PX) -> np.ndarray:
     """The fewest words (1..LEVELS) of each batch whose position error, projected,
     stays under `bound` pixels (shaders/cull.comp batch_levels, the twin): a cell's half
-    diagonal e (with ERROR_SLACK) times pixel_scale over the least depth a drawn point
-    of the batch can have, its box's least corner depth and near - e."""
+    diagonal (with ERROR_SLACK) plus float32 decoding's rounding, e, times pixel_scale
+    over the least depth the exact point can have: its box's least corner depth, and
+    near - e (the drawn point's depth is at least near)."""
     scale = pixel_scale(view)
     near = float(view.projection[2])
     levels = np.full(frames.shape[0], LEVELS, dtype=np.uint32)
+    f = frames.astype(np.float64)
+    rounding = FLOAT_ROUNDING * (np.linalg.norm(f[:, 0:3], axis=1) + np.linalg.norm(f[:, 4:7], axis=1) * CELLS)
     for k in range(LEVELS - 1, 0, -1):
-        e = 0.5 * np.linalg.norm(cell_size(frames, k), axis=1) * (1 + ERROR_SLACK)
+        e = 0.5 * np.linalg.norm(cell_size(frames, k), axis=1) * (1 + ERROR_SLACK) + rounding
         z = np.maximum(depth_min, near - e) if view.perspective else np.ones_like(e)
         levels = np.where((z > 0) & (e * scale <= bound * z), k, levels)
     return levels

@@ -15,7 +15,6 @@ from progressive.camera import NO_CLIP, Camera, Clip, Returns, ViewUniforms, vie
 from progressive.colors import ColorStyle
 from progressive.context import GLContext
 from progressive.effects import Effects
-from progressive.encoding import Precision
 from progressive.loaders.types import AttributeInfo, Batch, CloudInfo
 from progressive.passes.budget import BudgetPass
 from progressive.passes.compare import ComparePass
@@ -49,7 +48,6 @@ class ProgressiveOptions:
     keep_batches: bool = False          # keep loaded attributes in host memory to switch attributes
     class_filter: bool = False          # keep classification codes on the GPU: hidden classes apply to any colouring
     tuning: ComputeTuning = DEFAULT_TUNING  # how the compute raster walks the store (benchmarks compare them)
-    precision: Precision = Precision.EXACT  # position words the fill reads (reprojected points keep full precision)
 
 
 @dataclass(frozen=True)
@@ -118,7 +116,7 @@ class ProgressiveRenderer:
                                     class_filter=options.class_filter)
         self.store = self.scene.store
         self.vis = VisibilityBuffer(glc, options.width, options.height)
-        self.raster = make_raster(glc, self.store, self.vis, options.raster, options.tuning, options.precision)
+        self.raster = make_raster(glc, self.store, self.vis, options.raster, options.tuning)
         self.budget = BudgetPass(glc, self.store.capacity, options.budget, self.store.permutation.batches)
         self.prepare = PreparePass(glc, self.store, self.vis)
         self.shading = Shading(glc, self.store, self.vis, pixel_words=True)

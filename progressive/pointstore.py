@@ -137,6 +137,11 @@ class PointStore:
         self.box_buffer = glc.ctx.buffer(self.boxes.tobytes())
         self.box_buffer.label = "batch boxes"
         self.frames = encoding.empty_frames(max(1, self.permutation.batches))
+        self.least_cells = np.zeros((max(1, self.permutation.batches), 3), dtype=np.int64)
+        self.cell_shifts = np.zeros((max(1, self.permutation.batches), 3), dtype=np.int64)
+        self.integer = np.zeros(max(1, self.permutation.batches), dtype=bool)
+        """Word store: batches kept as a LAS file's integers, their least integers and the
+        bits those are moved up (encoding.integer_frames)."""
         self.frame_buffer = glc.ctx.buffer(self.frames.tobytes()) if words else None
         if words:
             self.frame_buffer.label = "batch frames"
@@ -164,12 +169,18 @@ class PointStore:
     def words(self) -> bool:
         return self.encoding is encoding.Encoding.WORDS
 
-    def set_frames(self, first: int, frames: np.ndarray, boxes: np.ndarray) -> None:
+    def set_frames(self, first: int, frames: np.ndarray, boxes: np.ndarray, least: np.ndarray | None = None,
+                   shift: np.ndarray | None = None) -> None:
         """Batches first.. are encoded in `frames` and hold `boxes` (word store: set before
         their points are distributed, again for a batch whose points so far are encoded
-        anew; progressive/encoding.py BatchAssembler)."""
+        anew; progressive/encoding.py BatchAssembler). least, shift: their least
+        integers and shifts where they are kept as a LAS file's integers
+        (encoding.integer_frames)."""
         k = frames.shape[0]
         self.frames[first: first + k] = frames
+        self.integer[first: first + k] = least is not None
+        if least is not None:
+            self.least_cells[first: first + k], self.cell_shifts[first: first + k] = least, shift
         self.frame_buffer.write(frames.tobytes(), offset=first * frames.itemsize * encoding.FRAME_FLOATS)
         batches.merge(self.boxes, first, boxes)
         part = self.boxes[first: first + k]

@@ -64,6 +64,13 @@ class Renderer:
         return raster_path(self.raster_kind, self.raster)
 
     @property
+    def reads_adaptive(self) -> bool:
+        """Whether adaptive precision changes what this renderer reads: a compute raster
+        walking the word store batch by batch (GL_POINTS and one invocation a slot read
+        every word)."""
+        return isinstance(self.raster, ComputeRaster) and self.raster.batch_groups and self.store.words
+
+    @property
     def loaded(self) -> int:
         return self.scene.loaded
 
@@ -86,7 +93,8 @@ class Renderer:
     def render(self, camera: Camera, width: int, height: int, style: ColorStyle,
                effects: Effects = Effects(), hidden: frozenset[int] = frozenset(), clip: Clip = NO_CLIP,
                returns: Returns = Returns.ALL, precision: Precision = Precision.EXACT) -> Frame:
-        """precision: the position words a compute raster reads (GL_POINTS reads all)."""
+        """precision: the position words a compute raster's batch walk reads (GL_POINTS
+        and one invocation a slot read all of them)."""
         self.vis.resize(width, height)
         if isinstance(self.raster, ComputeRaster):
             self.raster.precision = precision
@@ -114,14 +122,13 @@ class Renderer:
 
 
 def make_raster(glc: GLContext, store: PointStore, vis: VisibilityBuffer, raster: Raster,
-                tuning: ComputeTuning = DEFAULT_TUNING, precision: Precision = Precision.EXACT):
-    """tuning: how a compute raster walks the store, precision: the position words it
-    reads (GL_POINTS ignores both). A compute raster of the batched layout gets a cull
-    pass: batches outside the view are skipped."""
+                tuning: ComputeTuning = DEFAULT_TUNING):
+    """tuning: how a compute raster walks the store (GL_POINTS ignores it). A compute
+    raster of the batched layout gets a cull pass: batches outside the view are skipped."""
     if raster is Raster.POINTS:
         return PointsRaster(glc, store, vis)
     return ComputeRaster(glc, store, vis, atomic64=raster is Raster.COMPUTE and glc.caps.atomic_int64,
-                         culling=CullPass(glc, store) if store.batched else None, tuning=tuning, precision=precision)
+                         culling=CullPass(glc, store) if store.batched else None, tuning=tuning)
 
 
 def raster_path(kind: Raster, raster) -> str:

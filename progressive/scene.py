@@ -16,13 +16,13 @@ from progressive.camera import Returns
 from progressive.colors import DEFAULT_PALETTE, NO_RANGE, Colormap, ColorMode, ColorStyle, Palette
 from progressive.context import GLContext
 from progressive.errors import ProgressiveError
-from progressive.loaders.records import attribute_word
+from progressive.loaders.records import EXPONENT, attribute_word
 from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, CloudInfo
 from progressive.packing import batch_words, pack_into
 from progressive.passes.distribute import DistributePass
 from progressive.passes.percentile import PercentilePass
 from progressive.permutation import BATCH_POINTS, LAYOUT, FillOrder
-from progressive.pointstore import PointStore, RecordOrder
+from progressive.pointstore import EMPTY_WORD, PointStore, RecordOrder
 
 RANGE_GROWTH = 2
 """While loading, the colour range is taken anew each time the loaded points have
@@ -73,8 +73,7 @@ class Scene:
         self.store = PointStore(glc, info.points, capacity=capacity, chunk_points=chunk_points, order=order,
                                 classes=class_filter, records=records, position_encoding=position_encoding)
         self.distribute = DistributePass(glc, self.store)
-        self.assembler = encoding.BatchAssembler(info.points) if self.store.words else None
-        self._held_hidden: dict[int, int] = {}     # hidden points of the batches the assembler keeps
+        self.assembler = encoding.BatchAssembler(info.points, keep=_copied_rows) if self.store.words else None
         self.loaded = 0
         self.skipped = 0            # points never drawn: non-finite coordinates or shown value
         self.upload_seconds = 0.0
@@ -93,43 +92,84 @@ class Scene:
     def add_batch(self, batch: Batch) -> None:
         t0 = time.perf_counter()
         if self.assembler is not None:
-            for held, group in self.assembler.add(batch.start, batch.count, batch):
-                hidden = self._encode_group(group)
-                # A batch encoded again: its hidden points so far replace those counted.
-                self.skipped += hidden - (self._held_hidden.pop(held, 0) if held is not None else 0)
-                if held is not None and self.assembler.held_of(held):
-                    self._held_hidden[held] = hidden
+            for _, group in self.assembler.add(batch.start, batch.count, batch):
+                self._encode_group(group)
+            # Counted once, for this batch's rows: parts encoded again are not new points.
+            self.skipped += _hidden_points(batch, self.attribute, float(self.info.origin[2]))
         else:
             self.skipped += self._upload_records(batch, self.attribute)
             self.store.add_boxes(batch.positions, batch.start)
         if self.store.has_classes:
             self.distribute.upload_classes(point_flags(batch), batch.start)
         if self.keep_batches:
-            self.batches.append(batch)
+            # Without its integers (12 bytes a point of host memory): a kept batch sent
+            # again (hidden points, attribute switching) is encoded from its positions.
+            self.batches.append(replace(batch, grid=None) if batch.grid is not None else batch)
         self.loaded += batch.count
         self.upload_seconds += time.perf_counter() - t0
 
-    def _encode_group(self, group: list) -> int:
+    def _encode_group(self, group: list) -> None:
         """Frame the batches of a group of runs (encoding.BatchAssembler) by the boxes of
-        their points, then upload the runs (distribute encodes them in those frames);
-        the points never drawn."""
-        runs = [[_rows(part, lo, hi) for part, lo, hi in pieces] for _, _, pieces in group]
+        their points, or by their integers where every part is of one LAS grid whose
+        batches span under 2^30 cells, then upload the runs (distribute encodes them in
+        those frames)."""
+        parts = [part.rows(lo, hi) for _, _, pieces in group for part, lo, hi in pieces]
         first = group[0][0] // BATCH_POINTS
-        boxes = batch_boxes.empty_boxes((group[-1][0] + group[-1][1] - 1) // BATCH_POINTS - first + 1)
-        for parts in runs:
+        k = (group[-1][0] + group[-1][1] - 1) // BATCH_POINTS - first + 1
+        boxes = batch_boxes.empty_boxes(k)
+        for part in parts:
+            at, part_boxes = batch_boxes.boxes_of(_positions(part), part.start)
+            batch_boxes.merge(boxes, at - first, part_boxes)
+        grids = {(p.grid.scale, p.grid.offset) if p.grid is not None else None for p in parts}
+        least = None
+        if len(grids) == 1 and None not in grids:
+            least, most = np.full((k, 3), np.iinfo(np.int64).max), np.full((k, 3), np.iinfo(np.int64).min)
             for part in parts:
-                at, part_boxes = batch_boxes.boxes_of(_positions(part), part.start)
-                batch_boxes.merge(boxes, at - first, part_boxes)
-        self.store.set_frames(first, encoding.frames_from_boxes(boxes), boxes)
-        return sum(self._upload_records(part, self.attribute) for parts in runs for part in parts)
+                at, lo, hi = encoding.cell_range(part.grid.cells, part.start)
+                least[at - first: at - first + lo.shape[0]] = np.minimum(least[at - first: at - first + lo.shape[0]], lo)
+                most[at - first: at - first + hi.shape[0]] = np.maximum(most[at - first: at - first + hi.shape[0]], hi)
+            least = least if (most - least < encoding.CELLS).all() else None
+        if least is None:
+            self.store.set_frames(first, encoding.frames_from_boxes(boxes), boxes)
+        else:
+            scale, offset = next(iter(grids))
+            shift = encoding.cell_shifts(least, most)
+            self.store.set_frames(first, encoding.integer_frames(least, shift, scale, offset, self.info.origin), boxes,
+                                  least, shift)
+        for part in parts:
+            self._upload_records(part, self.attribute)
 
     def _upload_records(self, batch: Batch, attribute: AttributeInfo) -> int:
         """Pack the batch's records straight into the distribute pass's staging memory
-        and scatter them (the word store's in its batches' frames, set already); the
-        points never drawn (non-finite coordinates or value)."""
+        and scatter them; the points never drawn (non-finite coordinates or value). The
+        word store encodes them in their batches' frames (set already): the batches kept
+        as a LAS file's integers are staged as their cells."""
         words = batch_words(batch, attribute, float(self.info.origin[2]))
-        return self.distribute.upload_packed(lambda out, lo, hi: pack_into(out, batch, attribute, words, lo, hi),
-                                             batch.count, batch.start)
+        if not self.store.words or batch.grid is None:
+            return self.distribute.upload_packed(lambda out, lo, hi: pack_into(out, batch, attribute, words, lo, hi),
+                                                 batch.count, batch.start)
+        b = np.arange(batch.start, batch.start + batch.count) // BATCH_POINTS
+        integer = self.store.integer[b]
+        if not integer.any():
+            return self.distribute.upload_packed(lambda out, lo, hi: pack_into(out, batch, attribute, words, lo, hi),
+                                                 batch.count, batch.start)
+        if not integer.all():       # batches of both kinds: each run of one kind on its own
+            cuts = np.flatnonzero(np.diff(integer)) + 1
+            edges = [0, *cuts.tolist(), batch.count]
+            return sum(self._upload_records(batch.rows(lo, hi), attribute) for lo, hi in zip(edges, edges[1:]))
+        least, shift = self.store.least_cells[b], self.store.cell_shifts[b]
+        hides = attribute.kind is AttributeKind.SCALAR
+
+        def fill(out: np.ndarray, lo: int, hi: int) -> int:
+            out[:, :3] = (batch.grid.cells[lo:hi] - least[lo:hi]) << shift[lo:hi]
+            out[:, 3] = words[lo:hi]
+            if not hides:
+                return 0
+            bad = (words[lo:hi] & EXPONENT) == EXPONENT
+            out[bad, :3] = EMPTY_WORD
+            return int(np.count_nonzero(bad))
+
+        return self.distribute.upload_packed(fill, batch.count, batch.start, cells=True)
 
     def begin_switch(self, attribute: AttributeInfo) -> AttributeSwitch:
         """Show `attribute` from now on: batches loaded later are packed with it, and
@@ -264,14 +304,21 @@ def point_flags(batch: Batch) -> np.ndarray:
             | np.where(number >= count, LAST_RETURN, 0).astype(np.uint32))
 
 
-def _rows(batch: Batch, lo: int, hi: int) -> Batch:
-    """Rows lo..hi of a batch (views; the non-finite counts stay the whole batch's,
-    which only say whether a part may hide points)."""
-    if lo == 0 and hi == batch.count:
-        return batch
-    return replace(batch, start=batch.start + lo, positions=batch.positions[lo:hi],
-                   attributes={k: v[lo:hi] for k, v in batch.attributes.items()},
-                   records=None if batch.records is None else batch.records[lo:hi], bounds=None)
+def _copied_rows(batch: Batch, lo: int, hi: int) -> Batch:
+    """Rows lo..hi of a batch with arrays of their own (what the assembler holds)."""
+    part = batch.rows(lo, hi)
+    grid = None if part.grid is None else replace(part.grid, cells=part.grid.cells.copy())
+    return replace(part, positions=part.positions.copy(), attributes={k: v.copy() for k, v in part.attributes.items()},
+                   records=None if part.records is None else part.records.copy(), grid=grid)
+
+
+def _hidden_points(batch: Batch, attribute: AttributeInfo, origin_z: float) -> int:
+    """Points of a batch never drawn, as pack_into counts them: a coordinate not finite,
+    or a shown scalar not finite (a fast-format batch's only where it says it has such)."""
+    shown = np.isfinite(_positions(batch)).all(axis=1)
+    if attribute.kind is AttributeKind.SCALAR and (batch.records is None or batch.nonfinite_values.get(attribute.name)):
+        shown &= (batch_words(batch, attribute, origin_z) & EXPONENT) != EXPONENT
+    return int(batch.count - np.count_nonzero(shown))
 
 
 def _positions(batch: Batch) -> np.ndarray:

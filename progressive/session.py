@@ -26,6 +26,7 @@ from progressive.colors import DEFAULT_PALETTE, Colormap, ColorStyle, Palette
 from progressive.context import GLContext, create_context
 from progressive.effects import Effects
 from progressive.encoding import Precision
+from progressive.errors import ProgressiveError
 from progressive.frame_loop import FrameStats, ProgressiveOptions, ProgressiveRenderer
 from progressive.loaders.copc import CopcStatus, copc_status
 from progressive.loaders.crs import file_crs
@@ -100,9 +101,11 @@ class SessionOptions:
     class_filter: bool = False              # keep classification on the GPU (where the cloud has it): any colouring filters
     palette: Palette = DEFAULT_PALETTE      # colours of classification codes
     precision: Precision = Precision.EXACT
-    """The position words a compute raster reads of each batch (progressive/encoding.py):
-    all, or with ADAPTIVE the fewest that keep every point within
-    encoding.ADAPTIVE_ERROR_PX of where it projects."""
+    """The position words a brute-force compute raster reads of each batch
+    (progressive/encoding.py): all, or with ADAPTIVE the fewest that keep every point
+    within encoding.ADAPTIVE_ERROR_PX of where it projects. Progressive frames read all
+    (a point kept from the last frame is reprojected where its exact position lies, so
+    coarse fills would leave it where it was not drawn)."""
     http: HttpOptions = HTTP_DEFAULTS
     """How http(s):// URLs of COPC files are fetched (loaders/http.py): timeout, requests in flight."""
     reproject: str | None = None
@@ -114,6 +117,9 @@ class Session:
     def __init__(self, paths, options: SessionOptions = SessionOptions(), glc: GLContext | None = None):
         """With `color_by` and not `switchable`, the loader reads only what is shown and
         what the filters test, so a LAZ of point formats 6-10 decodes only those layers."""
+        if options.precision is not Precision.EXACT and options.method is not Method.BRUTE:
+            raise ProgressiveError("adaptive precision is for brute-force renders (--method brute): progressive "
+                                   "frames reproject each point at its exact position")
         self.options = options
         self.opened = time.perf_counter()
         self.target = target_crs(options.reproject) if options.reproject else None
@@ -165,7 +171,7 @@ class Session:
                 self.renderer = ProgressiveRenderer(self.glc, self.info, self.attribute, replace(
                     options.progressive, width=options.width, height=options.height, raster=options.raster,
                     chunk_points=options.chunk_points, capacity=capacity, keep_batches=options.switchable,
-                    class_filter=class_filter, precision=options.precision))
+                    class_filter=class_filter))
         except BaseException:
             self.loader.close()
             raise
@@ -280,7 +286,8 @@ class Session:
     def batch_counts(self, camera: Camera, clip: Clip = NO_CLIP) -> dict[str, int | dict[str, int]]:
         """Batches of the store, how many the rasterizer's culling test keeps for
         `camera` and `clip` and, of those, how many it reads at 10, 20 and 30 bits
-        (the numpy twins of shaders/cull.comp); empty batches are culled."""
+        (the numpy twins of shaders/cull.comp: fewer only where adaptive precision
+        reaches the rasterizer); empty batches are culled."""
         store = self.renderer.store
         if not store.batched:
             return {"total": 0, "drawn": 0, "culled": 0, "bits": {}}
@@ -288,7 +295,7 @@ class Session:
         shown = batches.in_view(store.boxes, view)
         drawn = int(np.count_nonzero(shown))
         levels = np.full(int(drawn), encoding.LEVELS)
-        if store.words and self.options.precision is Precision.ADAPTIVE:
+        if self.options.precision is Precision.ADAPTIVE and not self.progressive and self.renderer.reads_adaptive:
             levels = encoding.levels_needed(store.frames[shown], batches.least_depths(store.boxes[shown], view), view)
         bits = {f"{encoding.LEVEL_BITS * k}": int(np.count_nonzero(levels == k)) for k in range(1, encoding.LEVELS + 1)}
         return {"total": store.permutation.batches, "drawn": drawn, "culled": store.permutation.batches - drawn,

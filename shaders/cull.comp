@@ -45,7 +45,7 @@ bool batch_in_view(uint b, out float depth_min) {
     hi += pad;
     float near = u_projection.z, far = u_projection.w;
     bool out_near = true, out_far = true, out_right = true, out_left = true, out_top = true, out_bottom = true;
-    depth_min = 1.0 / 0.0;
+    depth_min = uintBitsToFloat(0x7F800000u);   // +infinity
     for (int c = 0; c < 8; ++c) {
         vec3 v = to_view(vec3((c & 1) != 0 ? hi.x : lo.x, (c & 2) != 0 ? hi.y : lo.y, (c & 4) != 0 ? hi.z : lo.z));
         float depth = -v.z, d = abs(depth);
@@ -70,8 +70,11 @@ bool batch_in_view(uint b, out float depth_min) {
 // least corner depth and near - e (progressive/encoding.py levels_needed, the twin).
 uint batch_levels(uint b, float depth_min) {
     vec3 step = batch_frames[2u * b + 1u].xyz;
+    // float32 decoding rounds float(q), the product and the sum, each at most the
+    // magnitude of the base and the batch's extent
+    float rounding = FLOAT_ROUNDING * (length(batch_frames[2u * b].xyz) + length(step) * float(1u << 30u));
     for (uint k = 1u; k < 3u; ++k) {
-        float e = 0.5 * length(step * float(1u << (30u - 10u * k))) * (1.0 + ERROR_SLACK);
+        float e = 0.5 * length(step * float(1u << (30u - 10u * k))) * (1.0 + ERROR_SLACK) + rounding;
         float z = u_perspective != 0.0 ? max(depth_min, u_projection.z - e) : 1.0;
         if (z > 0.0 && e * u_pixel_scale <= u_error_px * z) return k;
     }

@@ -2,7 +2,8 @@
 // ATTRIBUTE_ONLY the stage holds one word per point and only word 3 is replaced; with
 // CLASS_WORDS each point's 16 flag bits (class, first and last return) go to the store's flags.
 // The word store's points are encoded here, in their batch's frame (set before the
-// scatter): in float64, as progressive/encoding.py quantize and pack_words do.
+// scatter): from float records in float64, as progressive/encoding.py quantize and
+// pack_words do, or (STAGED_CELLS) from a LAS file's own integers.
 layout(local_size_x = 256) in;
 #include "common.glsl"
 #include "points.glsl"
@@ -24,21 +25,35 @@ uniform uint u_batches;    // batched layout (0: one shuffle)
 uniform uint u_capacity;    // slots held on the GPU: the rest of the cloud is left out
 
 #if WORD_PLANES && !ATTRIBUTE_ONLY && !CLASS_WORDS
-// A float record (xyz float bits relative to the origin, the attribute word) as the
-// word store keeps it: cells round((p - base) / step), nearest even, in [0, 2^30), three
-// words of 10+10+10 bits; a point never drawn gets HIDDEN_WORD in every position word.
-uvec4 encode_words(uint index, uvec4 record) {
-    if (!finite_position(record)) return uvec4(HIDDEN_WORD, HIDDEN_WORD, HIDDEN_WORD, record.w);
-    uint b = index / BATCH_POINTS;
-    dvec3 cells = (dvec3(uintBitsToFloat(record.xyz)) - dvec3(batch_frames[2u * b].xyz)) / dvec3(batch_frames[2u * b + 1u].xyz);
-    uvec3 q = uvec3(clamp(roundEven(cells), dvec3(0.0), dvec3(double(CELLS - 1u))));
+// Cells in [0, 2^30) as three words of 10+10+10 bits (progressive/encoding.py
+// pack_words); EMPTY cells mark a point never drawn: HIDDEN_WORD in every word.
+uvec4 pack_cells(uvec3 q, uint word) {
+    if (q.x == EMPTY) return uvec4(HIDDEN_WORD, HIDDEN_WORD, HIDDEN_WORD, word);
     uvec3 words;
     for (uint level = 0u; level < 3u; ++level) {
         uvec3 part = (q >> (10u * (2u - level))) & LEVEL_MASK;
         words[level] = (part.x << 20u) | (part.y << 10u) | part.z;
     }
-    return uvec4(words, record.w);
+    return uvec4(words, word);
 }
+
+#if STAGED_CELLS
+// A LAS point staged as its cells already (its integer coordinates less its batch's
+// least ones, encoding.py: lossless), or EMPTY ones.
+uvec4 encode_words(uint index, uvec4 staged_cells) {
+    return pack_cells(staged_cells.xyz, staged_cells.w);
+}
+#else
+// A float record (xyz float bits relative to the origin, the attribute word) in its
+// batch's frame: cells round((p - base) / step), nearest even, in [0, 2^30), in float64
+// as encoding.py quantize.
+uvec4 encode_words(uint index, uvec4 record) {
+    if (!finite_position(record)) return pack_cells(uvec3(EMPTY), record.w);
+    uint b = index / BATCH_POINTS;
+    dvec3 cells = (dvec3(uintBitsToFloat(record.xyz)) - dvec3(batch_frames[2u * b].xyz)) / dvec3(batch_frames[2u * b + 1u].xyz);
+    return pack_cells(uvec3(clamp(roundEven(cells), dvec3(0.0), dvec3(double(CELLS - 1u)))), record.w);
+}
+#endif
 #endif
 
 void main() {

@@ -26,7 +26,7 @@ def numpy_boxes(p: np.ndarray) -> np.ndarray:
     out = batches.empty_boxes(-(-p.shape[0] // BATCH_POINTS))
     for b in range(out.shape[0]):
         part = p[b * BATCH_POINTS:(b + 1) * BATCH_POINTS]
-        part = part[~np.isnan(part).any(axis=1)]
+        part = part[np.isfinite(part).all(axis=1)]
         if part.size:
             out[b, 0:3], out[b, 4:7] = part.min(axis=0), part.max(axis=0)
     return out
@@ -38,6 +38,8 @@ def test_boxes_of_any_split_equal_numpy(cuts):
     n = 3 * BATCH_POINTS + 77
     p = rng.normal(0, 100, (n, 3)).astype(np.float32)
     p[rng.integers(0, n, 50)] = np.nan
+    p[rng.integers(0, n, 30), 1] = np.nan               # one coordinate: the whole point never draws
+    p[rng.integers(0, n, 30), 0] = rng.choice([np.inf, -np.inf], 30)
     p[BATCH_POINTS:2 * BATCH_POINTS] = np.nan          # a batch of points that never draw stays empty
     boxes = batches.empty_boxes(4)
     edges = [0, *cuts, n]

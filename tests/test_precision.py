@@ -217,12 +217,71 @@ def test_cli_reports_precision_and_the_words_read(tmp_path):
     assert main(["render", "--precision", "rough", "--out", str(tmp_path / "x.png")]) == 2
 
 
-def test_converge_needs_exact_precision(tmp_path, capsys):
+@pytest.mark.parametrize("extra", [[], ["--converge"]])
+def test_adaptive_precision_needs_brute_force(tmp_path, capsys, extra):
+    """Progressive frames reproject each point at its exact position (a coarse fill
+    would leave points where they were not drawn): one line, exit 2, nothing written;
+    the Session refuses it too."""
     from progressive.cli import main
+    from progressive.errors import ProgressiveError
+    from progressive.session import Method, Session, SessionOptions
 
-    code = main(["render", "--method", "progressive", "--converge", "--precision", "adaptive",
+    code = main(["render", "--method", "progressive", *extra, "--precision", "adaptive",
                  "--out", str(tmp_path / "x.png")])
     assert code == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("progressive: error:") and "--precision exact" in err[0]
+    assert len(err) == 1 and err[0].startswith("progressive: error:") and "--method brute" in err[0]
     assert not (tmp_path / "x.png").exists()
+    with pytest.raises(ProgressiveError, match="brute"):
+        Session([SAMPLE], SessionOptions(method=Method.PROGRESSIVE, precision=Precision.ADAPTIVE))
+
+
+def test_stats_count_coarse_words_only_where_the_raster_reads_them(tmp_path):
+    """GL_POINTS reads every word: --stats says so under adaptive precision too."""
+    from progressive.cli import main
+
+    stats = tmp_path / "s.json"
+    assert main(["render", "--width", str(W), "--height", str(H), "--raster", "points", "--precision", "adaptive",
+                 "--stats", str(stats), "--out", str(tmp_path / "x.png")]) == 0
+    counts = json.loads(stats.read_text())["batches"]
+    assert counts["bits"]["30"] == counts["drawn"] > 0
+
+
+def test_files_of_two_grids_frame_the_batch_they_share_by_its_box(gl, tmp_path):
+    """The sample and a copy of it on a grid 10× finer, one cloud: the batch holding both
+    files' points is framed by its box, every other by its file's integers; the render
+    meets the contract, and uploading a loader batch of both kinds again (attribute
+    switching does for hidden points) leaves the words as they were."""
+    src = laspy.read(SAMPLE)
+    header = laspy.LasHeader(point_format=src.header.point_format, version=src.header.version)
+    header.scales, header.offsets = src.header.scales / 10, src.header.offsets + [1000.0, 0.0, 0.0]
+    fine = laspy.LasData(header)
+    fine.x, fine.y, fine.z = src.x + 1000.0, src.y, src.z
+    for name in src.point_format.dimension_names:
+        if name not in ("X", "Y", "Z"):
+            fine[name] = src[name]
+    copy = tmp_path / "fine.las"
+    fine.write(copy)
+    with CloudLoader([SAMPLE, copy], batch_points=30_000) as loader:
+        info = loader.info
+        loader.start()
+        scene_batches = sorted(loader, key=lambda b: b.start)
+    r = Renderer(gl, info, find_attribute(info, "elevation"), raster=Raster.COMPUTE32, width=W, height=H)
+    try:
+        for b in scene_batches:
+            r.add_batch(b)
+        shared = src.header.point_count // BATCH_POINTS
+        integer = r.store.integer[: -(-info.points // BATCH_POINTS)]
+        assert not integer[shared] and integer[:shared].all() and integer[shared + 1:].all()
+        xyz = np.concatenate([file_xyz(SAMPLE), file_xyz(copy)])
+        cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
+        slots = r.store.permutation.forward(np.arange(info.points)).astype(np.int64)
+        frame = r.render(cam, W, H, r.style())
+        from progressive.reference import reference_ids
+        assert np.mean(frame.ids == reference_ids(xyz, cam, W, H, tie_key=slots)) >= 0.999
+        before = r.store.raw_words()
+        mixed = next(b for b in scene_batches if b.start == src.header.point_count)     # batch `shared`, then integer ones
+        r.scene._upload_records(mixed, r.scene.attribute)
+        assert np.array_equal(r.store.raw_words(), before)
+    finally:
+        r.release()

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import laspy
 import numpy as np
 import pytest
@@ -80,36 +82,73 @@ def test_chunked_store_renders_the_same(gl):
     chunked.release()
 
 
-def test_distribute_writes_permuted_words(gl):
-    """Each slot holds its point's words: 30-bit cells of the point's float32 position
-    in the frame of its batch's box (numpy over laspy's coordinates here), and the
-    attribute word; decoded, every position is within half a cell of the file's."""
-    r, info = load(gl, SAMPLE, chunk_points=60_000)
-    assert r.store.words
-    with CloudLoader([SAMPLE]) as loader:
+def load_batches(gl, batches, info, *, chunk_points=None) -> Renderer:
+    r = Renderer(gl, info, default_attribute(info), width=W, height=H, chunk_points=chunk_points)
+    for batch in batches:
+        r.add_batch(batch)
+    gl.check()
+    return r
+
+
+def sample_parts():
+    with CloudLoader([SAMPLE], batch_points=40_000) as loader:
         loader.start()
-        batches = sorted(loader, key=lambda b: b.start)
-    records = np.concatenate([pack_records(b, r.attribute, float(info.origin[2])) for b in batches])
-    xyz = (file_xyz(SAMPLE) - info.origin).astype(np.float32)
-    batch = np.arange(info.points) // BATCH_POINTS
-    lo = np.stack([np.minimum.reduceat(xyz[:, a], np.flatnonzero(np.r_[True, np.diff(batch) > 0])) for a in range(3)], 1)
-    hi = np.stack([np.maximum.reduceat(xyz[:, a], np.flatnonzero(np.r_[True, np.diff(batch) > 0])) for a in range(3)], 1)
-    step = (hi.astype(np.float64) - lo) / (encoding.CELLS - 1)
-    assert np.allclose(r.store.frames[: batch[-1] + 1, 0:3], lo) and np.allclose(r.store.frames[: batch[-1] + 1, 4:7], step, rtol=1e-6)
+        return loader.info, sorted(loader, key=lambda b: b.start)
+
+
+def held_slots(r, info):
+    """Each file point's words as the GPU holds them, its batch, and the padding's."""
     held = r.store.read_words()
     slots = r.store.permutation.forward(np.arange(info.points)).astype(np.int64)
-    cells = encoding.unpack_cells(held[slots, :3])
-    exact = (xyz.astype(np.float64) - lo[batch]) / r.store.frames[batch, 4:7]
-    assert np.abs(cells - exact).max() <= 0.5 + 1e-3
-    assert np.array_equal(held[slots, 3], records[:, 3])
     empty = np.ones(r.store.capacity, dtype=bool)
     empty[slots] = False
-    assert (held[empty] == EMPTY_WORD).all()     # the layout's padding stays empty
-    decoded = r.store.read_records()[slots, :3].view(np.float32)
-    # float32 decoding (base + q·step): float(q), the product and the sum each round once
+    return held[slots], np.arange(info.points) // BATCH_POINTS, held[empty]
+
+
+def test_las_positions_on_the_gpu_are_the_files_integers(gl):
+    """A LAS file's batches are kept as its own integers: each point's three words, read
+    back from the GPU, are laspy's X, Y, Z less its batch's least, moved up the batch's
+    shift (lossless); decoded, every position is within float32 rounding of the file's."""
+    info, batches = sample_parts()
+    r = load_batches(gl, batches, info, chunk_points=60_000)
+    las = laspy.read(SAMPLE)
+    integers = np.stack([las.X, las.Y, las.Z], axis=1).astype(np.int64)
+    words, batch, padding = held_slots(r, info)
+    assert r.store.words and r.store.integer[: batch[-1] + 1].all()
+    starts = np.flatnonzero(np.r_[True, np.diff(batch) > 0])
+    assert np.array_equal(r.store.least_cells[: batch[-1] + 1], np.minimum.reduceat(integers, starts, axis=0))
+    cells, shift = encoding.unpack_cells(words), r.store.cell_shifts[batch]
+    assert np.array_equal(cells >> shift, integers - r.store.least_cells[batch])
+    assert not (cells & ((1 << shift) - 1)).any()
+    records = np.concatenate([pack_records(b, r.attribute, float(info.origin[2])) for b in batches])
+    assert np.array_equal(words[:, 3], records[:, 3])
+    assert (padding == EMPTY_WORD).all()     # the layout's padding stays empty
+    xyz = (file_xyz(SAMPLE) - info.origin).astype(np.float32)
     frames = r.store.frames[batch]
-    assert (np.abs(decoded - xyz) <= 2 * np.spacing(np.abs(frames[:, 0:3]) + np.abs(xyz)) + frames[:, 4:7]).all()
+    decoded = r.store.read_records()[r.store.permutation.forward(np.arange(info.points)).astype(np.int64), :3]
+    # float32 decoding (base + q·step): float(q), the product and the sum each round once
+    assert (np.abs(decoded.view(np.float32) - xyz) <= 2 * np.spacing(np.abs(frames[:, 0:3]) + np.abs(xyz))).all()
     assert r.store.buffers[0].label == "words0[0]"
+    r.release()
+
+
+def test_float_positions_quantize_to_their_batch_box(gl):
+    """Positions without a file's integers (here the sample's, dropped) are 30-bit cells
+    of their float32 position in the frame of their batch's box (numpy over laspy's
+    coordinates), within half a cell."""
+    info, batches = sample_parts()
+    r = load_batches(gl, [dataclasses.replace(b, grid=None) for b in batches], info)
+    xyz = (file_xyz(SAMPLE) - info.origin).astype(np.float32)
+    words, batch, padding = held_slots(r, info)
+    assert not r.store.integer.any()
+    starts = np.flatnonzero(np.r_[True, np.diff(batch) > 0])
+    lo, hi = np.minimum.reduceat(xyz, starts, axis=0), np.maximum.reduceat(xyz, starts, axis=0)
+    frames = r.store.frames[: batch[-1] + 1]
+    assert np.array_equal(frames[:, 0:3], lo)
+    assert np.allclose(frames[:, 4:7], (hi.astype(np.float64) - lo) / (encoding.CELLS - 1), rtol=1e-6)
+    exact = (xyz.astype(np.float64) - lo[batch]) / frames[batch, 4:7]
+    assert np.abs(encoding.unpack_cells(words) - exact).max() <= 0.5 + 1e-6
+    assert (padding == EMPTY_WORD).all()
     r.release()
 
 

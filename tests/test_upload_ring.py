@@ -60,7 +60,7 @@ def hostile(batches: list[Batch], info, every: int = 97) -> list[Batch]:
         values = b.attributes["intensity"].astype(np.float64)
         values[3::every // 2] = np.inf
         values[::every * 3] = np.nan
-        out.append(dataclasses.replace(b, positions=pos, attributes={**b.attributes, "intensity": values},
+        out.append(dataclasses.replace(b, positions=pos, grid=None, attributes={**b.attributes, "intensity": values},
                                        nonfinite_positions=int(np.count_nonzero(np.isnan(pos[:, 1]))),
                                        nonfinite_values={"intensity": int(np.count_nonzero(~np.isfinite(values)))}))
     return out
@@ -232,3 +232,22 @@ def test_no_ring_slots_is_the_copy_path(gl, sample_batches):
     assert np.array_equal(scene.store.read_records(), expected_store(scene, batches))
     scene.release()
 
+
+
+@pytest.mark.parametrize("encoding", list(Encoding), ids=lambda e: e.name.lower())
+@pytest.mark.parametrize("names", [("intensity", "elevation"), ("elevation", "intensity")])
+def test_points_never_drawn_are_counted_once_across_a_switch(gl, sample_batches, encoding, names):
+    """A switch after the first loader batch, the rest loaded after it: the points never
+    drawn are those pack_records gives the new attribute's (the word store encodes the
+    batches loader batches split more than once; each point counts once)."""
+    info, batches = sample_batches
+    bad = hostile(batches, info)
+    scene = Scene(gl, info, info.attribute(names[0]), keep_batches=True, position_encoding=encoding)
+    scene.add_batch(bad[0])
+    scene.begin_switch(info.attribute(names[1]))
+    while not scene.stream(seconds=float("inf")):
+        pass
+    for b in bad[1:]:
+        scene.add_batch(b)
+    assert scene.skipped == hidden(scene, bad) > 0
+    scene.release()

@@ -117,9 +117,10 @@ class DistributePass:
         int64 = glc.caps.shader_int64
         defines = dict(store.defines, PERMUTE_INT64=1) if int64 else dict(store.defines)
         ext = ("GL_ARB_gpu_shader_int64",) if int64 else ()
-        self._build = lambda only, label, classes=0: shaderlib.compute(
-            glc.ctx, "distribute.comp", dict(defines, ATTRIBUTE_ONLY=only, CLASS_WORDS=classes), ext, label)
-        self.records = self._build(0, "distribute")
+        self._build = lambda only, label, classes=0, cells=0: shaderlib.compute(
+            glc.ctx, "distribute.comp", dict(defines, ATTRIBUTE_ONLY=only, CLASS_WORDS=classes, STAGED_CELLS=cells),
+            ext, label)
+        self._programs: dict[bool, object] = {}     # by cells: built at the first upload of each kind
         self.words = None       # built at the first attribute switch: no first image waits for it
         self.classes = self._build(0, "distribute classes", 1) if store.has_classes else None
         self.points_distributed = 0
@@ -133,12 +134,20 @@ class DistributePass:
 
     def upload(self, records: np.ndarray, start: int) -> None:
         """Scatter (n, 4) uint32 records whose first has file-order index `start`."""
-        self._scatter(self.records, _copy(records, RECORD_WORDS), records.shape[0], RECORD_WORDS, start)
+        self._scatter(self._program(False), _copy(records, RECORD_WORDS), records.shape[0], RECORD_WORDS, start)
 
-    def upload_packed(self, fill: Fill, count: int, start: int) -> int:
+    def upload_packed(self, fill: Fill, count: int, start: int, cells: bool = False) -> int:
         """Scatter `count` records that `fill` packs piece by piece straight into the
-        staging memory; the sum of what it returns."""
-        return self._scatter(self.records, fill, count, RECORD_WORDS, start)
+        staging memory; the sum of what it returns. cells: the word store's points
+        staged as their cells already (a LAS file's integers less their batch's least)."""
+        return self._scatter(self._program(cells), fill, count, RECORD_WORDS, start)
+
+    def _program(self, cells: bool):
+        """The scatter of float records, or of the word store's cells (a LAS batch's
+        integers), made at its first upload: a cloud uses one kind or both."""
+        if cells not in self._programs:
+            self._programs[cells] = self._build(0, "distribute cells" if cells else "distribute", cells=int(cells))
+        return self._programs[cells]
 
     def upload_words(self, words: np.ndarray, start: int) -> None:
         """Replace only the attribute word of n points (attribute switching, paper 3.5)."""
@@ -186,7 +195,7 @@ class DistributePass:
         if self.ring is not None:
             self.ring.release()
             self.ring = None
-        for obj in (self._stage, self.records, self.words, self.classes):
+        for obj in (self._stage, *self._programs.values(), self.words, self.classes):
             if obj is not None:
                 obj.release()
 
