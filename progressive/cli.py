@@ -306,11 +306,11 @@ def cmd_info(args) -> int:
     from progressive.reproject import describe_crs, describe_reprojected, format_crs
 
     paths = input_paths(args.files)
+    http = http_from(args)
     if args.reproject:
-        desc, own = describe_reprojected(paths, args.reproject)
+        desc, own = describe_reprojected(paths, args.reproject, http=http)
         say(json.dumps(desc, indent=2) if args.json else format_crs(desc, "\n\n".join(map(format_text, own))))
         return 0
-    http = http_from(args)
     desc = describe(paths, http=http)
     for summary, f in zip(desc["files"], _file_infos(paths, http)):
         summary.update(describe_crs(f))

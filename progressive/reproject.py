@@ -123,7 +123,8 @@ class ReprojectingLoader(BatchQueue):
     loader a file, run in turn (so host memory stays what one loader holds, plus
     READY_BATCHES), reprojected on a thread of its own."""
 
-    def __init__(self, paths, target, *, partial: bool = False):
+    def __init__(self, paths, target, *, partial: bool = False, http: HttpOptions = HTTP_DEFAULTS):
+        """http: how a URL's COPC file is fetched."""
         self.target = target
         self._loaders = []
         self._stop = threading.Event()
@@ -132,7 +133,7 @@ class ReprojectingLoader(BatchQueue):
             raise InputError("no input files given")
         try:
             for path in paths:
-                self._loaders.append(CloudLoader([path], partial=partial))
+                self._loaders.append(CloudLoader([path], partial=partial, http=http))
             files = tuple(loader.info.files[0] for loader in self._loaders)
             self.transforms = tuple(self._transform(f) for f in files)
             self.info = self._cloud(files)
@@ -294,7 +295,7 @@ def open_loader(paths, *, partial: bool = False, reproject=None, point_budget: i
     (a pyproj CRS) where given; point_budget: see open_sources (COPC levels; not with
     reprojection)."""
     if reproject is not None:
-        return ReprojectingLoader(paths, reproject, partial=partial)
+        return ReprojectingLoader(paths, reproject, partial=partial, http=http)
     loader = CloudLoader(paths, partial=partial, point_budget=point_budget, http=http)
     try:
         check_addressable(loader.info.files[-1].path, loader.info.points)
@@ -381,15 +382,16 @@ class Geography:
         return out
 
 
-def describe_reprojected(paths, target_text: str, *, partial: bool = False) -> tuple[dict, list[dict]]:
+def describe_reprojected(paths, target_text: str, *, partial: bool = False,
+                         http: HttpOptions = HTTP_DEFAULTS) -> tuple[dict, list[dict]]:
     """`info --reproject`: each file described as it is (its own CRS), and the cloud's
     and each file's bounds in the target CRS, from the reprojected float64 points (a
     second pass over the files). Returns the description and the files' own ones."""
     from progressive.loaders import describe
 
     target = target_crs(target_text)
-    own = [describe([p], partial=partial) for p in paths]
-    with ReprojectingLoader(paths, target, partial=partial) as loader:
+    own = [describe([p], partial=partial, http=http) for p in paths]
+    with ReprojectingLoader(paths, target, partial=partial, http=http) as loader:
         info = loader.info
         ends = np.cumsum([f.points for f in info.files])
         lo = np.full((len(info.files), 3), np.inf)

@@ -238,9 +238,10 @@ def test_info_http_timeout(files, capsys):
     answer, which comes after the test, must not count in another test's.)"""
     with RangeServer({"a.copc.laz": files["sample.copc.laz"]}) as own:
         own.faults.delays = {0: 4.0}
-        code, _, err, took = run_cli(["info", own.url("a.copc.laz"), "--http-timeout", "0.5"], capsys)
-        assert_one_error(code, err, "no answer", "within 0.5 s")
-        assert took < 4.0
+        for extra in ([], ["--reproject", "EPSG:4978"]):
+            code, _, err, took = run_cli(["info", own.url("a.copc.laz"), "--http-timeout", "0.5", *extra], capsys)
+            assert_one_error(code, err, "no answer", "within 0.5 s")
+            assert took < 4.0
         code, _, err, _ = run_cli(["info", own.url("a.copc.laz"), "--http-timeout", "0"], capsys)
         assert_one_error(code, err, "--http-timeout")
 
