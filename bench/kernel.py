@@ -23,6 +23,7 @@ from bench.synthetic import SAMPLE, load, tiled
 from progressive import shaderlib
 from progressive.camera import auto_camera
 from progressive.context import GLContext, create_context
+from progressive.encoding import Encoding
 from progressive.loaders.records import RECORD_BYTES
 from progressive.passes.cull import CullPass
 from progressive.passes.raster_compute import ComputeRaster
@@ -91,15 +92,20 @@ def reads(glc: GLContext, points: int, repeats: int) -> list[tuple]:
     return rows
 
 
+STORES = ((RecordOrder.BATCHES, Encoding.WORDS), (RecordOrder.BATCHES, Encoding.FLOAT), (RecordOrder.SLOTS, Encoding.WORDS))
+"""Record order and position encoding of each store the stages run on (the word
+store's "load" stage includes decoding its words)."""
+
+
 def stages(glc: GLContext, points: int, size: tuple[int, int], repeats: int) -> list[tuple]:
-    """The 64-bit batch walk over the whole store with stages cut, for both record orders."""
+    """The 64-bit batch walk over the whole store with stages cut, for each of STORES."""
     cloud = tiled(str(SAMPLE), points)
     width, height = size
     cam = auto_camera(cloud.info.bounds_min, cloud.info.bounds_max, width / height)
     original = shaderlib.shader_text
     rows = []
-    for records in RecordOrder:
-        scene, _ = load(glc, cloud, fill=FillOrder.BATCHED, records=records)
+    for records, encoding in STORES:
+        scene, _ = load(glc, cloud, fill=FillOrder.BATCHED, records=records, position_encoding=encoding)
         r = Renderer(glc, cloud.info, cloud.attribute, width=width, height=height, scene=scene)
         style = r.style()
         for stage, patch in STAGES.items():
@@ -115,7 +121,7 @@ def stages(glc: GLContext, points: int, size: tuple[int, int], repeats: int) -> 
             finally:
                 shaderlib.shader_text = original
             ms = statistics.median([r.render(cam, width, height, style).gpu_ms["raster"] for _ in range(repeats + 1)][1:])
-            rows.append(("raster", stage, records.value, ms, points * RECORD_BYTES / (ms / 1e3) / 1e9,
+            rows.append(("raster", stage, f"{records.value}, {encoding.value}", ms, points * RECORD_BYTES / (ms / 1e3) / 1e9,
                          points / (ms / 1e3) / 1e9))
         r.release()
         scene.release()
@@ -130,12 +136,13 @@ def run(glc: GLContext, points: int, size: tuple[int, int], repeats: int) -> Tab
     else:
         notes.append("Raster stages: not run, this GPU lacks GL_NV_shader_atomic_int64 (64-bit atomics).")
     table = Table(f"kernel_{points}", "Where the compute raster's time goes", f"{SAMPLE.name} tiled on a grid",
-                  f"{points:,}", ("kind", "what", "records", "ms (median)", "GB/s", "G points/s"), rows)
+                  f"{points:,}", ("kind", "what", "store", "ms (median)", "GB/s", "G points/s"), rows)
     table.notes = notes + [
         f"GPU ms from timestamps, median of {repeats} after one warm-up. read: {RECORD_BYTES}-byte records of a "
         f"store of whole batches ({BATCH_SLOTS:,} slots) read in that pattern, nothing drawn. raster: the "
         f"64-bit batch walk at {size[0]}x{size[1]} over the whole cloud, auto camera, with its stages cut "
-        "(bench/kernel.py's docstring); records = RecordOrder. GB/s and G points/s count every record."]
+        "(bench/kernel.py's docstring); store = RecordOrder, Encoding (the word store's 'load' decodes its "
+        f"three words). GB/s counts {RECORD_BYTES} bytes a point whatever the store reads; G points/s every point."]
     return table
 
 
