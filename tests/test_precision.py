@@ -285,3 +285,17 @@ def test_files_of_two_grids_frame_the_batch_they_share_by_its_box(gl, tmp_path):
         assert np.array_equal(r.store.raw_words(), before)
     finally:
         r.release()
+
+
+def test_word_store_takes_16_bytes_a_point_and_under_one_percent_more(gl):
+    """GPU memory: four planes of 4 bytes a slot, and the batches' boxes, frames and
+    cull flags under 1 % of it (the issue's target), read from the buffers' sizes."""
+    r, info = load(gl, SAMPLE)
+    try:
+        store = r.store
+        points = sum(b.size for b in store.buffers)
+        assert points == 16 * store.capacity
+        metadata = store.box_buffer.size + store.frame_buffer.size + store.layout_buffer.size + r.raster.culling.flags.size
+        assert metadata <= 0.01 * points
+    finally:
+        r.release()
