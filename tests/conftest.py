@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
@@ -76,3 +77,12 @@ def fast_sample(tmp_path_factory) -> Path:
     info = open_cloud([SAMPLE])
     write_fast(out, CloudLoader([SAMPLE]), info, info.attribute("intensity"))
     return out
+
+
+def file_xyz(path) -> np.ndarray:
+    """(n, 3) float64 x, y, z of a LAS/LAZ file as laspy scales them: the independent
+    reference of positions."""
+    import laspy
+
+    las = laspy.read(path)
+    return np.stack([las.x, las.y, las.z], axis=1)

@@ -11,7 +11,7 @@ import laspy
 import numpy as np
 import pytest
 
-from conftest import SAMPLE, shared_file
+from conftest import SAMPLE, file_xyz, shared_file
 from progressive import batches, encoding
 from progressive.attributes import find_attribute
 from progressive.camera import Camera, Projection, auto_camera, screen_points, view_uniforms
@@ -118,11 +118,6 @@ def load(gl, path, *, position_encoding=Encoding.WORDS, batch_points=30_000, rev
             r.add_batch(batch)
     gl.check()
     return r, info
-
-
-def file_xyz(path):
-    las = laspy.read(path)
-    return np.stack([las.x, las.y, las.z], axis=1)
 
 
 def views(info) -> dict[str, Camera]:

@@ -8,7 +8,7 @@ import laspy
 import numpy as np
 import pytest
 
-from conftest import SAMPLE, shared_file
+from conftest import SAMPLE, file_xyz, shared_file
 from progressive import encoding
 from progressive.attributes import default_attribute
 from progressive.camera import Camera, auto_camera
@@ -37,11 +37,6 @@ def load(gl, path, raster=Raster.COMPUTE, *, chunk_points=None, batch_points=40_
                 r.add_batch(batch)
     gl.check()
     return r, info
-
-
-def file_xyz(path):
-    las = laspy.read(path)
-    return np.stack([las.x, las.y, las.z], axis=1)
 
 
 def cameras(info):
