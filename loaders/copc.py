@@ -6,7 +6,8 @@ pages) says where each node's chunk is and how many points it holds. A child doe
 repeat its parent's points, so the nodes of levels 0..d are a set of points without
 duplicates, spread over the whole cloud: where the cloud does not fit in the GPU memory
 limit, keeping the deepest such set that fits shows every part of the cloud at an even
-density instead of a uniform random subset.
+density instead of a uniform random subset; for a view, the nodes it needs most
+(copc_choice) show more where the camera is near.
 
 Read in full, a COPC source is its LAZ: the same points in the same order. Read down to
 a level, the cloud holds the kept nodes' points in file order, numbered from 0; its
@@ -32,7 +33,7 @@ import io
 import os
 import struct
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
 import laspy
@@ -41,6 +42,7 @@ import numpy as np
 
 from progressive.errors import InputError
 from progressive.loaders import las
+from progressive.loaders.copc_choice import Nodes, View, choose
 from progressive.loaders.http import DEFAULTS as HTTP_DEFAULTS
 from progressive.loaders.http import FetchFailed, HttpOptions, Prefetch, RemoteFile, Tally, is_url
 from progressive.loaders.las import LasSource, TruncatedInput, is_decode_error, open_las, selection
@@ -233,8 +235,9 @@ class NodeReads:
 @dataclass(frozen=True)
 class CopcStatus:
     """One COPC file at one moment: levels, nodes and points kept for the GPU (whole
-    levels from the root) of the file's, what has been read of them (compressed bytes
-    of its nodes' chunks) and the damaged nodes skipped (their points not loaded). Over
+    levels from the root, or a view's nodes: levels kept is then the deepest one's + 1)
+    of the file's, what has been read of them (compressed bytes of its nodes' chunks)
+    and the damaged nodes skipped (their points not loaded). Over
     HTTP, what was fetched: bytes of every answer (headers, hierarchy and nodes), requests
     answered and in flight; 0 for a local file."""
 
@@ -337,11 +340,13 @@ class AfterGap:
 class CopcSource(LasSource):
     """A COPC file: its LAZ source, its hierarchy (None where it could not be used: the
     file is then read as the plain LAZ it also is), the deepest level kept (None: all)
-    and, for a URL, the remote file its nodes are fetched from and the chunks fetched
-    while it was opened (by offset; read from here, not fetched again)."""
+    or the nodes kept for a view and, for a URL, the remote file its nodes are fetched
+    from and the chunks fetched while it was opened (by offset; read from here, not
+    fetched again)."""
 
     hierarchy: Hierarchy | None = None
     depth: int | None = None
+    chosen: tuple[int, ...] | None = None   # the nodes kept for a view (indices into hierarchy.nodes); None: by depth
     problem: str | None = None              # why the hierarchy cannot be used
     remote: RemoteFile | None = field(default=None, compare=False, repr=False)
     held: dict[int, bytes] = field(default_factory=dict, compare=False, repr=False)
@@ -365,6 +370,8 @@ class CopcSource(LasSource):
     def kept_nodes(self) -> np.ndarray:
         """Indices (into hierarchy.nodes, so in file order) of the nodes read."""
         level = self.hierarchy.nodes["level"]
+        if self.chosen is not None:
+            return np.asarray(self.chosen, np.int64)
         return np.arange(level.size) if self.depth is None else np.nonzero(level <= self.depth)[0]
 
     def _node_chunks(self, kept: np.ndarray, batch_points: int, chosen,
@@ -479,16 +486,34 @@ class CopcSource(LasSource):
         warning that says so."""
         if depth >= self.hierarchy.levels - 1:
             return self
-        kept = dataclasses.replace(self, depth=depth)
-        nodes = self.hierarchy.nodes[kept.kept_nodes()]
-        first = self.hierarchy.first[kept.kept_nodes()]
+        kept = np.nonzero(self.hierarchy.nodes["level"] <= depth)[0]
+        return self._cut(dataclasses.replace(self, depth=depth), kept,
+                         lambda count: f"{shown(self.info.path)}: the cloud's points do not fit in the GPU memory "
+                                       f"limit (room for {budget:,}): showing this COPC file's octree levels "
+                                       f"0-{depth} of 0-{self.hierarchy.levels - 1}, {count:,} of its "
+                                       f"{self.info.points:,} points (every point of those levels)")
+
+    def for_view(self, kept: np.ndarray, budget: int) -> CopcSource:
+        """This source read at the nodes `kept` (indices into hierarchy.nodes, a tree cut
+        from the root that copc_choice chose for a view), with the warning that says so."""
+        if kept.size == self.hierarchy.nodes.size:
+            return self
+        deepest = int(self.hierarchy.nodes["level"][kept].max())
+        return self._cut(dataclasses.replace(self, chosen=tuple(kept.tolist())), kept,
+                         lambda count: f"{shown(self.info.path)}: the cloud's points do not fit in the GPU memory "
+                                       f"limit (room for {budget:,}): showing this COPC file's {kept.size:,} of "
+                                       f"{self.hierarchy.nodes.size:,} octree nodes the view needs most (levels "
+                                       f"0-{deepest} of 0-{self.hierarchy.levels - 1}, deeper near the camera), "
+                                       f"{count:,} of its {self.info.points:,} points (every point of those nodes)")
+
+    def _cut(self, source: CopcSource, kept: np.ndarray, note) -> CopcSource:
+        """`source` (this one reading only the nodes `kept`) with its info and the warning
+        note(points kept)."""
+        nodes = self.hierarchy.nodes[kept]
         count = int(nodes["point_count"].astype(np.int64).sum())
-        note = (f"{shown(self.info.path)}: the cloud's points do not fit in the GPU memory limit (room for "
-                f"{budget:,}): showing this COPC file's octree levels 0-{depth} of 0-{self.hierarchy.levels - 1}, "
-                f"{count:,} of its {self.info.points:,} points (every point of those levels)")
-        info = dataclasses.replace(self.info, points=count, runs=_runs(first, nodes["point_count"]),
-                                   levels_kept=depth + 1, nodes_kept=int(nodes.size))
-        return dataclasses.replace(kept, info=info, warnings=(*self.warnings, note))
+        info = dataclasses.replace(self.info, points=count, runs=_runs(self.hierarchy.first[kept], nodes["point_count"]),
+                                   levels_kept=int(nodes["level"].max()) + 1, nodes_kept=int(nodes.size))
+        return dataclasses.replace(source, info=info, warnings=(*self.warnings, note(count)))
 
 
 def _runs(first: np.ndarray, counts: np.ndarray) -> tuple[tuple[int, int], ...]:
@@ -672,16 +697,20 @@ def _node_bounds(source: CopcSource, partial: bool) -> tuple[tuple[float, ...], 
     return tuple(map(float, lo)), tuple(map(float, hi))
 
 
-def keep_levels(sources: tuple, point_budget: int | None) -> tuple:
+def keep_levels(sources: tuple, point_budget: int | None, view: View | Callable[..., View] | None = None) -> tuple:
     """Where the cloud has more points than `point_budget` (what fits on the GPU), its
     COPC files read down to the deepest level at which the whole cloud fits (at least the
     root: the store then keeps a uniform random subset of what is left); other sources
-    as they are."""
+    as they are. With a `view` (or a function of the cloud's least and greatest corners
+    that gives one: the auto camera frames the bounds), the nodes that view needs most
+    instead (copc_choice), every file's root at least."""
     total = sum(s.info.points for s in sources)
     copc = [s for s in sources if isinstance(s, CopcSource) and s.hierarchy is not None]
     if point_budget is None or total <= point_budget or not copc:
         return sources
     fixed = total - sum(s.info.points for s in copc)
+    if view is not None:
+        return _keep_for_view(sources, copc, point_budget, fixed, view)
     deepest = max(s.hierarchy.levels for s in copc) - 1
     depth = 0
     for d in range(1, deepest + 1):
@@ -689,6 +718,27 @@ def keep_levels(sources: tuple, point_budget: int | None) -> tuple:
             depth = d
     chosen = {id(s) for s in copc}     # by identity: sources hold arrays, and one file may come twice
     return tuple(s.through(depth, point_budget) if id(s) in chosen else s for s in sources)
+
+
+def _keep_for_view(sources: tuple, copc: list, point_budget: int, fixed: int, view) -> tuple:
+    """keep_levels with a view: one choice over the nodes of every COPC file."""
+    if not isinstance(view, View):
+        view = view(np.min([s.info.bounds_min for s in sources], axis=0).astype(np.float64),
+                    np.max([s.info.bounds_max for s in sources], axis=0).astype(np.float64))
+    h = [s.hierarchy for s in copc]
+    nodes = Nodes.of_files([(x.info.center, x.info.halfsize, node_spacing(x.info), x.nodes) for x in h])
+    rows = choose(nodes, view, max(point_budget - fixed, 0))
+    starts = np.cumsum([0] + [x.nodes.size for x in h])
+    cut = {id(s): s.for_view(rows[(rows >= a) & (rows < b)] - a, point_budget)
+           for s, a, b in zip(copc, starts[:-1], starts[1:])}
+    return tuple(cut.get(id(s), s) for s in sources)
+
+
+def node_spacing(info: CopcInfo) -> float:
+    """The root's spacing between points: the info VLR's, or 0 where a writer left it
+    unusable (every node of that file then has no error: it is cut by level and key,
+    after other files' nodes)."""
+    return info.spacing if np.isfinite(info.spacing) and info.spacing > 0 else 0.0
 
 
 def describe_hierarchy(path: str | os.PathLike, http: HttpOptions = HTTP_DEFAULTS) -> dict | None:

@@ -1,9 +1,11 @@
 """COPC: `convert` writes it (every point and attribute back through laspy's CopcReader,
 a hierarchy laspy walks node by node), and a cloud larger than the GPU memory limit
-keeps whole octree levels from the root down (against laspy's level queries)."""
+keeps whole octree levels from the root down (against laspy's level queries), or with a
+view the nodes it needs most (against laspy's hierarchy and node bounds)."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import shutil
@@ -20,6 +22,7 @@ from progressive.camera import Camera
 from progressive.cli import main
 from progressive.loaders import CloudLoader
 from progressive.loaders.copc import ENTRY, is_copc, keep_levels, open_copc
+from progressive.loaders.las import open_las
 from progressive.loaders.records import RECORD_BYTES
 from progressive.permutation import LAYOUT, Permutation
 from progressive.reference import subset_reference_ids
@@ -500,3 +503,111 @@ def test_damaged_node_is_one_line_or_skipped_with_partial(tmp_path, capsys):
     np.testing.assert_array_equal(starts, expect)
     positions = np.concatenate([b.positions for b in batches]).astype(np.float64) + info.origin
     np.testing.assert_allclose(positions, np.stack([full.x, full.y, full.z], axis=1)[expect], atol=1e-3)
+
+
+def close_up(path) -> tuple:
+    """A camera inside the cloud's box near its least corner, looking at the centre, and
+    the node-choice view of it (the files' coordinates, the image's height)."""
+    from progressive.loaders.copc_choice import View
+
+    header = laspy.open(path).header
+    lo, hi = np.asarray(header.mins, np.float64), np.asarray(header.maxs, np.float64)
+    eye, centre = lo + (hi - lo) * np.array([0.1, 0.1, 0.5]), (lo + hi) / 2
+    camera = Camera(tuple(eye.tolist()), tuple(centre.tolist()), fov_y_deg=60.0, near=1e-3,
+                    far=float(np.linalg.norm(hi - lo)) * 2)
+    return camera, View(camera.position, tuple((centre - eye).tolist()), H, camera.fov_y_deg)
+
+
+@pytest.mark.parametrize("case", [c for _, c in level_cases()])
+def test_view_cubes_equal_laspy(case, sample_copc):
+    """The node cubes the choice ranks are laspy's node bounds (VoxelKey.bounds)."""
+    from progressive.loaders.copc_choice import Nodes
+
+    path = copc_path(case, sample_copc)
+    h = open_copc(path).hierarchy
+    nodes = Nodes.of_files([(h.info.center, h.info.halfsize, h.info.spacing, h.nodes)])
+    theirs = {(n.key.level, n.key.x, n.key.y, n.key.z): n.bounds for n in nodes_of(path) if n.point_count > 0}
+    assert len(theirs) == nodes.level.size
+    for i, e in enumerate(h.nodes):
+        bounds = theirs[(int(e["level"]), int(e["x"]), int(e["y"]), int(e["z"]))]
+        np.testing.assert_allclose(nodes.lo[i], bounds.mins, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(nodes.lo[i] + nodes.side[i], bounds.maxs, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("case", [c for _, c in level_cases()])
+def test_view_keeps_deeper_nodes_near_the_camera(case, sample_copc):
+    """A close-up view with room for half the next level: the level cut keeps levels
+    0..d, the view's cut a node deeper than d, those nearer the eye than the ones of that
+    level left out, within the budget; what is read is laspy's points of the kept nodes
+    (laspy's hierarchy, its file order) and each cloud index maps back to its point."""
+    path = copc_path(case, sample_copc)
+    source = open_copc(path)
+    levels = source.hierarchy.per_level()
+    depth = len(levels) - 2
+    budget = sum(p for _, p in levels[: depth + 1]) + levels[depth + 1][1] // 2
+    camera, view = close_up(path)
+    (by_level,) = keep_levels((source,), budget)
+    (cut,) = keep_levels((source,), budget, view)
+    assert by_level.depth == depth
+    kept = source.hierarchy.nodes[cut.kept_nodes()]
+    assert int(kept["level"].max()) > depth and cut.info.points == int(kept["point_count"].sum()) <= budget
+    theirs = sorted((n for n in nodes_of(path) if n.point_count > 0), key=lambda n: n.offset)
+    firsts = np.cumsum([0] + [n.point_count for n in theirs])
+    eye = np.asarray(camera.position)
+
+    def distance(n):
+        return float(np.linalg.norm(np.clip(eye, n.bounds.mins, n.bounds.maxs) - eye))
+
+    wanted = {(int(e["level"]), int(e["x"]), int(e["y"]), int(e["z"])) for e in kept}
+    deeper = [n for n in theirs if n.key.level == depth + 1]
+    near = [distance(n) for n in deeper if (n.key.level, n.key.x, n.key.y, n.key.z) in wanted]
+    far = [distance(n) for n in deeper if (n.key.level, n.key.x, n.key.y, n.key.z) not in wanted]
+    assert near and far and max(near) <= min(far)
+    index = np.concatenate([np.arange(firsts[i], firsts[i + 1]) for i, n in enumerate(theirs)
+                            if (n.key.level, n.key.x, n.key.y, n.key.z) in wanted])
+    full = laspy.read(path)
+    xyz = np.stack([full.x, full.y, full.z], axis=1)
+    records = np.concatenate(list(cut.chunks(1 << 16)))
+    read = np.stack([cut.records.coordinates(records, axis) for axis in range(3)], axis=1)
+    np.testing.assert_array_equal(read, xyz[index])
+    np.testing.assert_array_equal([cut.info.file_index(i) for i in range(index.size)], index)
+    status = cut.info.status()
+    assert (status.levels_kept, status.nodes_kept, status.points_kept) == (int(kept["level"].max()) + 1,
+                                                                           len(wanted), index.size)
+    assert (status.levels, status.nodes, status.points) == (len(levels), len(theirs), len(full.points))
+    assert any(f"{len(wanted)} of {len(theirs)} octree nodes the view needs most" in w for w in cut.warnings)
+    corners = []
+    (again,) = keep_levels((open_copc(path),), budget, lambda lo, hi: corners.append((lo, hi)) or view)
+    assert again.chosen == cut.chosen
+    np.testing.assert_array_equal(np.concatenate(corners), [full.header.mins, full.header.maxs])
+
+
+def test_view_budget_over_several_files(sample_copc):
+    """A view's cut beside a plain file (kept whole, its points counted against the
+    budget) and over one COPC file twice (each its own source; equal nodes tie to the
+    first): within the budget, every root kept, the first copy a superset of the second."""
+    plain = laspy.open(SAMPLE).header.point_count
+    levels = open_copc(sample_copc).hierarchy.per_level()
+    room = levels[0][1] + levels[1][1] // 2
+    _, view = close_up(sample_copc)
+    copc, other = keep_levels((open_copc(sample_copc), open_las(SAMPLE)), plain + room, view)
+    assert other.info.points == plain and 0 < copc.info.points <= room and copc.info.levels_kept >= 2
+    first, second = keep_levels((open_copc(sample_copc), open_copc(sample_copc)), 2 * levels[0][1] + room, view)
+    assert first.info.points + second.info.points <= 2 * levels[0][1] + room
+    assert {0} <= set(first.hierarchy.nodes["level"][list(second.chosen)].tolist())
+    assert set(second.chosen) < set(first.chosen)
+
+
+def test_view_without_a_spacing_cuts_by_level(sample_copc):
+    """A file whose info VLR has no usable spacing (NaN): every node ties, so the view's
+    cut is the level cut's levels and a part of the next level, nothing deeper."""
+    source = open_copc(sample_copc)
+    info = dataclasses.replace(source.hierarchy.info, spacing=float("nan"))
+    source = dataclasses.replace(source, hierarchy=dataclasses.replace(source.hierarchy, info=info))
+    levels = source.hierarchy.per_level()
+    budget = levels[0][1] + levels[1][1] // 2
+    _, view = close_up(sample_copc)
+    (cut,) = keep_levels((source,), budget, view)
+    kept = source.hierarchy.nodes["level"][cut.kept_nodes()]
+    assert np.count_nonzero(kept == 0) == levels[0][0] and 0 < np.count_nonzero(kept == 1) < levels[1][0]
+    assert kept.max() == 1 and cut.info.points <= budget

@@ -1,0 +1,137 @@
+"""Which COPC nodes a view needs: the nodes whose points are farthest apart on screen
+first, within a point budget.
+
+A node's screen-space error is its spacing (the distance between its points: the file's
+root spacing halved at each level) projected at its nearest distance to the eye, in
+pixels; a node wholly behind the eye has none. Nodes are taken greedily, the largest
+error first, a node only once its parent is taken (so the kept set is a tree cut from
+the root and, since a child does not repeat its parent's points, a set without
+duplicates), until the next one does not fit. A child's error is at most half its
+parent's, so the order is also the one of every node sorted by error. Ties go to the
+shallower node, then the lower file index and key: the same inputs give the same nodes.
+
+Plain numbers and arrays only (no camera objects): the loaders stand below the core.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class View:
+    """What the node choice needs of a camera, in the files' coordinates: the eye, the
+    direction it looks, the image height in pixels and either the vertical field of view
+    (perspective) or the world height the image spans (orthographic)."""
+
+    position: tuple[float, float, float]
+    forward: tuple[float, float, float]
+    image_height: int
+    fov_y_deg: float | None = 60.0
+    ortho_height: float | None = None
+
+    def __post_init__(self) -> None:
+        if (self.fov_y_deg is None) == (self.ortho_height is None):
+            raise ValueError("a view has a field of view (perspective) or an orthographic height, not both")
+        if not (all(map(math.isfinite, self.position)) and all(map(math.isfinite, self.forward))):
+            raise ValueError("a view's position and forward must be finite")
+        if not any(self.forward):
+            raise ValueError("a view's forward is zero")
+        if self.image_height < 1:
+            raise ValueError("a view's image height must be at least 1 pixel")
+        if self.fov_y_deg is not None and not 0 < self.fov_y_deg < 180:
+            raise ValueError("a view's field of view must be in (0, 180) degrees")
+        if self.ortho_height is not None and not (math.isfinite(self.ortho_height) and self.ortho_height > 0):
+            raise ValueError("a view's orthographic height must be a positive number")
+
+    def pixels_per_unit(self, distance: np.ndarray) -> np.ndarray:
+        """Pixels one world unit spans at each `distance` from the eye (inf at 0)."""
+        if self.ortho_height is not None:
+            return np.full(np.shape(distance), self.image_height / self.ortho_height)
+        span = 2.0 * math.tan(math.radians(self.fov_y_deg) / 2.0)
+        with np.errstate(divide="ignore"):
+            return self.image_height / (span * np.asarray(distance, np.float64))
+
+
+@dataclass(frozen=True)
+class Nodes:
+    """The nodes to choose from, one row each: the file they belong to (its index), their
+    key, points, cube (least corner and side) and spacing."""
+
+    file: np.ndarray          # int
+    level: np.ndarray         # int
+    key: np.ndarray           # (n, 3) int: x, y, z
+    points: np.ndarray        # int64
+    lo: np.ndarray            # (n, 3) float64
+    side: np.ndarray          # float64
+    spacing: np.ndarray       # float64
+
+    @classmethod
+    def of_files(cls, files) -> Nodes:
+        """The nodes of files given as (center, halfsize, root spacing, ENTRY rows)."""
+        parts = []
+        for i, (center, halfsize, spacing, entries) in enumerate(files):
+            level = entries["level"].astype(np.int64)
+            key = np.stack([entries[a] for a in "xyz"], axis=1).astype(np.int64)
+            side = 2.0 * halfsize / np.exp2(level)
+            lo = np.asarray(center, np.float64) - halfsize + key * side[:, None]
+            parts.append((np.full(level.size, i), level, key, entries["point_count"].astype(np.int64), lo, side,
+                          spacing / np.exp2(level)))
+        return cls(*(np.concatenate(column) for column in zip(*parts)))
+
+    def errors(self, view: View) -> np.ndarray:
+        """Each node's screen-space error in pixels for `view` (0 wholly behind the eye or
+        without a spacing; inf for a node the eye is in)."""
+        eye = np.asarray(view.position, np.float64)
+        hi = self.lo + self.side[:, None]
+        nearest = np.linalg.norm(np.clip(eye, self.lo, hi) - eye, axis=1)
+        forward = np.asarray(view.forward, np.float64)
+        ahead = np.maximum((self.lo - eye) * forward, (hi - eye) * forward).sum(axis=1) >= 0
+        with np.errstate(invalid="ignore"):
+            return np.where(ahead & (self.spacing > 0), self.spacing * view.pixels_per_unit(nearest), 0.0)
+
+    def parents(self) -> np.ndarray:
+        """Each node's parent row (its nearest ancestor among the rows: a node without
+        points is not listed), -1 for a root."""
+        index = {(int(f), int(d), *map(int, k)): i for i, (f, d, k) in enumerate(zip(self.file, self.level, self.key))}
+        parent = np.full(self.level.size, -1, np.int64)
+        for i, (f, d, k) in enumerate(zip(self.file.tolist(), self.level.tolist(), self.key.tolist())):
+            for up in range(1, d + 1):
+                found = index.get((f, d - up, k[0] >> up, k[1] >> up, k[2] >> up))
+                if found is not None:
+                    parent[i] = found
+                    break
+        return parent
+
+
+def choose(nodes: Nodes, view: View, budget: int) -> np.ndarray:
+    """Rows of the nodes kept for `view` within `budget` points, ascending: every root
+    (even past the budget: there is nothing coarser to show), then greedily by error."""
+    errors = nodes.errors(view)
+    parent = nodes.parents()
+    children: dict[int, list[int]] = {}
+    for i, p in enumerate(parent.tolist()):
+        children.setdefault(p, []).append(i)
+
+    def entry(i: int) -> tuple:
+        return (-errors[i], int(nodes.level[i]), int(nodes.file[i]), *map(int, nodes.key[i]), i)
+
+    kept = children.get(-1, [])
+    total = int(nodes.points[kept].sum())
+    frontier = [entry(c) for r in kept for c in children.get(r, [])]
+    heapq.heapify(frontier)
+    kept = list(kept)
+    while frontier:
+        i = frontier[0][-1]
+        if total + int(nodes.points[i]) > budget:
+            break
+        heapq.heappop(frontier)
+        kept.append(i)
+        total += int(nodes.points[i])
+        for c in children.get(i, []):
+            heapq.heappush(frontier, entry(c))
+    return np.sort(np.asarray(kept, np.int64))

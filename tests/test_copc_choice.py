@@ -1,0 +1,166 @@
+"""The COPC node choice for a view (loaders/copc_choice.py) against a brute-force numpy
+reference on synthetic octrees: every node's screen-space error from its 8 corners,
+every node sorted by it, the longest prefix within the budget; and the properties the
+choice promises (a tree cut from the root, within the budget, the same for the same
+inputs whatever their order, deeper near the camera)."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+
+from progressive.loaders.copc import ENTRY
+from progressive.loaders.copc_choice import Nodes, View, choose
+
+CORNERS = np.array(list(itertools.product((0, 1), repeat=3)), np.float64)
+
+
+def octree(rng, levels: int, keep: float, files: int = 1) -> tuple[Nodes, list]:
+    """Random octrees (each child present with probability `keep`), random point counts
+    and cubes; (their Nodes, the (center, halfsize, spacing, entries) of each file)."""
+    described = []
+    for _ in range(files):
+        keys, frontier = [(0, 0, 0, 0)], [(0, 0, 0, 0)]
+        while frontier:
+            d, x, y, z = frontier.pop()
+            if d + 1 >= levels:
+                continue
+            for dx, dy, dz in itertools.product((0, 1), repeat=3):
+                if rng.random() < keep:
+                    child = (d + 1, 2 * x + dx, 2 * y + dy, 2 * z + dz)
+                    keys.append(child)
+                    frontier.append(child)
+        entries = np.zeros(len(keys), ENTRY)
+        for name, column in zip(("level", "x", "y", "z"), zip(*keys)):
+            entries[name] = column
+        entries["point_count"] = rng.integers(1, 5000, len(keys))
+        half = float(rng.uniform(1, 100))
+        described.append((tuple(rng.uniform(-1000, 1000, 3)), half, half / 64 * rng.uniform(0.5, 2), entries))
+    return Nodes.of_files(described), described
+
+
+def reference(described, view: View, budget: int) -> set:
+    """(file, level, x, y, z) of the nodes kept, brute force: cubes from the keys, the
+    nearest distance per axis, ahead from the 8 corners, all nodes sorted."""
+    rows = []
+    for f, (center, half, spacing, entries) in enumerate(described):
+        for e in entries:
+            d = int(e["level"])
+            side = 2 * half / 2 ** d
+            lo = np.asarray(center) - half + side * np.array([e["x"], e["y"], e["z"]], np.float64)
+            eye = np.asarray(view.position, np.float64)
+            gap = np.maximum(np.maximum(lo - eye, 0), eye - (lo + side))
+            distance = math.sqrt(float(gap @ gap))
+            corners = lo + side * CORNERS
+            ahead = ((corners - eye) @ np.asarray(view.forward)).max() >= 0
+            if view.ortho_height is not None:
+                per_unit = view.image_height / view.ortho_height
+            else:
+                span = 2 * math.tan(math.radians(view.fov_y_deg) / 2)
+                per_unit = math.inf if distance == 0 else view.image_height / (span * distance)
+            error = spacing / 2 ** d * per_unit if ahead else 0.0
+            rows.append((-error, d, f, int(e["x"]), int(e["y"]), int(e["z"]), int(e["point_count"])))
+    rows.sort()
+    roots = [r for r in rows if r[1] == 0]
+    total = sum(r[-1] for r in roots)
+    kept = {r[1:6] for r in roots}
+    for r in rows:
+        if r[1] == 0:
+            continue
+        if total + r[-1] > budget:
+            break
+        kept.add(r[1:6])
+        total += r[-1]
+    return kept
+
+
+def keys_of(nodes: Nodes, rows: np.ndarray) -> set:
+    return {(int(nodes.level[i]), int(nodes.file[i]), *map(int, nodes.key[i])) for i in rows}
+
+
+def random_view(rng, described, ortho: bool) -> View:
+    center, half = np.asarray(described[0][0]), described[0][1]
+    eye = center + rng.uniform(-1.5, 1.5, 3) * half
+    forward = tuple((center + rng.uniform(-1, 1, 3) * half - eye).tolist())
+    if ortho:
+        return View(tuple(eye.tolist()), forward, int(rng.integers(50, 2000)), None, float(rng.uniform(1, 300)))
+    return View(tuple(eye.tolist()), forward, int(rng.integers(50, 2000)), float(rng.uniform(10, 120)))
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_choice_equals_the_brute_force_reference(seed):
+    rng = np.random.default_rng(seed)
+    nodes, described = octree(rng, levels=int(rng.integers(2, 6)), keep=float(rng.uniform(0.3, 0.9)),
+                              files=int(rng.integers(1, 3)))
+    total = int(nodes.points.sum())
+    for ortho in (False, True):
+        view = random_view(rng, described, ortho)
+        for budget in (0, *rng.integers(0, total, 4).tolist(), total):
+            rows = choose(nodes, view, budget)
+            assert keys_of(nodes, rows) == {(d, f, x, y, z) for d, f, x, y, z in reference(described, view, budget)}
+            roots = nodes.level == 0
+            assert set(np.nonzero(roots)[0]) <= set(rows.tolist())
+            assert nodes.points[rows].sum() <= max(budget, nodes.points[roots].sum())
+            if budget == total:
+                assert rows.size == nodes.level.size
+            kept = keys_of(nodes, rows)
+            for d, f, x, y, z in kept:                  # a tree cut: every parent kept
+                assert d == 0 or (d - 1, f, x >> 1, y >> 1, z >> 1) in kept
+
+
+def test_choice_is_the_same_for_the_same_inputs_in_any_order():
+    """Same keys for the same view and budget, whatever the rows' order (ties, such as
+    an orthographic view's equal errors within a level, go by key, not by row)."""
+    rng = np.random.default_rng(7)
+    nodes, described = octree(rng, levels=5, keep=0.7)
+    for ortho in (False, True):
+        view = random_view(rng, described, ortho)
+        budget = int(nodes.points.sum()) // 3
+        first = keys_of(nodes, choose(nodes, view, budget))
+        assert first == keys_of(nodes, choose(nodes, view, budget))
+        order = rng.permutation(nodes.level.size)
+        shuffled = Nodes(nodes.file[order], nodes.level[order], nodes.key[order], nodes.points[order],
+                         nodes.lo[order], nodes.side[order], nodes.spacing[order])
+        assert keys_of(shuffled, choose(shuffled, view, budget)) == first
+
+
+def deepest_at(nodes: Nodes, rows: np.ndarray, point) -> int:
+    inside = np.all((nodes.lo[rows] <= point) & (point <= nodes.lo[rows] + nodes.side[rows, None]), axis=1)
+    return int(nodes.level[rows][inside].max())
+
+
+def test_nodes_near_the_camera_go_deeper():
+    """A full octree, the eye just outside one corner looking across it (perspective):
+    the kept node at that corner is deeper than the one at the far corner."""
+    rng = np.random.default_rng(3)
+    nodes, described = octree(rng, levels=5, keep=1.0)
+    center, half = np.asarray(described[0][0]), described[0][1]
+    near, far = center - 0.99 * half, center + 0.99 * half
+    view = View(tuple((center - 1.2 * half).tolist()), tuple((far - near).tolist()), 1000, 60.0)
+    rows = choose(nodes, view, int(nodes.points.sum()) // 4)
+    assert deepest_at(nodes, rows, near) > deepest_at(nodes, rows, far)
+
+
+def test_nodes_behind_the_eye_come_last():
+    """The eye at the cube's centre looking along +x, room for the nodes at least partly
+    ahead of it: those are all kept, and none wholly behind."""
+    rng = np.random.default_rng(5)
+    nodes, described = octree(rng, levels=4, keep=1.0)
+    view = View(tuple(np.asarray(described[0][0]).tolist()), (1.0, 0.0, 0.0), 500, 60.0)
+    errors = nodes.errors(view)
+    ahead = errors > 0
+    rows = choose(nodes, view, int(nodes.points[ahead | (nodes.level == 0)].sum()))
+    assert (~ahead).any() and ahead[nodes.level == 0].all()
+    assert set(rows.tolist()) == set(np.nonzero(ahead)[0].tolist())
+
+
+def test_view_needs_one_projection():
+    with pytest.raises(ValueError):
+        View((0.0, 0.0, 0.0), (1.0, 0.0, 0.0), 100, 60.0, 10.0)
+    for bad in ({"forward": (0.0, 0.0, 0.0)}, {"image_height": 0}, {"fov_y_deg": 180.0},
+                {"fov_y_deg": None, "ortho_height": 0.0}, {"position": (math.nan, 0.0, 0.0)}):
+        with pytest.raises(ValueError):
+            View(**{"position": (0.0, 0.0, 0.0), "forward": (1.0, 0.0, 0.0), "image_height": 100, **bad})
