@@ -15,12 +15,13 @@ core (loaders/laz.py). Parsing is whole-array numpy, no per-point Python.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 import os
 import re
 import struct
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import laspy
 import lazrs
@@ -66,6 +67,9 @@ HEADER_PREFIX = 375                     # the LAS 1.4 header; older ones are sho
 MIN_HEADER = {0: 227, 1: 227, 2: 227, 3: 235, 4: 375}
 SCAN_ANGLE_STEP = 0.006                 # degrees per unit of the PF 6-10 scan_angle
 PROBE_PIECE = 65_536                    # points per read while looking for 16-bit colour
+KEPT_BYTES = 1 << 26
+"""Most bytes of records the probe of a loader's first LAZ keeps for its first batches
+(KeptRecords); what lies past them is decoded again."""
 BOUNDS_SAMPLE = 4_096                   # first points checked against the header bounds
 PARSE_BLOCK_BYTES = 1 << 21
 """Records parsed at a time: each attribute is a strided pass over the records, and over
@@ -90,6 +94,8 @@ in theirs."""
 PROBED = ("rgb", "gps_time")
 """What opening a file reads of its first points besides the positions: the colour depth
 and the first GPS time (the offset of gps_time)."""
+ALL_LAYERS = laspy.DecompressionSelection.all()
+"""What batches of every attribute need decoded (a selection of None)."""
 PLAIN = ("intensity", "classification", "return_number", "number_of_returns",
          "gps_time", "point_source_id", "user_data")
 """Standard attributes copied from the laspy dimension of the same name."""
@@ -210,6 +216,28 @@ class Span:
         return self.count
 
 
+class KeptRecords:
+    """The records the probe decoded of a LAZ's first points (whole chunks, the layers
+    `layers` of point formats 6-10), handed once to the first chunks() so that the first
+    image does not wait for them to be decoded again; taken, they are freed as the
+    batches they make are parsed."""
+
+    def __init__(self, parts: list[np.ndarray], chunks: int, layers: laspy.DecompressionSelection):
+        self._parts = parts
+        self._chunks = chunks
+        self.layers = layers
+
+    @property
+    def nbytes(self) -> int:
+        return sum(p.nbytes for p in self._parts)
+
+    def take(self) -> tuple[list[np.ndarray], int]:
+        """The records in file order and the LAZ chunks they hold; nothing after the first take."""
+        parts, chunks = self._parts, self._chunks
+        self._parts, self._chunks = [], 0
+        return parts, chunks
+
+
 @dataclass(frozen=True)
 class LasSource:
     """One checked LAS/LAZ file: its facts and how to read and parse its points."""
@@ -221,6 +249,7 @@ class LasSource:
     laz: LazLayout | None
     records: Records
     warnings: tuple[str, ...] = ()
+    kept: KeptRecords | None = field(default=None, compare=False, repr=False)
 
     def chunks(self, batch_points: int, *, salvage: bool = False,
                names: tuple[str, ...] | None = None) -> Iterator[np.ndarray | Span]:
@@ -229,14 +258,20 @@ class LasSource:
         with salvage, a damaged LAZ first yields what still decodes. An uncompressed file
         yields Spans, which parse() reads. Given the attribute `names` that will be
         parsed, a LAZ of point format 6-10 decodes only the layers they need (what
-        `selection` says); the other fields of its records hold no meaningful values."""
+        `selection` says); the other fields of its records hold no meaningful values.
+        The records `kept` by the probe come first where they hold those layers."""
         head = min(batch_points, FIRST_BATCH_POINTS)
         if self.laz is None:
             count = self.info.points
             starts = [0, *range(head, count, batch_points)]
             return (Span(first, min(count, end) - first) for first, end in zip(starts, [*starts[1:], count], strict=True))
-        return decode(self.info.path, self.laz, self.records, self.info.points, batch_points, salvage=salvage,
-                      selection=None if names is None else selection(names), head=head)
+        parts, skip = self.kept.take() if self.kept is not None else ([], 0)
+        needed = ALL_LAYERS if names is None else layers(names)
+        if parts and self.info.point_format >= 6 and needed | self.kept.layers != self.kept.layers:
+            parts, skip = [], 0         # the probe left out layers that the batches need
+        decoded = decode(self.info.path, self.laz, self.records, self.info.points, batch_points, salvage=salvage,
+                         selection=None if names is None else needed.to_lazrs(), head=head, skip=skip)
+        return itertools.chain(_batches(parts, head, batch_points), decoded) if parts else decoded
 
     def parse(self, chunk: np.ndarray | Span, start: int, origin: np.ndarray, names: tuple[str, ...]) -> Batch:
         """A Batch of the named attributes; positions are computed in float64 as laspy
@@ -291,13 +326,26 @@ class LasSource:
         return np.ascontiguousarray(values)
 
 
-def selection(names: tuple[str, ...]) -> lazrs.DecompressionSelection:
+def layers(names: tuple[str, ...]) -> laspy.DecompressionSelection:
     """The LAZ layers the named attributes are parsed from, with the positions' (lazrs
     ignores a selection below point format 6, whose records are not layered)."""
-    layers = laspy.DecompressionSelection.base() | laspy.DecompressionSelection.Z
+    chosen = laspy.DecompressionSelection.base() | laspy.DecompressionSelection.Z
     for name in names:
-        layers |= LAYERS.get(name, 0 if name in STANDARD else laspy.DecompressionSelection.ALL_EXTRA_BYTES)
-    return layers.to_lazrs()
+        chosen |= LAYERS.get(name, 0 if name in STANDARD else laspy.DecompressionSelection.ALL_EXTRA_BYTES)
+    return chosen
+
+
+def selection(names: tuple[str, ...]) -> lazrs.DecompressionSelection:
+    """layers(names) as lazrs takes them."""
+    return layers(names).to_lazrs()
+
+
+def _batches(parts: list[np.ndarray], head: int, piece: int) -> Iterator[np.ndarray]:
+    """`parts` in arrays of at most `piece` points, the first of at most `head` (views)."""
+    for i, part in enumerate(parts):
+        starts = [0, *range(head, len(part), piece)] if i == 0 else list(range(0, len(part), piece))
+        for first, end in zip(starts, [*starts[1:], len(part)], strict=True):
+            yield part[first:end]
 
 
 def read_span(path: str, records: Records, span: Span, count: int) -> np.ndarray:
@@ -318,12 +366,14 @@ def _read_records(stream, path: str, records: Records, span: Span, count: int) -
 
 
 def _pieces(path: str, laz: LazLayout | None, records: Records, count: int, piece: int,
-            layers: lazrs.DecompressionSelection | None, head: int) -> Iterator[np.ndarray]:
+            layers: lazrs.DecompressionSelection | None, head: int, skip: int = 0) -> Iterator[np.ndarray]:
     """The first `count` records in file order, in arrays of any size, the first of about
     `head` points: read straight into numpy (the text patches of an uncompressed file lie
     before its points), decoded by lazrs over several chunks at once (only the `layers`
-    selected), or else through laspy (every field)."""
-    if laz is None:
+    selected; the first `skip` chunks left out), or else through laspy (every field)."""
+    if skip:
+        yield from decode_chunks(path, laz, count, head, records.dtype, available_cores(), layers, skip)
+    elif laz is None:
         with open_binary(path) as stream:
             for first in [0, *range(head, count, piece)]:
                 yield _read_records(stream, path, records, Span(first, min(head if first == 0 else piece, count - first)),
@@ -339,13 +389,14 @@ def _pieces(path: str, laz: LazLayout | None, records: Records, count: int, piec
 
 def decode(path: str, laz: LazLayout | None, records: Records, count: int, piece: int, *,
            salvage: bool = False, selection: lazrs.DecompressionSelection | None = None,
-           head: int | None = None) -> Iterator[np.ndarray]:
+           head: int | None = None, skip: int = 0) -> Iterator[np.ndarray]:
     """Record arrays of at most `piece` points, `count` in total, else TruncatedInput,
     the first of about `head` (default `piece`; a LAZ's whole chunks); a LAZ decoded in
-    parallel decodes only the layers of `selection` (None: all)."""
-    read = 0
+    parallel decodes only the layers of `selection` (None: all), and from its chunk
+    `skip` on where the caller holds the points of those before (KeptRecords)."""
+    read = sum(n for n, _ in laz.chunks[:skip]) if skip else 0
     try:
-        for part in _pieces(path, laz, records, count, piece, selection, piece if head is None else head):
+        for part in _pieces(path, laz, records, count, piece, selection, piece if head is None else head, skip):
             for at in range(0, len(part), piece):
                 chunk = part[at:at + piece]
                 read += len(chunk)
@@ -374,8 +425,10 @@ def _reader(stream, path: str, backend: laspy.LazBackend | None, count: int) -> 
     return reader
 
 
-def open_las(path: str | os.PathLike, *, partial: bool = False) -> LasSource:
-    """Check and describe one LAS/LAZ file, reading at most its first batch of points."""
+def open_las(path: str | os.PathLike, *, partial: bool = False, keep: bool = False) -> LasSource:
+    """Check and describe one LAS/LAZ file, reading at most its first batch of points;
+    with keep (a loader's first file), a LAZ keeps what of them it decoded for its first
+    batches (KeptRecords, at most KEPT_BYTES)."""
     path = os.fspath(path)
     warnings: list[str] = []
     with open_binary(path) as stream:
@@ -406,7 +459,7 @@ def open_las(path: str | os.PathLike, *, partial: bool = False) -> LasSource:
     records = Records(pf, header.offset_to_point_data, np.asarray(header.scales, np.float64),
                       np.asarray(header.offsets, np.float64))
     has_rgb = "red" in pf.dimension_names
-    max_rgb, first, seen = _probe(path, laz, records, count, has_rgb, partial)
+    max_rgb, first, seen, kept = _probe(path, laz, records, count, has_rgb, partial, keep)
     columns = _columns(pf)
     info = FileInfo(
         path=path,
@@ -429,7 +482,7 @@ def open_las(path: str | os.PathLike, *, partial: bool = False) -> LasSource:
         lo, hi = _data_bounds(path, laz, records, count, partial)
         info = dataclasses.replace(info, bounds_min=lo, bounds_max=hi)
         warnings.append(f"{shown(path)}: header bounds {wrong}; ignored them and used the bounds of the points")
-    source = LasSource(info, (), columns, first_gps, laz, records, tuple(warnings))
+    source = LasSource(info, (), columns, first_gps, laz, records, tuple(warnings), kept)
     sample = source.parse(first, 0, np.zeros(3), names).attributes
     attributes = tuple(
         AttributeInfo(n, attribute_kind(n), np.dtype(np.float64) if n == "elevation" else sample[n].dtype)
@@ -491,22 +544,31 @@ def _columns(pf: laspy.PointFormat) -> dict[str, Column]:
 
 
 def _probe(path: str, laz: LazLayout | None, records: Records, count: int, has_rgb: bool,
-           partial: bool) -> tuple[int, np.ndarray, np.ndarray]:
+           partial: bool, keep: bool) -> tuple[int, np.ndarray, np.ndarray, KeptRecords | None]:
     """Max of R, G, B over the first BATCH_POINTS points (the rule of FileInfo.rgb_16bit),
-    read in pieces that stop once it exceeds 255; the first point; and the (2, 3) min
-    and max of the first piece's coordinates (at least BOUNDS_SAMPLE points), to check
-    the header bounds against. A LAZ of point format 6-10 decodes only the layers these
-    need (the first point's other fields serve for their dtypes only)."""
+    read in pieces (a LAZ decoded in parallel: its reads) that stop once it exceeds 255;
+    the first point; the (2, 3) min and max of the first PROBE_PIECE points' coordinates
+    (at least BOUNDS_SAMPLE points), to check the header bounds against; and with keep,
+    the first reads decoded in parallel, as many as fit in KEPT_BYTES (kept_records). A
+    LAZ of point format 6-10 decodes only the layers these need (the first point's other
+    fields serve for their dtypes only)."""
     wanted = min(count, BATCH_POINTS if has_rgb else BOUNDS_SAMPLE)
-    max_rgb, first, seen = 0, None, None
+    head = min(wanted, PROBE_PIECE)
+    parallel = laz is not None and bool(laz.chunks)
+    keeping = keep and parallel
+    max_rgb, first, seen, parts, held = 0, None, None, [], 0
     try:
-        for chunk in decode(path, laz, records, wanted, min(wanted, PROBE_PIECE), salvage=partial,
-                            selection=selection(PROBED)):
+        for chunk in decode(path, laz, records, wanted, wanted if parallel else head, salvage=partial,
+                            selection=selection(PROBED), head=head):
             if first is None:
                 first = chunk[:1].copy()
                 with np.errstate(over="ignore", invalid="ignore"):
-                    coords = [records.coordinates(chunk, axis) for axis in range(3)]
+                    coords = [records.coordinates(chunk[:head], axis) for axis in range(3)]
                     seen = np.array([[c.min() for c in coords], [c.max() for c in coords]])
+            keeping = keeping and held + chunk.nbytes <= KEPT_BYTES
+            if keeping:
+                parts.append(chunk)
+                held += chunk.nbytes
             if has_rgb:
                 max_rgb = max(max_rgb, *(int(np.max(chunk[c])) for c in ("red", "green", "blue")))
                 if max_rgb > RGB8_MAX:
@@ -515,7 +577,21 @@ def _probe(path: str, laz: LazLayout | None, records: Records, count: int, has_r
         if not (partial and first is not None):
             raise fail(path, f"point data is truncated or corrupt "
                              f"({one_line(exc.__cause__ or 'fewer points than the header says')})") from exc
-    return max_rgb, first, seen
+        parts = []
+    return max_rgb, first, seen, kept_records(laz, parts) if parts else None
+
+
+def kept_records(laz: LazLayout, parts: list[np.ndarray]) -> KeptRecords | None:
+    """The longest run of the probe's `parts` (whole reads of laz.chunks, from the first)
+    that ends at a chunk's end: decoding goes on from the next chunk."""
+    ends = {end: i + 1 for i, end in enumerate(itertools.accumulate(n for n, _ in laz.chunks))}
+    kept, points = [], 0
+    for part in parts:
+        if points + len(part) not in ends:
+            break
+        kept.append(part)
+        points += len(part)
+    return KeptRecords(kept, ends[points], layers(PROBED)) if kept else None
 
 
 def crs_name(header: laspy.LasHeader) -> str | None:

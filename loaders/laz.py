@@ -105,18 +105,22 @@ class LazLayout:
 
 
 def decode_chunks(path: str, laz: LazLayout, points: int, first_read: int, dtype: np.dtype, cores: int,
-                  selection: lazrs.DecompressionSelection | None = None) -> Iterator[np.ndarray]:
-    """The first `points` points of laz.chunks in file order, as structured arrays of
-    `dtype`, one per read, decoded by lazrs on every core; the compressed bytes are read
-    without the GIL. The first read holds only the chunks of the first `first_read`
-    points (a first batch, or a probe of the file's first points, comes sooner), the
-    reads of the next SHORT_READS_POINTS one chunk per core, later ones ROUNDS_PER_READ
-    (each at most READ_BYTES). Fields that `selection` leaves out are not decoded: they
-    hold no values of the file's (a chunk's first point's, say)."""
+                  selection: lazrs.DecompressionSelection | None = None, skip: int = 0) -> Iterator[np.ndarray]:
+    """The first `points` points of laz.chunks in file order but for its first `skip`
+    chunks (decoded already), as structured arrays of `dtype`, one per read, decoded by
+    lazrs on every core; the compressed bytes are read without the GIL. The first read
+    holds only the chunks of the first `first_read` points (a first batch, or a probe of
+    the file's first points, comes sooner), the reads of the next SHORT_READS_POINTS one
+    chunk per core, later ones ROUNDS_PER_READ (each at most READ_BYTES). Fields that
+    `selection` leaves out are not decoded: they hold no values of the file's (a chunk's
+    first point's, say)."""
     chunks = clipped(list(laz.chunks), points, None)
+    done, chunks = chunks[:skip], chunks[skip:]
+    if not chunks:
+        return
     starts = read_starts(chunks, first_read, dtype.itemsize, cores)
     with open_binary(path) as stream:
-        stream.seek(laz.point_data + TABLE_OFFSET_BYTES)
+        stream.seek(laz.point_data + TABLE_OFFSET_BYTES + sum(n for _, n in done))
         for first, end in zip(starts, [*starts[1:], len(chunks)], strict=True):
             group = chunks[first:end]
             compressed = bytearray(sum(n for _, n in group))

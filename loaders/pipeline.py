@@ -4,9 +4,11 @@ One reader thread hands work to parser threads through a one-slot queue, in file
 the spans of an uncompressed file (each parser reads its own, without the GIL), LAZ
 points decoded by lazrs several chunks at a time on every core, the chunks of the other
 formats. Parsed batches wait in a queue of parser_threads slots. So at most about
-2 x parser_threads + 2 batches (and one LAZ read) are in memory at once, however large
-the cloud is. Parser threads default to the cores this process may use. An http(s)://
-URL is a COPC file read by range requests (`http` says how: loaders/http.py).
+2 x parser_threads + 2 batches (and one LAZ read, and until the first file's first
+batches are parsed, the records its probe kept: las.KEPT_BYTES) are in memory at once,
+however large the cloud is. Parser threads default to the cores this process may use.
+An http(s):// URL is a COPC file read by range requests (`http` says how:
+loaders/http.py).
 """
 
 from __future__ import annotations
@@ -53,16 +55,18 @@ def open_cloud(paths: Iterable[str | os.PathLike] | str | os.PathLike, *, partia
 
 
 def open_sources(paths, *, partial: bool = False, point_budget: int | None = None,
-                 http: HttpOptions = HTTP_DEFAULTS) -> tuple[CloudInfo, tuple[Source, ...]]:
+                 http: HttpOptions = HTTP_DEFAULTS, keep_first: bool = False) -> tuple[CloudInfo, tuple[Source, ...]]:
     """point_budget: the points that fit on the GPU; a larger cloud's COPC files are read
-    down to a level of detail (loaders/copc.py)."""
+    down to a level of detail (loaders/copc.py). keep_first: the first file, where it is
+    a LAZ, keeps what opening it decoded for its first batches (open_las's keep), which
+    the first image would otherwise wait for a second decode of."""
     paths = [paths] if isinstance(paths, (str, os.PathLike)) else list(paths)
     if not paths:
         raise InputError("no input files given")
     opened: list[Source] = []
     try:
-        for p in paths:
-            opened.append(_open(p, partial, http))
+        for i, p in enumerate(paths):
+            opened.append(_open(p, partial, http, keep_first and i == 0))
     except BaseException:
         close_sources(opened)
         raise
@@ -108,11 +112,11 @@ def crs_warnings(files) -> list[str]:
     return [f"the files name different coordinate systems ({'; '.join(sorted(labels))}); drawn as one cloud as they are"]
 
 
-def _open(path, partial: bool, http: HttpOptions) -> Source:
+def _open(path, partial: bool, http: HttpOptions, keep: bool) -> Source:
     if is_url(path):
         return open_copc_url(path, partial=partial, http=http)
-    opener = next((open_ for is_format, open_ in OPENERS if is_format(path)), open_las)
-    return opener(path, partial=partial)
+    opener = next((open_ for is_format, open_ in OPENERS if is_format(path)), None)
+    return open_las(path, partial=partial, keep=keep) if opener is None else opener(path, partial=partial)
 
 
 def close_sources(sources) -> None:
@@ -227,7 +231,8 @@ class CloudLoader(BatchQueue):
         parser_threads = available_cores() if parser_threads is None else parser_threads
         if batch_points < 1 or parser_threads < 1:
             raise ValueError("batch_points and parser_threads must be at least 1")
-        self.info, self._sources = open_sources(paths, partial=partial, point_budget=point_budget, http=http)
+        self.info, self._sources = open_sources(paths, partial=partial, point_budget=point_budget, http=http,
+                                                keep_first=True)
         self.attributes = self._chosen(attributes)
         self.batch_points = batch_points
         self.parser_threads = parser_threads

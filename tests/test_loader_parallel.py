@@ -248,3 +248,131 @@ def test_first_batch_is_small(name):
     assert len(chunks[0]) < len(expected)
     assert all(len(c) <= BATCH_POINTS for c in chunks[1:])
     np.testing.assert_array_equal(np.concatenate(chunks), expected)
+
+
+SYNTHETIC_POINTS = 560_000
+"""More than the BATCH_POINTS the colour depth is decided on, in 50,000-point chunks."""
+
+
+def synthetic_laz(path, sixteen_at: int | None):
+    """A LAZ of point format 3 with 8-bit colours but for one channel of 256 at point
+    `sixteen_at` (None: none), and random positions, intensity and GPS time."""
+    rng = np.random.default_rng(11)
+    las = laspy.LasData(laspy.LasHeader(point_format=3, version="1.2"))
+    las.header.scales = np.array([0.01, 0.01, 0.01])
+    n = SYNTHETIC_POINTS
+    las.X, las.Y, las.Z = (rng.integers(0, 10**6, n, dtype=np.int32) for _ in range(3))
+    rgb = rng.integers(0, 256, (3, n), dtype=np.uint16)
+    if sixteen_at is not None:
+        rgb[1, sixteen_at] = 256
+    las.red, las.green, las.blue = rgb
+    las.intensity = rng.integers(0, 2**16, n, dtype=np.uint16)
+    las.gps_time = rng.uniform(0, 1e6, n)
+    las.write(path, laz_backend=laspy.LazBackend.Lazrs)
+    return path
+
+
+@pytest.fixture(scope="module")
+def synthetic(tmp_path_factory):
+    made = {}
+
+    def make(sixteen_at: int | None):
+        if sixteen_at not in made:
+            made[sixteen_at] = synthetic_laz(tmp_path_factory.mktemp("rgb") / f"rgb_{sixteen_at}.laz", sixteen_at)
+        return made[sixteen_at]
+    return make
+
+
+def count_decoded(monkeypatch) -> list[int]:
+    """Points lazrs's parallel decoder decodes from now on (one running total)."""
+    decoded = [0]
+    original = lazrs.decompress_points_with_chunk_table
+
+    def counting(compressed, vlr, out, chunks, selection=None):
+        decoded[0] += sum(n for n, _ in chunks)
+        return original(compressed, vlr, out, chunks, selection)
+    monkeypatch.setattr(lazrs, "decompress_points_with_chunk_table", counting)
+    return decoded
+
+
+def first_points_rule(las) -> bool:
+    """The colour contract's rule, from laspy: a channel above 255 among the first 500,000 points."""
+    first = slice(0, 500_000)
+    return bool(max(las.red[first].max(), las.green[first].max(), las.blue[first].max()) > 255)
+
+
+@pytest.mark.parametrize("sixteen_at", [None, 60_000, 260_000, 499_999, 500_000])
+def test_probe_kept_for_the_first_batches_equals_laspy(sixteen_at, synthetic, monkeypatch):
+    """A loader's first LAZ is decoded once: its first batches are the records opening it
+    decoded to decide the colour depth. With and without that reuse the batches equal
+    laspy's, and the depth follows the first 500,000 points whether its one 16-bit value
+    lies in the first read, after the first chunks, at the last point that counts or
+    at the first that does not."""
+    path = synthetic(sixteen_at)
+    las = laspy.read(path)
+    for reused in (True, False):
+        if not reused:
+            monkeypatch.setattr(las_module, "KEPT_BYTES", 0)
+        decoded = count_decoded(monkeypatch)
+        loader, batches = load([path])
+        assert loader.done and not loader.warnings
+        assert loader.info.files[0].rgb_16bit is first_points_rule(las)
+        assert_equals_laspy(loader, batches, las)
+        if reused:
+            assert decoded[0] == len(las.points), "the probe's records were decoded again"
+        else:
+            assert decoded[0] > len(las.points)
+
+
+@pytest.mark.parametrize("name, attributes", [
+    ("TLSSparseCloud_xyzOnly.laz", None), ("las_with_several_extra_byte_bloc.laz", ("rgb",)),
+    ("las_with_several_extra_byte_bloc.laz", None), ("fullwave.laz", ("rgb", "gps_time"))])
+def test_probe_kept_on_real_rgb_laz(name, attributes, monkeypatch):
+    """Real RGB LAZ files: point format 2 reuses what opening decoded; formats 6-10 reuse
+    it where the batches need no layer the probe left out (rgb, gps_time), else decode
+    again. Either way the batches equal laspy's and the depth follows the rule."""
+    path = shared_file(name)
+    las = laspy.read(path)
+    decoded = count_decoded(monkeypatch)
+    loader, batches = load([path], attributes=attributes)
+    assert loader.info.files[0].rgb_16bit is first_points_rule(las)
+    assert_covers(batches, len(las.points))
+    for axis, dim in enumerate("xyz"):
+        np.testing.assert_array_equal(joined(batches)[:, axis],
+                                      np.float32(np.asarray(getattr(las, dim)) - loader.info.origin[axis]))
+    for attr in loader.attributes:
+        if attr != "elevation":
+            np.testing.assert_array_equal(joined(batches, attr), expected_values(las, attr), err_msg=attr)
+    needs_more = las.point_format.id >= 6 and attributes is None
+    assert (decoded[0] > len(las.points)) is needs_more
+
+
+def test_kept_records_stay_within_their_bound(synthetic, monkeypatch):
+    """What the probe keeps is at most KEPT_BYTES (here three chunks' records: one read
+    of two), whole chunks from the first; opening holds no more memory for it than that,
+    the loader decodes only what was not kept, and once its batches are made the source
+    holds none of it."""
+    import tracemalloc
+    path = synthetic(None)
+    las = laspy.read(path)
+    record = open_las(path).records.dtype.itemsize
+    bound = 3 * 50_000 * record
+
+    def peak(keep: bool) -> int:
+        tracemalloc.start()
+        try:
+            open_las(path, keep=keep)
+            return tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+    unbounded = peak(True) - peak(False)
+    assert unbounded > bound, "kept without a bound, the records would take more than it here"
+    monkeypatch.setattr(las_module, "KEPT_BYTES", bound)
+    source = open_las(path, keep=True)
+    assert 0 < source.kept.nbytes <= bound
+    assert peak(True) - peak(False) <= bound
+    decoded = count_decoded(monkeypatch)
+    loader, batches = load([path])
+    assert_equals_laspy(loader, batches, las)
+    assert decoded[0] == len(las.points) + 500_000 - 100_000     # the probe's points but its first read's
+    assert loader._sources[0].kept.nbytes == 0
