@@ -55,9 +55,11 @@ def open_cloud(paths: Iterable[str | os.PathLike] | str | os.PathLike, *, partia
 
 
 def open_sources(paths, *, partial: bool = False, point_budget: int | None = None,
-                 http: HttpOptions = HTTP_DEFAULTS, keep_first: bool = False) -> tuple[CloudInfo, tuple[Source, ...]]:
+                 http: HttpOptions = HTTP_DEFAULTS, keep_first: bool = False,
+                 view=None) -> tuple[CloudInfo, tuple[Source, ...]]:
     """point_budget: the points that fit on the GPU; a larger cloud's COPC files are read
-    down to a level of detail (loaders/copc.py). keep_first: the first file, where it is
+    down to a level of detail (loaders/copc.py keep_levels: the nodes `view` needs most
+    where one is given, a copc_choice.View or a function of the cloud's corners). keep_first: the first file, where it is
     a LAZ, keeps what opening it decoded for its first batches (open_las's keep), which
     the first image would otherwise wait for a second decode of."""
     paths = [paths] if isinstance(paths, (str, os.PathLike)) else list(paths)
@@ -70,7 +72,7 @@ def open_sources(paths, *, partial: bool = False, point_budget: int | None = Non
     except BaseException:
         close_sources(opened)
         raise
-    sources = keep_levels(tuple(opened), point_budget)
+    sources = keep_levels(tuple(opened), point_budget, view)
     files = tuple(s.info for s in sources)
     lo = np.min([f.bounds_min for f in files], axis=0).astype(np.float64)
     hi = np.max([f.bounds_max for f in files], axis=0).astype(np.float64)
@@ -227,12 +229,14 @@ class CloudLoader(BatchQueue):
     def __init__(self, paths, *, batch_points: int = BATCH_POINTS,
                  parser_threads: int | None = None, partial: bool = False,
                  attributes: tuple[str, ...] | None = None, point_budget: int | None = None,
-                 http: HttpOptions = HTTP_DEFAULTS):
+                 http: HttpOptions = HTTP_DEFAULTS, view=None):
+        """view: the first view, whose nodes a COPC cloud larger than point_budget keeps
+        (open_sources)."""
         parser_threads = available_cores() if parser_threads is None else parser_threads
         if batch_points < 1 or parser_threads < 1:
             raise ValueError("batch_points and parser_threads must be at least 1")
         self.info, self._sources = open_sources(paths, partial=partial, point_budget=point_budget, http=http,
-                                                keep_first=True)
+                                                keep_first=True, view=view)
         self.attributes = self._chosen(attributes)
         self.batch_points = batch_points
         self.parser_threads = parser_threads

@@ -411,6 +411,7 @@ def session_options(args):
 
 def cmd_render(args) -> int:
     import json
+    from dataclasses import replace
 
     from progressive.encoding import Precision
     from progressive.output import Outputs, check_outputs, json_writer, npy_writer, png_writer
@@ -428,7 +429,8 @@ def cmd_render(args) -> int:
         raise UsageError("--precision adaptive needs --method brute: progressive frames reproject each point at its "
                          "exact position")
     effects, clip = effects_from(args), clip_from(args)       # bad values are one line before any work
-    with Session(paths, session_options(args)) as session, Outputs() as outputs:
+    first = camera or (cameras[0] if cameras else None)      # a COPC cloud over the limit keeps what it needs
+    with Session(paths, replace(session_options(args), camera=first)) as session, Outputs() as outputs:
         check_classes(session, args)
         if cameras is None:
             cameras = [camera or session.auto_camera()]

@@ -290,13 +290,13 @@ def check_addressable(path: str, points: int) -> None:
 
 
 def open_loader(paths, *, partial: bool = False, reproject=None, point_budget: int | None = None,
-                http: HttpOptions = HTTP_DEFAULTS):
+                http: HttpOptions = HTTP_DEFAULTS, view=None):
     """The loader of a cloud, checked to fit the point store: reprojected into `reproject`
-    (a pyproj CRS) where given; point_budget: see open_sources (COPC levels; not with
-    reprojection)."""
+    (a pyproj CRS) where given; point_budget and view: see open_sources (COPC nodes; not
+    with reprojection)."""
     if reproject is not None:
         return ReprojectingLoader(paths, reproject, partial=partial, http=http)
-    loader = CloudLoader(paths, partial=partial, point_budget=point_budget, http=http)
+    loader = CloudLoader(paths, partial=partial, point_budget=point_budget, http=http, view=view)
     try:
         check_addressable(loader.info.files[-1].path, loader.info.points)
     except BaseException:

@@ -29,6 +29,7 @@ from progressive.encoding import Precision
 from progressive.errors import ProgressiveError
 from progressive.frame_loop import FrameStats, ProgressiveOptions, ProgressiveRenderer
 from progressive.loaders.copc import CopcStatus, copc_status
+from progressive.loaders.copc_choice import View
 from progressive.loaders.crs import file_crs
 from progressive.loaders.http import DEFAULTS as HTTP_DEFAULTS
 from progressive.loaders.http import HttpOptions
@@ -100,6 +101,9 @@ class SessionOptions:
     value_range: tuple[float, float] | None = None   # the first attribute's values at the colormap's ends; None: percentiles
     class_filter: bool = False              # keep classification on the GPU (where the cloud has it): any colouring filters
     palette: Palette = DEFAULT_PALETTE      # colours of classification codes
+    camera: Camera | None = None
+    """The first view: a COPC cloud larger than the GPU memory keeps the octree nodes it
+    needs most (loaders/copc_choice.py); None: the auto camera's."""
     precision: Precision = Precision.EXACT
     """The position words a brute-force compute raster reads of each batch
     (progressive/encoding.py): all, or with ADAPTIVE the fewest that keep every point
@@ -111,6 +115,15 @@ class SessionOptions:
     reproject: str | None = None
     """A CRS code (EPSG:32610): load files in any CRSs as one cloud in it (float64,
     pyproj); None: files whose EPSG codes differ are refused."""
+
+
+def node_view(camera: Camera, height: int) -> View:
+    """What the COPC node choice needs of a camera (loaders/copc_choice.py View, plain
+    numbers: the loaders stand below the camera)."""
+    forward = tuple(np.subtract(camera.target, camera.position).tolist())
+    if camera.orthographic:
+        return View(tuple(camera.position), forward, height, fov_y_deg=None, ortho_height=camera.height)
+    return View(tuple(camera.position), forward, height, camera.fov_y_deg)
 
 
 class Session:
@@ -125,8 +138,11 @@ class Session:
         self.target = target_crs(options.reproject) if options.reproject else None
         budget = None if options.gpu_memory_limit is None else memory.points_within(
             options.gpu_memory_limit, options.width * options.height, CLASS_BYTES if options.class_filter else 0)
+        aspect, height = options.width / options.height, options.height
+        view = (node_view(options.camera, height) if options.camera is not None
+                else lambda lo, hi: node_view(auto_camera(lo, hi, aspect), height))
         self.loader = open_loader(paths, partial=options.partial, reproject=self.target, point_budget=budget,
-                                  http=options.http)
+                                  http=options.http, view=view)
         self._given_range = options.value_range
         self._early: list = []
         self._notes: list[str] = []

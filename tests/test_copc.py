@@ -290,44 +290,67 @@ def test_no_limit_ids_equal_plain_laz(case, sample_copc, tmp_path, capsys):
     assert (ids[0] != 0xFFFFFFFF).sum() > 1000
 
 
+def kept_file_indices(path, cut) -> np.ndarray:
+    """File-order indices of the points of the nodes a cut keeps, in the order the cloud
+    holds them (laspy's hierarchy, nodes by their offset in the file)."""
+    kept = cut.hierarchy.nodes[cut.kept_nodes()]
+    wanted = {(int(e["level"]), int(e["x"]), int(e["y"]), int(e["z"])) for e in kept}
+    theirs = sorted((n for n in nodes_of(path) if n.point_count > 0), key=lambda n: n.offset)
+    firsts = np.cumsum([0] + [n.point_count for n in theirs])
+    return np.concatenate([np.arange(firsts[i], firsts[i + 1]) for i, n in enumerate(theirs)
+                           if (n.key.level, n.key.x, n.key.y, n.key.z) in wanted])
+
+
+@pytest.mark.parametrize("view", ["auto", "close-up"])
 @pytest.mark.parametrize("case", [None, "lone-star.copc.laz"])
-def test_limit_renders_the_kept_levels_exactly(case, sample_copc, tmp_path, capsys):
-    """Under a limit between levels: the warning, every kept point on the GPU (no random
-    subset), ids equal to the float64 reference over laspy's points of the kept levels,
-    and a pick reading its point back from the file."""
+def test_limit_renders_the_nodes_its_view_needs_exactly(case, view, sample_copc, tmp_path, capsys):
+    """Under a limit between levels, render keeps the nodes its camera needs most (the
+    auto camera's, or --camera's): the warning, every kept point on the GPU (no random
+    subset), the kept nodes those keep_levels chooses for that view, ids equal to the
+    float64 reference over laspy's points of those nodes, and a pick reading its point
+    back from the file."""
+    from progressive.camera import auto_camera
+    from progressive.session import node_view
+
     path = copc_path(case, sample_copc)
     levels = open_copc(path).hierarchy.per_level()
     depth = len(levels) - 2
-    kept = sum(p for _, p in levels[: depth + 1])
-    limit = str(limit_for(kept + levels[depth + 1][1] // 2))
+    budget = sum(p for _, p in levels[: depth + 1]) + levels[depth + 1][1] // 2
+    limit = str(limit_for(budget))
     ids_path, stats, cam_path = tmp_path / "ids.npy", tmp_path / "s.json", tmp_path / "c.json"
-    code = main(["render", *SMALL, str(path), "--gpu-memory-limit", limit, "--ids", str(ids_path),
+    camera = close_up(path)[0] if view == "close-up" else None
+    given = ["--camera", json.dumps(camera.to_dict())] if camera else []
+    code = main(["render", *SMALL, str(path), "--gpu-memory-limit", limit, "--ids", str(ids_path), *given,
                  "--stats", str(stats), "--save-camera", str(cam_path), "--color-by", "intensity"])
     err = capsys.readouterr().err
     assert code == 0, err
-    assert f"levels 0-{depth} of 0-{depth + 1}" in err and "uniform random subset" not in err
+    assert "octree nodes the view needs most" in err and "uniform random subset" not in err
     assert err.startswith("progressive: warning:")
-    s = json.loads(stats.read_text())
-    assert s["points"] == s["points_on_gpu"] == kept
-    with laspy.CopcReader.open(path) as reader:
-        expect = reader.query(level=range(0, depth + 1))
-    xyz = np.stack([expect.x, expect.y, expect.z], axis=1)
     cam = Camera.from_json(cam_path.read_text())
-    slots = Permutation.for_count(kept, order=LAYOUT).forward(np.arange(kept)).astype(np.int64)
+    header = laspy.open(path).header
+    chosen = cam if camera else auto_camera(np.asarray(header.mins), np.asarray(header.maxs), W / H)
+    (cut,) = keep_levels((open_copc(path),), budget, node_view(chosen, H))
+    index = kept_file_indices(path, cut)
+    s = json.loads(stats.read_text())
+    assert s["points"] == s["points_on_gpu"] == index.size <= budget
+    if camera:
+        assert int(cut.hierarchy.nodes[cut.kept_nodes()]["level"].max()) > depth   # deeper than the level cut
+    full = laspy.read(path)
+    xyz = np.stack([full.x, full.y, full.z], axis=1)[index]
+    slots = Permutation.for_count(index.size, order=LAYOUT).forward(np.arange(index.size)).astype(np.int64)
     ids = np.load(ids_path)
-    assert np.mean(ids == subset_reference_ids(xyz, np.arange(kept), cam, W, H, slots)) >= 0.999
-    assert (ids != 0xFFFFFFFF).sum() > 500
+    assert np.mean(ids == subset_reference_ids(xyz, np.arange(index.size), cam, W, H, slots)) >= 0.999
+    assert (ids != 0xFFFFFFFF).sum() > 300
     shown = np.argwhere(ids != 0xFFFFFFFF)
     row, col = shown[len(shown) // 2]
     code = main(["render", *SMALL, str(path), "--gpu-memory-limit", limit, "--camera", str(cam_path),
                  "--pick", f"{col},{row}", "--color-by", "intensity"])
     out = capsys.readouterr().out
-    assert code == 0
     picked = json.loads(out)
     cloud_index = picked["cloud_index"]
-    assert picked["found"] and cloud_index == ids[row, col] and cloud_index < kept
+    assert picked["found"] and cloud_index == ids[row, col] and cloud_index < index.size
     assert (picked["x"], picked["y"], picked["z"]) == pytest.approx(tuple(xyz[cloud_index]), abs=1e-6)
-    assert laspy.read(path).intensity[picked["index"]] == expect.intensity[cloud_index]
+    assert picked["index"] == index[cloud_index]
 
 
 def test_info_reports_the_hierarchy(sample_copc, capsys):
@@ -422,10 +445,13 @@ def test_budget_over_one_copc_file_twice(sample_copc):
 
 
 def test_stats_and_panel_report_levels_nodes_points_and_bytes(tmp_path, capsys):
-    """--stats "copc" per file against laspy's hierarchy walk and level queries: levels,
-    nodes and points kept (whole levels under a limit) of the file's, the nodes read and
-    their compressed bytes; null for a plain file. The panel's lines say the same."""
+    """--stats "copc" per file against laspy's hierarchy walk: levels, nodes and points
+    kept (under a limit, the nodes the auto camera needs most: keep_levels' choice) of
+    the file's, the nodes read and their compressed bytes; null for a plain file. The
+    panel's lines say the same."""
+    from progressive.camera import auto_camera
     from progressive.loaders.copc import CopcStatus
+    from progressive.session import node_view
     from progressive.viewer.panel import copc_lines
 
     path = shared_file("lone-star.copc.laz")
@@ -434,10 +460,18 @@ def test_stats_and_panel_report_levels_nodes_points_and_bytes(tmp_path, capsys):
     total = laspy.open(path).header.point_count
     with laspy.CopcReader.open(path) as reader:
         per_level = [len(reader.query(level=d)) for d in range(levels)]
-    for depth, files in ((levels - 1, [path, SAMPLE]), (levels - 2, [path])):
-        kept = [n for n in theirs if n.key.level <= depth]
-        points = sum(per_level[: depth + 1])
-        limit = [] if depth == levels - 1 else ["--gpu-memory-limit", str(limit_for(points + per_level[-1] // 2))]
+    header = laspy.open(path).header
+    for cut, files in ((False, [path, SAMPLE]), (True, [path])):
+        kept = theirs
+        budget = sum(per_level[:-1]) + per_level[-1] // 2
+        if cut:
+            view = node_view(auto_camera(np.asarray(header.mins), np.asarray(header.maxs), W / H), H)
+            (chosen,) = keep_levels((open_copc(path),), budget, view)
+            keys = {tuple(int(e[k]) for k in ("level", "x", "y", "z")) for e in chosen.hierarchy.nodes[chosen.kept_nodes()]}
+            kept = [n for n in theirs if (n.key.level, n.key.x, n.key.y, n.key.z) in keys]
+        depth = max(n.key.level for n in kept)
+        points = sum(n.point_count for n in kept)
+        limit = ["--gpu-memory-limit", str(limit_for(budget))] if cut else []
         stats = tmp_path / f"{depth}.json"
         code = main(["render", *SMALL, *map(str, files), *limit, "--stats", str(stats), "--color-by", "intensity"])
         assert code == 0, capsys.readouterr().err
