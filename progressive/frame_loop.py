@@ -181,9 +181,12 @@ class ProgressiveRenderer:
         if self.switching:
             return self._stream()
         passes: list[str] = []
+        reencoded = self.scene.reencoded
         for _ in range(min(self.options.batches_per_frame, len(self.pending))):
             self.scene.add_batch(self.pending.popleft())
             passes.append("distribute")
+        if self.scene.reencoded != reencoded:
+            self._regather = True       # this frame's prepare reads every visible record anew: copies moved
         style = self.scene.resolved(style)
         hidden, returns = self.scene.drawable(hidden), self.scene.drawable_returns(returns)
         moved = (camera, hidden, clip, returns) != self._camera

@@ -74,6 +74,9 @@ class Scene:
                                 classes=class_filter, records=records, position_encoding=position_encoding)
         self.distribute = DistributePass(glc, self.store)
         self.assembler = encoding.BatchAssembler(info.points, keep=_copied_rows) if self.store.words else None
+        self.reencoded = 0
+        """Batches encoded again with points uploaded before (their frame grew): those
+        points' positions moved a little, so copies of their records are stale."""
         self.loaded = 0
         self.skipped = 0            # points never drawn: non-finite coordinates or shown value
         self.upload_seconds = 0.0
@@ -92,8 +95,9 @@ class Scene:
     def add_batch(self, batch: Batch) -> None:
         t0 = time.perf_counter()
         if self.assembler is not None:
-            for _, group in self.assembler.add(batch.start, batch.count, batch):
+            for held, group in self.assembler.add(batch.start, batch.count, batch):
                 self._encode_group(group)
+                self.reencoded += held is not None and sum(len(pieces) for _, _, pieces in group) > 1
             # Counted once, for this batch's rows: parts encoded again are not new points.
             self.skipped += _hidden_points(batch, self.attribute, float(self.info.origin[2]))
         else:
