@@ -19,7 +19,6 @@ a loader that stops never waits for the network.
 from __future__ import annotations
 
 import http.client
-import io
 import re
 import socket
 import threading
@@ -29,6 +28,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from progressive.errors import InputError
+from progressive.loaders.streams import PositionedReader
 from progressive.loaders.validate import fail
 
 SCHEMES = ("http://", "https://")
@@ -322,27 +322,16 @@ def _shut(conn) -> None:
             pass
 
 
-class RemoteStream(io.RawIOBase):
+class RemoteStream(PositionedReader):
     """A RemoteFile as a seekable binary stream, read through its cache: for laspy and
     lazrs, which read headers and chunk tables from file objects."""
 
     def __init__(self, remote: RemoteFile):
         super().__init__()
-        self._remote, self._pos = remote, 0
+        self._remote = remote
 
-    def readable(self) -> bool:
-        return True
-
-    def seekable(self) -> bool:
-        return True
-
-    def tell(self) -> int:
-        return self._pos
-
-    def seek(self, pos: int, whence: int = io.SEEK_SET) -> int:
-        base = {io.SEEK_SET: 0, io.SEEK_CUR: self._pos, io.SEEK_END: self._remote.size or 0}[whence]
-        self._pos = base + pos
-        return self._pos
+    def end(self) -> int:
+        return self._remote.size or 0
 
     def readinto(self, buffer) -> int:
         data = self._remote.cached(self._pos, len(buffer)) if self._pos < (self._remote.size or 0) else b""

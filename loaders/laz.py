@@ -27,6 +27,7 @@ import laspy
 import lazrs
 import numpy as np
 
+from progressive.loaders.streams import PositionedReader
 from progressive.loaders.validate import check_laszip, fail, open_binary, shown
 
 Patch = tuple[int, bytes]
@@ -168,7 +169,7 @@ def open_patched(path: str, patches: tuple[Patch, ...] = (), tail: bytes = b"", 
     return io.BufferedReader(PatchedFile(open_binary(path), patches, tail, end), 1 << 20)
 
 
-class PatchedFile(io.RawIOBase):
+class PatchedFile(PositionedReader):
     """A file as stored (up to `end`) but for the bytes of `patches`, with `tail` stored
     TAIL_GAP bytes past its end: laspy and lazrs read it without anything being written.
     A read at the end sees the end of the file, so that a decoder running off truncated
@@ -182,21 +183,9 @@ class PatchedFile(io.RawIOBase):
         self._patches = patches
         self._tail = tail
         self._tail_at = self._size + TAIL_GAP if tail else self._size
-        self._pos = 0
 
-    def readable(self) -> bool:
-        return True
-
-    def seekable(self) -> bool:
-        return True
-
-    def tell(self) -> int:
-        return self._pos
-
-    def seek(self, pos: int, whence: int = io.SEEK_SET) -> int:
-        base = {io.SEEK_SET: 0, io.SEEK_CUR: self._pos, io.SEEK_END: self._tail_at + len(self._tail)}[whence]
-        self._pos = base + pos
-        return self._pos
+    def end(self) -> int:
+        return self._tail_at + len(self._tail)
 
     def readinto(self, buffer) -> int:
         """At most up to the end of the file, of the gap or of the tail: a short read."""
