@@ -149,11 +149,9 @@ class Scene:
         word store encodes them in their batches' frames (set already): the batches kept
         as a LAS file's integers are staged as their cells."""
         words = batch_words(batch, attribute, float(self.info.origin[2]))
-        if not self.store.words or batch.grid is None:
-            return self.distribute.upload_packed(lambda out, lo, hi: pack_into(out, batch, attribute, words, lo, hi),
-                                                 batch.count, batch.start)
-        b = np.arange(batch.start, batch.start + batch.count) // BATCH_POINTS
-        integer = self.store.integer[b]
+        kept = self.store.words and batch.grid is not None     # a LAS batch may be kept as its integers
+        b = np.arange(batch.start, batch.start + batch.count) // BATCH_POINTS if kept else None
+        integer = self.store.integer[b] if kept else np.zeros(0, dtype=bool)
         if not integer.any():
             return self.distribute.upload_packed(lambda out, lo, hi: pack_into(out, batch, attribute, words, lo, hi),
                                                  batch.count, batch.start)
