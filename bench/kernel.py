@@ -7,7 +7,10 @@ stages cut off one by one, on the same tiled cloud in one run.
 Stages are cut by rewriting the raster shader's text here (the renderer's shader has
 no switches for them): "load" keeps only the record reads, "+ project" adds the
 filters and the projection, "+ read" the read-before-atomicMin, "atomic, no read"
-every atomic without the read before it, "full" is the renderer's own. 64-bit only
+every atomic without the read before it, "full" is the renderer's own. On the word
+store each stage runs at exact and adaptive precision, beside "load, no decode" (the
+words loaded, not decoded) and the full walk with 2 or 8 records prefetched instead of
+PREFETCH, and with the subgroup reduction. 64-bit only
 (llvmpipe lacks the atomics: the section says so and times the reads alone).
 """
 
@@ -23,10 +26,11 @@ from bench.synthetic import SAMPLE, load, tiled
 from progressive import shaderlib
 from progressive.camera import auto_camera
 from progressive.context import GLContext, create_context
-from progressive.encoding import Encoding
+from progressive.encoding import Encoding, Precision
 from progressive.loaders.records import RECORD_BYTES
+from progressive.passes import raster_compute
 from progressive.passes.cull import CullPass
-from progressive.passes.raster_compute import ComputeRaster
+from progressive.passes.raster_compute import ComputeRaster, ComputeTuning
 from progressive.permutation import BATCH_SLOTS, SLICE_POINTS, FillOrder
 from progressive.pointstore import RecordOrder
 from progressive.renderer import Renderer
@@ -65,6 +69,17 @@ STAGES = {
                         "    return;\n"),
     "full": None,
 }
+NO_DECODE = ("    if (words.x == HIDDEN_WORD) return uvec3(EMPTY);\n",
+             "    if (words.x != 0x7FC00001u) return words ^ uvec3(levels);\n")
+"""points.glsl's position_bits cut after its hidden test: the words are loaded, not decoded."""
+VARIANTS = {
+    "load, no decode": (raster_compute.PREFETCH, ComputeTuning(),
+                        {"raster_compute.comp": STAGES["load"], "points.glsl": NO_DECODE}),
+    "full, prefetch 2": (2, ComputeTuning(), {}),
+    "full, prefetch 8": (8, ComputeTuning(), {}),
+    "full, subgroup reduction": (raster_compute.PREFETCH, ComputeTuning(subgroup_reduction=True), {}),
+}
+"""Walks beside the stages, on the word store: name -> (records prefetched, tuning, patches)."""
 
 
 def reads(glc: GLContext, points: int, repeats: int) -> list[tuple]:
@@ -85,7 +100,7 @@ def reads(glc: GLContext, points: int, repeats: int) -> list[tuple]:
         out.bind_to_storage_buffer(1)
         grid = (gx, -(-groups // gx), 1)
         ms = median_gpu_ms(glc, lambda p=program, g=grid: p.run(*g), repeats)
-        rows.append(("read", name, "", ms, slots * RECORD_BYTES / (ms / 1e3) / 1e9, slots / (ms / 1e3) / 1e9))
+        rows.append(("read", name, "", "", ms, slots * RECORD_BYTES / (ms / 1e3) / 1e9, slots / (ms / 1e3) / 1e9))
         program.release()
     buf.release()
     out.release()
@@ -97,32 +112,49 @@ STORES = ((RecordOrder.BATCHES, Encoding.WORDS), (RecordOrder.BATCHES, Encoding.
 store's "load" stage includes decoding its words)."""
 
 
+def _raster(glc: GLContext, store, vis, patches: dict[str, tuple[str, str]], prefetch: int,
+            tuning: ComputeTuning) -> ComputeRaster:
+    """A 64-bit raster compiled from the shader texts with `patches` (file -> (old, new))."""
+    original, default_prefetch = shaderlib.shader_text, raster_compute.PREFETCH
+
+    def text(name):
+        source = original(name)
+        if name in patches:
+            old, new = patches[name]
+            if old not in source:
+                raise ValueError(f"bench.kernel: the patch of {name} no longer matches its text")
+            source = source.replace(old, new, 1)
+        return source
+    shaderlib.shader_text, raster_compute.PREFETCH = text, prefetch
+    try:
+        return ComputeRaster(glc, store, vis, atomic64=True, culling=CullPass(glc, store), tuning=tuning)
+    finally:
+        shaderlib.shader_text, raster_compute.PREFETCH = original, default_prefetch
+
+
 def stages(glc: GLContext, points: int, size: tuple[int, int], repeats: int) -> list[tuple]:
     """The 64-bit batch walk over the whole store with stages cut, for each of STORES."""
     cloud = tiled(str(SAMPLE), points)
     width, height = size
     cam = auto_camera(cloud.info.bounds_min, cloud.info.bounds_max, width / height)
-    original = shaderlib.shader_text
     rows = []
     for records, encoding in STORES:
         scene, _ = load(glc, cloud, fill=FillOrder.BATCHED, records=records, position_encoding=encoding)
         r = Renderer(glc, cloud.info, cloud.attribute, width=width, height=height, scene=scene)
         style = r.style()
-        for stage, patch in STAGES.items():
-            def text(name, patch=patch):
-                source = original(name)
-                if name == "raster_compute.comp" and patch is not None:
-                    source = source.replace(patch[0], patch[1], 1)
-                return source
-            shaderlib.shader_text = text
-            try:
-                r.raster.release()
-                r.raster = ComputeRaster(glc, scene.store, r.vis, atomic64=True, culling=CullPass(glc, scene.store))
-            finally:
-                shaderlib.shader_text = original
-            ms = statistics.median([r.render(cam, width, height, style).gpu_ms["raster"] for _ in range(repeats + 1)][1:])
-            rows.append(("raster", stage, f"{records.value}, {encoding.value}", ms, points * RECORD_BYTES / (ms / 1e3) / 1e9,
-                         points / (ms / 1e3) / 1e9))
+        runs = [(stage, {} if patch is None else {"raster_compute.comp": patch}, raster_compute.PREFETCH,
+                 ComputeTuning()) for stage, patch in STAGES.items()]
+        if scene.store.words:
+            runs += [(name, patches, prefetch, tuning) for name, (prefetch, tuning, patches) in VARIANTS.items()]
+        precisions = (Precision.EXACT, Precision.ADAPTIVE) if scene.store.words else (Precision.EXACT,)
+        for stage, patches, prefetch, tuning in runs:
+            r.raster.release()
+            r.raster = _raster(glc, scene.store, r.vis, patches, prefetch, tuning)
+            for precision in precisions:
+                ms = statistics.median([r.render(cam, width, height, style, precision=precision).gpu_ms["raster"]
+                                        for _ in range(repeats + 1)][1:])
+                rows.append(("raster", stage, f"{records.value}, {encoding.value}", precision.value, ms,
+                             points * RECORD_BYTES / (ms / 1e3) / 1e9, points / (ms / 1e3) / 1e9))
         r.release()
         scene.release()
     return rows
@@ -136,7 +168,7 @@ def run(glc: GLContext, points: int, size: tuple[int, int], repeats: int) -> Tab
     else:
         notes.append("Raster stages: not run, this GPU lacks GL_NV_shader_atomic_int64 (64-bit atomics).")
     table = Table(f"kernel_{points}", "Where the compute raster's time goes", f"{SAMPLE.name} tiled on a grid",
-                  f"{points:,}", ("kind", "what", "store", "ms (median)", "GB/s", "G points/s"), rows)
+                  f"{points:,}", ("kind", "what", "store", "precision", "ms (median)", "GB/s", "G points/s"), rows)
     table.notes = notes + [
         f"GPU ms from timestamps, median of {repeats} after one warm-up. read: {RECORD_BYTES}-byte records of a "
         f"store of whole batches ({BATCH_SLOTS:,} slots) read in that pattern, nothing drawn. raster: the "
