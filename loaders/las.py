@@ -29,6 +29,7 @@ import numpy as np
 
 from progressive.errors import InputError
 from progressive.loaders.laz import LazLayout, decode_chunks, laz_layout, open_patched
+from progressive.loaders.laz_pool import DecoderPool, PoolClosed
 from progressive.loaders.salvage import (
     VLR_HEADER,
     checked_count,
@@ -251,15 +252,16 @@ class LasSource:
     warnings: tuple[str, ...] = ()
     kept: KeptRecords | None = field(default=None, compare=False, repr=False)
 
-    def chunks(self, batch_points: int, *, salvage: bool = False,
-               names: tuple[str, ...] | None = None) -> Iterator[np.ndarray | Span]:
+    def chunks(self, batch_points: int, *, salvage: bool = False, names: tuple[str, ...] | None = None,
+               decoders: DecoderPool | None = None) -> Iterator[np.ndarray | Span]:
         """Record arrays of at most batch_points, info.points in total, else TruncatedInput;
         the first of about FIRST_BATCH_POINTS, so that the first image comes soon;
         with salvage, a damaged LAZ first yields what still decodes. An uncompressed file
         yields Spans, which parse() reads. Given the attribute `names` that will be
         parsed, a LAZ of point format 6-10 decodes only the layers they need (what
         `selection` says); the other fields of its records hold no meaningful values.
-        The records `kept` by the probe come first where they hold those layers."""
+        The records `kept` by the probe come first where they hold those layers; the
+        rest is decoded by `decoders` where they take that many points (laz_pool.py)."""
         head = min(batch_points, FIRST_BATCH_POINTS)
         if self.laz is None:
             count = self.info.points
@@ -270,7 +272,7 @@ class LasSource:
         if parts and self.info.point_format >= 6 and needed | self.kept.layers != self.kept.layers:
             parts, skip = [], 0         # the probe left out layers that the batches need
         decoded = decode(self.info.path, self.laz, self.records, self.info.points, batch_points, salvage=salvage,
-                         selection=None if names is None else needed.to_lazrs(), head=head, skip=skip)
+                         selection=None if names is None else needed, head=head, skip=skip, decoders=decoders)
         return itertools.chain(_batches(parts, head, batch_points), decoded) if parts else decoded
 
     def parse(self, chunk: np.ndarray | Span, start: int, origin: np.ndarray, names: tuple[str, ...]) -> Batch:
@@ -366,20 +368,25 @@ def _read_records(stream, path: str, records: Records, span: Span, count: int) -
 
 
 def _pieces(path: str, laz: LazLayout | None, records: Records, count: int, piece: int,
-            layers: lazrs.DecompressionSelection | None, head: int, skip: int = 0) -> Iterator[np.ndarray]:
+            layers: laspy.DecompressionSelection | None, head: int, skip: int = 0,
+            decoders: DecoderPool | None = None) -> Iterator[np.ndarray]:
     """The first `count` records in file order, in arrays of any size, the first of about
     `head` points: read straight into numpy (the text patches of an uncompressed file lie
     before its points), decoded by lazrs over several chunks at once (only the `layers`
-    selected; the first `skip` chunks left out), or else through laspy (every field)."""
-    if skip:
-        yield from decode_chunks(path, laz, count, head, records.dtype, available_cores(), layers, skip)
+    selected; the first `skip` chunks left out) in `decoders` where they take the points
+    left, else in this process, or else through laspy (every field)."""
+    if laz is not None and (skip or laz.chunks):
+        if decoders is not None and decoders.takes(count - sum(n for n, _ in laz.chunks[:skip])):
+            yield from decoders.decode(path, laz, count, head, records.dtype, piece,
+                                       None if layers is None else int(layers), skip)
+        else:
+            yield from decode_chunks(path, laz, count, head, records.dtype, available_cores(),
+                                     None if layers is None else layers.to_lazrs(), skip)
     elif laz is None:
         with open_binary(path) as stream:
             for first in [0, *range(head, count, piece)]:
                 yield _read_records(stream, path, records, Span(first, min(head if first == 0 else piece, count - first)),
                                     count)
-    elif laz.chunks:
-        yield from decode_chunks(path, laz, count, head, records.dtype, available_cores(), layers)
     else:
         with _reader(laz.open(path), path, laz.backend, count) as reader:
             yield reader.read_points(min(head, count)).array
@@ -388,21 +395,22 @@ def _pieces(path: str, laz: LazLayout | None, records: Records, count: int, piec
 
 
 def decode(path: str, laz: LazLayout | None, records: Records, count: int, piece: int, *,
-           salvage: bool = False, selection: lazrs.DecompressionSelection | None = None,
-           head: int | None = None, skip: int = 0) -> Iterator[np.ndarray]:
+           salvage: bool = False, selection: laspy.DecompressionSelection | None = None,
+           head: int | None = None, skip: int = 0, decoders: DecoderPool | None = None) -> Iterator[np.ndarray]:
     """Record arrays of at most `piece` points, `count` in total, else TruncatedInput,
     the first of about `head` (default `piece`; a LAZ's whole chunks); a LAZ decoded in
     parallel decodes only the layers of `selection` (None: all), and from its chunk
     `skip` on where the caller holds the points of those before (KeptRecords)."""
     read = sum(n for n, _ in laz.chunks[:skip]) if skip else 0
     try:
-        for part in _pieces(path, laz, records, count, piece, selection, piece if head is None else head, skip):
+        for part in _pieces(path, laz, records, count, piece, selection, piece if head is None else head, skip,
+                            decoders):
             for at in range(0, len(part), piece):
                 chunk = part[at:at + piece]
                 read += len(chunk)
                 yield chunk
     except BaseException as exc:
-        if not is_decode_error(exc) or isinstance(exc, InputError):
+        if not is_decode_error(exc) or isinstance(exc, (InputError, PoolClosed)):
             raise
         if salvage and laz is not None:
             for chunk in salvaged(path, laz, count, read, piece):
@@ -559,7 +567,7 @@ def _probe(path: str, laz: LazLayout | None, records: Records, count: int, has_r
     max_rgb, first, seen, parts, held = 0, None, None, [], 0
     try:
         for chunk in decode(path, laz, records, wanted, wanted if parallel else head, salvage=partial,
-                            selection=selection(PROBED), head=head):
+                            selection=layers(PROBED), head=head):
             if first is None:
                 first = chunk[:1].copy()
                 with np.errstate(over="ignore", invalid="ignore"):

@@ -31,6 +31,8 @@ from progressive.loaders.fastformat import FastSource, is_fast, open_fast
 from progressive.loaders.http import DEFAULTS as HTTP_DEFAULTS
 from progressive.loaders.http import HttpOptions, is_url
 from progressive.loaders.las import LasSource, TruncatedInput, open_las
+from progressive.loaders.laz_pool import DEFAULTS as LAZ_DEFAULTS
+from progressive.loaders.laz_pool import DecoderPool, LazOptions, PoolClosed
 from progressive.loaders.ply import PlySource, is_ply, open_ply
 from progressive.loaders.types import BATCH_POINTS, AttributeInfo, Batch, CloudInfo, available_cores
 from progressive.loaders.validate import fail, shown
@@ -155,15 +157,17 @@ def _common_attributes(sources: tuple[LasSource | E57Source | PlySource, ...], o
 
 
 def _tasks(source: Source, start: int, batch_points: int, origin: np.ndarray,
-           names: tuple[str, ...], partial: bool) -> Iterator[Task]:
+           names: tuple[str, ...], partial: bool, decoders: DecoderPool | None = None) -> Iterator[Task]:
     """Per batch, the work a parser thread does: parsing LAS chunks (of a LAZ, only the
-    layers `names` need were decoded), checking fast-format records for non-finite values."""
+    layers `names` need were decoded, by `decoders` where they take the file), checking
+    fast-format records for non-finite values."""
     path = source.info.path
     if isinstance(source, FastSource):
         for batch in source.batches(batch_points, start):
             yield path, functools.partial(source.parse, batch)
         return
-    chunks = source.chunks(batch_points, salvage=partial, names=names) if isinstance(source, LasSource) \
+    chunks = source.chunks(batch_points, salvage=partial, names=names, decoders=decoders) \
+        if isinstance(source, LasSource) \
         else source.chunks(batch_points, salvage=partial)
     for chunk in chunks:
         yield path, functools.partial(source.parse, chunk, start, origin, names)
@@ -224,12 +228,16 @@ class CloudLoader(BatchQueue):
     `attributes` (names of info.attributes) limits what batches carry, and so what a LAZ
     of point format 6-10 decodes: a caller that shows one attribute and keeps no others
     loads faster. None: every attribute. Fast-format batches carry their one attribute.
+
+    `laz` says where LAZ files are decoded: by default a large one with a sound chunk
+    table in decoder processes (laz_pool.py), which the loader ends once it has read
+    every file, or at close().
     """
 
     def __init__(self, paths, *, batch_points: int = BATCH_POINTS,
                  parser_threads: int | None = None, partial: bool = False,
                  attributes: tuple[str, ...] | None = None, point_budget: int | None = None,
-                 http: HttpOptions = HTTP_DEFAULTS, view=None):
+                 http: HttpOptions = HTTP_DEFAULTS, view=None, laz: LazOptions = LAZ_DEFAULTS):
         """view: the first view, whose nodes a COPC cloud larger than point_budget keeps
         (open_sources)."""
         parser_threads = available_cores() if parser_threads is None else parser_threads
@@ -251,6 +259,7 @@ class CloudLoader(BatchQueue):
         self._stop = threading.Event()
         self._error: InputError | None = None
         self._threads: list[threading.Thread] = []
+        self._decoders = DecoderPool.chosen(laz)
 
     def _chosen(self, attributes: tuple[str, ...] | None) -> tuple[str, ...]:
         known = tuple(a.name for a in self.info.attributes)
@@ -288,6 +297,8 @@ class CloudLoader(BatchQueue):
         (fetches in flight fail at once)."""
         self._stop.set()
         close_sources(self._sources)
+        if self._decoders is not None:
+            self._decoders.close()
         for thread in self._threads:
             if thread is not threading.current_thread():
                 thread.join(JOIN_S)
@@ -343,7 +354,8 @@ class CloudLoader(BatchQueue):
             for source in self._sources:
                 path = source.info.path
                 try:
-                    tasks = _tasks(source, start, self.batch_points, self.info.origin, names, self.partial)
+                    tasks = _tasks(source, start, self.batch_points, self.info.origin, names, self.partial,
+                                   self._decoders)
                     with contextlib.closing(tasks):
                         for task in tasks:
                             if not self._put(self._tasks, task):
@@ -354,8 +366,11 @@ class CloudLoader(BatchQueue):
                     self.warnings.append(str(exc))
                 start += source.info.points
         except BaseException as exc:
-            self._fail(path, exc)
+            if not (isinstance(exc, PoolClosed) and self._stop.is_set()):
+                self._fail(path, exc)
         finally:
+            if self._decoders is not None:
+                self._decoders.close()
             for _ in range(self.parser_threads):
                 self._put(self._tasks, _END)
 

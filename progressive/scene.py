@@ -6,6 +6,7 @@ switched by streaming one word a point (paper 3.5) instead of reloading the file
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -16,13 +17,14 @@ from progressive.camera import Returns
 from progressive.colors import DEFAULT_PALETTE, NO_RANGE, Colormap, ColorMode, ColorStyle, Palette
 from progressive.context import GLContext
 from progressive.errors import ProgressiveError
-from progressive.loaders.records import EXPONENT, attribute_word
+from progressive.loaders.records import EXPONENT
 from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, CloudInfo
 from progressive.packing import batch_words, pack_into
 from progressive.passes.distribute import DistributePass
 from progressive.passes.percentile import PercentilePass
 from progressive.permutation import BATCH_POINTS, LAYOUT, FillOrder
 from progressive.pointstore import EMPTY_WORD, PointStore, RecordOrder
+from progressive.wordpack import PACK_THREADS, WordPacker, WordRun, threaded
 
 RANGE_GROWTH = 2
 """While loading, the colour range is taken anew each time the loaded points have
@@ -31,17 +33,22 @@ grown this many times over (and once loading is complete): O(log n) selects."""
 
 @dataclass
 class AttributeSwitch:
-    """Progress of one switch: batches [0, next_batch) of the kept ones carry the new
-    attribute on the GPU. `records` counts batches that needed whole records because
-    a non-finite value hides (or stops hiding) their points."""
+    """Progress of one switch: the kept batches order[:next_batch] (and the first
+    next_row rows of the next) carry the new attribute on the GPU; they are streamed in
+    file order, so consecutive batches go as one run of words. `records` counts batches
+    that needed whole records because a non-finite value hides (or stops hiding) their
+    points; `unchanged` the points whose words held the new attribute already."""
 
     attribute: AttributeInfo
     previous: tuple[AttributeInfo, ...]   # what the GPU words may still hold
     batches: int                # kept when the switch began; later ones arrive packed with it
     total: int
+    order: list[int]            # the kept batches by file index
     next_batch: int = 0
+    next_row: int = 0
     streamed: int = 0
     records: int = 0
+    unchanged: int = 0
     seconds: float = 0.0
 
     @property
@@ -50,8 +57,9 @@ class AttributeSwitch:
 
     @property
     def rate(self) -> float:
-        """Points a second, CPU packing and upload included (the GPU scatter is queued)."""
-        return self.streamed / self.seconds if self.seconds > 0 else 0.0
+        """Points rewritten a second, CPU packing and upload included (the GPU scatter is
+        queued)."""
+        return (self.streamed - self.unchanged) / self.seconds if self.seconds > 0 else 0.0
 
 
 class Scene:
@@ -82,7 +90,11 @@ class Scene:
         self.upload_seconds = 0.0
         self.keep_batches = keep_batches
         self.batches: list[Batch] = []
+        self.held: list[AttributeInfo | None] = []
+        """The attribute the GPU words of each kept batch hold (None: a mix, while a
+        switch was under way when parts of it were encoded again)."""
         self.switch: AttributeSwitch | None = None
+        self._pool: ThreadPoolExecutor | None = None     # packs words; made at the first switch
         self._percentile: PercentilePass | None = None
         self._range: tuple[float, float] | None = None
         self._range_loaded = 0      # points loaded when the range was taken (0: not taken for this attribute)
@@ -98,6 +110,8 @@ class Scene:
             for held, group in self.assembler.add(batch.start, batch.count, batch):
                 self._encode_group(group)
                 self.reencoded += held is not None and sum(len(pieces) for _, _, pieces in group) > 1
+                if held is not None and self.switch is not None and not self.switch.done:
+                    self._encoded_again(held)
             # Counted once, for this batch's rows: parts encoded again are not new points.
             self.skipped += _hidden_points(batch, self.attribute, float(self.info.origin[2]))
         else:
@@ -109,6 +123,7 @@ class Scene:
             # Without its integers (12 bytes a point of host memory): a kept batch sent
             # again (hidden points, attribute switching) is encoded from its positions.
             self.batches.append(replace(batch, grid=None) if batch.grid is not None else batch)
+            self.held.append(self.attribute)
         self.loaded += batch.count
         self.upload_seconds += time.perf_counter() - t0
 
@@ -173,6 +188,15 @@ class Scene:
 
         return self.distribute.upload_packed(fill, batch.count, batch.start, cells=True)
 
+    def _encoded_again(self, b: int) -> None:
+        """Parts of batch b were encoded again with the attribute shown, during a switch:
+        kept loader batches holding them and another attribute now hold a mix (with no
+        switch under way every kept batch holds the attribute shown)."""
+        lo, hi = b * BATCH_POINTS, (b + 1) * BATCH_POINTS
+        for k, kept in enumerate(self.batches):
+            if self.held[k] != self.attribute and kept.start < hi and kept.start + kept.count > lo:
+                self.held[k] = None
+
     def begin_switch(self, attribute: AttributeInfo) -> AttributeSwitch:
         """Show `attribute` from now on: batches loaded later are packed with it, and
         stream() rewrites the words of those already on the GPU."""
@@ -184,7 +208,11 @@ class Scene:
             raise ProgressiveError("the fast format stores one attribute; convert again to show another")
         old = self.switch
         previous = (*old.previous, old.attribute) if old and not old.done else (self.attribute,)
-        self.switch = AttributeSwitch(attribute, previous, len(self.batches), sum(b.count for b in self.batches))
+        if old is not None and old.next_row:
+            self.held[old.order[old.next_batch]] = None     # streamed in part: a mix
+        order = sorted(range(len(self.batches)), key=lambda k: self.batches[k].start)
+        self.switch = AttributeSwitch(attribute, previous, len(self.batches), sum(b.count for b in self.batches),
+                                      order)
         self.attribute = attribute
         self._range_loaded = 0          # taken anew once the words are rewritten; the last one stays till then
         self.skipped = 0
@@ -192,26 +220,77 @@ class Scene:
 
     def stream(self, seconds: float = 0.008) -> bool:
         """Rewrite kept batches for the switch in progress for about `seconds` (at least
-        one batch); True once every loaded point shows the new attribute."""
+        one run); True once every loaded point shows the new attribute. Batches whose
+        words hold the new attribute already are left as they are; the others go as
+        runs of consecutive file indices packed straight into the staging slots."""
         sw = self.switch
         if sw is None or sw.done:
             return True
         t0 = time.perf_counter()
         origin_z = float(self.info.origin[2])
-        first = sw.next_batch
-        while not sw.done and (sw.next_batch == first or time.perf_counter() - t0 < seconds):
-            batch = self.batches[sw.next_batch]
-            if any(_hides_points(batch, a) for a in (*sw.previous, sw.attribute)):
+        packer = WordPacker(sw.attribute, origin_z)
+        first = sw.next_batch, sw.next_row
+        while not sw.done and ((sw.next_batch, sw.next_row) == first or time.perf_counter() - t0 < seconds):
+            k = sw.order[sw.next_batch]
+            batch, held = self.batches[k], self.held[k]
+            if held == sw.attribute:
+                self.skipped += _hidden_points(batch, held, origin_z)
+                sw.unchanged += batch.count - sw.next_row
+                self._streamed(sw, batch.count - sw.next_row)
+            elif self._needs_records(batch, held, sw):
                 self.skipped += self._upload_records(batch, sw.attribute)
                 sw.records += 1
+                self.held[k] = sw.attribute
+                self._streamed(sw, batch.count)
             else:
-                words = attribute_word(batch, sw.attribute, origin_z)
-                self.distribute.upload_words(words, batch.start)
-                self.skipped += batch.nonfinite_positions
-            sw.next_batch += 1
-            sw.streamed += batch.count
+                run = self._word_run(sw, packer)
+                self.distribute.upload_words(threaded(run.fill, self._packing_pool(), PACK_THREADS), run.start,
+                                             run.count)
+                self._streamed(sw, run.count, words=True)
         sw.seconds += time.perf_counter() - t0
         return sw.done
+
+    def _needs_records(self, batch: Batch, held: AttributeInfo | None, sw: AttributeSwitch) -> bool:
+        """Whole records: a non-finite value of the attribute the words hold (any the
+        switches may have left, where they are a mix) or of the new one hides points."""
+        held_by = sw.previous if held is None else (held,)
+        return any(_hides_points(batch, a) for a in (*held_by, sw.attribute))
+
+    def _word_run(self, sw: AttributeSwitch, packer: WordPacker) -> WordRun:
+        """From where the switch stands, the kept batches that follow each other in file
+        order and need only their words, up to one staging piece of words."""
+        room = self.distribute.piece_items(1)
+        parts, at, i, row = [], None, sw.next_batch, sw.next_row
+        while i < sw.batches and room > 0:
+            k = sw.order[i]
+            batch, held = self.batches[k], self.held[k]
+            if parts and (batch.start != at or held == sw.attribute or self._needs_records(batch, held, sw)):
+                break
+            take = min(room, batch.count - row)
+            parts.append((batch, row, row + take))
+            room, at, i, row = room - take, batch.start + batch.count, i + 1, 0
+        return WordRun(packer, parts)
+
+    def _streamed(self, sw: AttributeSwitch, n: int, words: bool = False) -> None:
+        """The switch moves on n points; a batch whose words were streamed and is done
+        holds the new attribute (its points never drawn: those of its coordinates)."""
+        while n > 0:
+            k = sw.order[sw.next_batch]
+            batch = self.batches[k]
+            take = min(n, batch.count - sw.next_row)
+            sw.next_row += take
+            sw.streamed += take
+            n -= take
+            if sw.next_row == batch.count:
+                if words:
+                    self.skipped += batch.nonfinite_positions
+                    self.held[k] = sw.attribute
+                sw.next_batch, sw.next_row = sw.next_batch + 1, 0
+
+    def _packing_pool(self) -> ThreadPoolExecutor | None:
+        if self._pool is None and PACK_THREADS > 1:
+            self._pool = ThreadPoolExecutor(PACK_THREADS, thread_name_prefix="pack words")
+        return self._pool
 
     def drawable(self, hidden: frozenset[int]) -> frozenset[int]:
         """Category codes to leave out: with the classes kept, always; else only while a
@@ -277,9 +356,13 @@ class Scene:
     def release(self) -> None:
         if self._percentile is not None:
             self._percentile.release()
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
         self.distribute.release()
         self.store.release()
         self.batches.clear()
+        self.held.clear()
 
 
 CLASSIFICATION = "classification"

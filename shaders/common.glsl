@@ -68,16 +68,29 @@ uint permute(uint i, uint prime, uint rotation) {
     return quadratic_residue(x, prime);
 }
 
+// The batched layout's shuffle of a batch's local index (< BATCH_POINTS, the prime):
+// the same double quadratic residue, with the prime a constant below 2^16, so every
+// product fits 32 bits and each remainder compiles to multiplications.
+uint batch_residue(uint x) {
+    uint r = x * x % BATCH_POINTS;
+    return x <= BATCH_POINTS / 2u ? r : BATCH_POINTS - r;
+}
+
+uint batch_shuffle(uint local, uint b, uint rotation) {
+    uint r = (b + 1u) % BATCH_POINTS * rotation % BATCH_POINTS;
+    uint x = batch_residue(local);
+    x = x >= BATCH_POINTS - r ? x - (BATCH_POINTS - r) : x + r;
+    return batch_residue(x);
+}
+
 // File-order index -> slot of the layout (progressive/permutation.py Permutation):
 // batches == 0: one shuffle of the whole cloud; else batch b = i / BATCH_POINTS is
-// shuffled inside itself (rotation offset·(b+1) mod P) and stored in slices of
-// SLICE_POINTS, slice k of every batch before slice k+1 of any. P < 2^16 there, so
-// its products fit in 32 bits.
+// shuffled inside itself (rotation offset·(b+1) mod P, P = BATCH_POINTS) and stored in
+// slices of SLICE_POINTS, slice k of every batch before slice k+1 of any.
 uint slot_of(uint i, uint prime, uint rotation, uint batches) {
     if (batches == 0u) return permute(i, prime, rotation);
     uint b = i / BATCH_POINTS;
-    uint local = i - b * BATCH_POINTS;
-    uint shuffled = permute(local, prime, ((b + 1u) % prime) * rotation % prime);
+    uint shuffled = batch_shuffle(i - b * BATCH_POINTS, b, rotation);
     uint piece = shuffled / SLICE_POINTS;
     return piece * (batches * SLICE_POINTS) + b * SLICE_POINTS + (shuffled - piece * SLICE_POINTS);
 }

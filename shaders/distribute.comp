@@ -1,5 +1,6 @@
 // Scatter a staged batch into its permuted slots (paper section 3.3). With
-// ATTRIBUTE_ONLY the stage holds one word per point and only word 3 is replaced; with
+// ATTRIBUTE_ONLY the stage holds one word per point and only word 3 is replaced (the
+// word store's attribute plane, written batch by batch: attribute switching); with
 // CLASS_WORDS each point's 16 flag bits (class, first and last return) go to the store's flags.
 // The word store's points are encoded here, in their batch's frame (set before the
 // scatter): from float records in float64, as progressive/encoding.py quantize and
@@ -59,6 +60,18 @@ uvec4 encode_words(uint index, uvec4 record) {
 void main() {
     uint i;
     if (!range_index(u_count, i)) return;
+#if ATTRIBUTE_ONLY && WORD_PLANES
+    // The word store is batched: a slot's record is its batch's first record plus its
+    // shuffled index (records batch after batch; StoreLayout), found without a division.
+    uint index = u_start + i;
+    uint b = index / BATCH_POINTS;
+    uint shuffled = batch_shuffle(index - b * BATCH_POINTS, b, u_rotation);
+    uint piece = shuffled / SLICE_POINTS;
+    uint slot = piece * (u_batches * SLICE_POINTS) + b * SLICE_POINTS + (shuffled - piece * SLICE_POINTS);
+    if (slot >= u_capacity) return;
+    uint record = store_batches == 0u ? slot : batch_record(b) + shuffled;
+    PLANE_WRITE(attributes0, attributes1, record, staged[i]);
+#else
     uint slot = slot_of(u_start + i, u_prime, u_rotation, u_batches);
     if (slot >= u_capacity) return;
 #if CLASS_WORDS
@@ -70,5 +83,6 @@ void main() {
     store_point(slot, encode_words(u_start + i, staged[i]), -1);
 #else
     store_point(slot, staged[i], -1);
+#endif
 #endif
 }

@@ -7,6 +7,7 @@ import json
 
 from bench import headline
 from bench.__main__ import main
+from progressive.encoding import Encoding
 
 
 def test_bench_writes_every_section(tmp_path):
@@ -39,14 +40,19 @@ def test_headline_goes_between_markers(tmp_path):
 
 
 def test_kernel_section_times_every_read_pattern(gl):
-    """bench.kernel: each read pattern once; the raster stages where 64-bit atomics exist."""
+    """bench.kernel: each read pattern once; the raster stages where 64-bit atomics exist,
+    on the word stores at both precisions and with the walk's variants."""
     from bench import kernel
 
     table = kernel.run(gl, 30_000, (96, 64), 1)
     reads = [r for r in table.rows if r[0] == "read"]
-    assert [r[1] for r in reads] == list(kernel.READS) and all(r[3] > 0 for r in reads)
+    assert [r[1] for r in reads] == list(kernel.READS) and all(r[4] > 0 for r in reads)
     stages = [r for r in table.rows if r[0] == "raster"]
-    assert len(stages) == (len(kernel.STAGES) * 2 if gl.caps.atomic_int64 else 0)
+    words = sum(encoding is Encoding.WORDS for _, encoding in kernel.STORES)
+    floats = len(kernel.STORES) - words
+    expected = words * 2 * (len(kernel.STAGES) + len(kernel.VARIANTS)) + floats * len(kernel.STAGES)
+    assert len(stages) == (expected if gl.caps.atomic_int64 else 0)
+    assert all(r[4] > 0 for r in stages)
     assert gl.ctx.error == "GL_NO_ERROR"
 
 

@@ -126,9 +126,18 @@ class DistributePass:
         self.points_distributed = 0
 
     @property
+    def piece_bytes(self) -> int:
+        """Bytes one piece stages: a ring slot (the copy buffer holds as many)."""
+        return self.ring.slot_bytes if self.ring is not None else self.batch_points * RECORD_BYTES
+
+    def piece_items(self, width: int) -> int:
+        """Items of `width` words one piece stages (a batch of records, or a slot's worth)."""
+        return min(self.batch_points * RECORD_WORDS, self.piece_bytes // 4) // width
+
+    @property
     def stage(self):
         if self._stage is None:
-            self._stage = self.glc.ctx.buffer(reserve=self.batch_points * RECORD_BYTES)
+            self._stage = self.glc.ctx.buffer(reserve=self.piece_bytes)
             self._stage.label = "distribute stage"
         return self._stage
 
@@ -149,10 +158,14 @@ class DistributePass:
             self._programs[cells] = self._build(0, "distribute cells" if cells else "distribute", cells=int(cells))
         return self._programs[cells]
 
-    def upload_words(self, words: np.ndarray, start: int) -> None:
-        """Replace only the attribute word of n points (attribute switching, paper 3.5)."""
+    def upload_words(self, words: np.ndarray | Fill, start: int, count: int | None = None) -> None:
+        """Replace only the attribute word of points start.. (attribute switching, paper
+        3.5): an array of them, or a fill that packs `count` of them straight into the
+        staging memory, in pieces of a whole slot (four times a slot's records)."""
         self.words = self.words or self._build(1, "distribute words")
-        self._scatter(self.words, _copy(words, 1), words.shape[0], 1, start)
+        if isinstance(words, np.ndarray):
+            words, count = _copy(words, 1), words.shape[0]
+        self._scatter(self.words, words, count, 1, start)
 
     def upload_classes(self, codes: np.ndarray, start: int) -> None:
         """Set the class byte of n points (stores that keep classes)."""
@@ -162,14 +175,15 @@ class DistributePass:
         if start < 0 or start + n > self.store.count:
             raise ValueError(f"batch [{start}, {start + n}) outside the cloud of {self.store.count} points")
         perm = self.store.permutation
-        program["u_prime"] = perm.prime
-        program["u_rotation"] = perm.offset
-        program["u_batches"] = perm.batches
-        program["u_capacity"] = self.store.capacity
+        for name, value in (("u_prime", perm.prime), ("u_rotation", perm.offset), ("u_batches", perm.batches),
+                            ("u_capacity", self.store.capacity)):
+            if name in program:     # the word store's words program has the prime built in
+                program[name] = value
         self.store.bind()
         total = 0
-        for lo in range(0, n, self.batch_points):
-            hi = min(n, lo + self.batch_points)
+        step = self.piece_items(width)
+        for lo in range(0, n, step):
+            hi = min(n, lo + step)
             slot = self.ring.acquire() if self.ring is not None else None
             if slot is not None:
                 total += fill(self.ring.view(slot, hi - lo, width), lo, hi)
