@@ -1,0 +1,114 @@
+"""Attribute words packed straight into staging memory (attribute switching, paper
+3.5), GPU-free: bit for bit loaders/records.py attribute_word, the reference, written
+into the slot it goes to, in blocks whose temporaries stay in cache; a run of kept
+batches is packed by several threads (numpy releases the GIL), so packing keeps up
+with the GPU's scatter."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Sequence
+from concurrent.futures import Executor
+
+import numpy as np
+
+from progressive.loaders.records import ELEVATION, attribute_word
+from progressive.loaders.types import AttributeInfo, AttributeKind, Batch
+
+BLOCK_POINTS = 1 << 16
+"""Points converted at a time where a value passes through float64 (temporaries of
+512 KiB: in cache)."""
+PACK_THREADS = min(8, os.cpu_count() or 1)
+"""Threads that pack a run of words (each a part of it)."""
+THREAD_POINTS = 1 << 18
+"""Fewest points a packing thread is handed: below it, threads cost more than they save."""
+
+
+class WordPacker:
+    """The words of one attribute, as attribute_word(batch, attribute, origin_z) gives
+    them, packed piece by piece."""
+
+    def __init__(self, attribute: AttributeInfo, origin_z: float):
+        self.attribute, self.origin_z = attribute, origin_z
+
+    def pack(self, out: np.ndarray, batch: Batch, lo: int, hi: int) -> None:
+        """out[...] = the words of rows [lo, hi) of `batch` (out: (hi - lo,) uint32,
+        maybe mapped memory: written, never read)."""
+        attr = self.attribute
+        if attr.name == ELEVATION:
+            self._blocks(out, batch.positions[lo:hi, 2], self.origin_z - attr.offset, add=True)
+            return
+        values = batch.attributes[attr.name][lo:hi]
+        if attr.kind is AttributeKind.CATEGORY:
+            np.copyto(out, values.reshape(hi - lo), casting="unsafe")
+        elif attr.kind is AttributeKind.RGB:
+            for a in range(0, hi - lo, BLOCK_POINTS):
+                b = min(hi - lo, a + BLOCK_POINTS)
+                out[a:b] = attribute_word(batch.rows(lo + a, lo + b), attr, self.origin_z)
+        else:
+            self._blocks(out, values, attr.offset, add=False)
+
+    @staticmethod
+    def _blocks(out: np.ndarray, values: np.ndarray, shift: float, add: bool) -> None:
+        """float32(float64(values) ± shift) bits, block by block."""
+        floats = out.view(np.float32)
+        tmp = np.empty(min(BLOCK_POINTS, values.shape[0]), dtype=np.float64)
+        with np.errstate(over="ignore", invalid="ignore"):
+            for a in range(0, values.shape[0], BLOCK_POINTS):
+                b = min(values.shape[0], a + BLOCK_POINTS)
+                t = tmp[: b - a]
+                t[...] = values[a:b]
+                if add:
+                    t += shift
+                else:
+                    t -= shift
+                floats[a:b] = t
+
+
+class WordRun:
+    """Rows of kept batches that follow each other in file order, packed as one run of
+    words: parts[k] = (batch, lo, hi) holds file indices start + edges[k] ...
+    start + edges[k + 1]."""
+
+    def __init__(self, packer: WordPacker, parts: Sequence[tuple[Batch, int, int]]):
+        self.packer = packer
+        self.parts = list(parts)
+        self.start = self.parts[0][0].start + self.parts[0][1]
+        self.edges = np.concatenate([[0], np.cumsum([hi - lo for _, lo, hi in self.parts])]).astype(np.int64)
+        at = self.start
+        for batch, lo, hi in self.parts:
+            if batch.start + lo != at:
+                raise ValueError("a run's parts must follow each other in file order")
+            at += hi - lo
+
+    @property
+    def count(self) -> int:
+        return int(self.edges[-1])
+
+    def fill(self, out: np.ndarray, lo: int, hi: int) -> int:
+        """Words [lo, hi) of the run into `out` ((hi - lo, 1) or (hi - lo,) uint32);
+        nothing is hidden by a word alone, so 0 (distribute's Fill)."""
+        flat = out.reshape(hi - lo)
+        k = int(np.searchsorted(self.edges, lo, side="right")) - 1
+        while lo < hi:
+            batch, row_lo, _ = self.parts[k]
+            end = min(hi, int(self.edges[k + 1]))
+            first = row_lo + lo - int(self.edges[k])
+            self.packer.pack(flat[: end - lo], batch, first, first + end - lo)
+            flat, lo, k = flat[end - lo:], end, k + 1
+        return 0
+
+
+def threaded(fill: Callable[[np.ndarray, int, int], int], pool: Executor | None, threads: int,
+             least: int = THREAD_POINTS):
+    """`fill` with pieces of at least 2·`least` items split over `threads` of the pool
+    (each writes its own rows of `out`); the sum of what the parts return."""
+    def split(out: np.ndarray, lo: int, hi: int) -> int:
+        parts = min(threads, (hi - lo) // least)
+        if pool is None or parts < 2:
+            return fill(out, lo, hi)
+        cuts = np.linspace(lo, hi, parts + 1).astype(np.int64).tolist()
+        jobs = [pool.submit(fill, out[a - lo: b - lo], a, b) for a, b in zip(cuts, cuts[1:])]
+        return sum(job.result() for job in jobs)
+
+    return split
