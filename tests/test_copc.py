@@ -452,7 +452,7 @@ def test_stats_and_panel_report_levels_nodes_points_and_bytes(tmp_path, capsys):
     from progressive.camera import auto_camera
     from progressive.loaders.copc import CopcStatus
     from progressive.session import node_view
-    from progressive.viewer.panel import copc_lines
+    from progressive.viewer.status import copc_lines
 
     path = shared_file("lone-star.copc.laz")
     theirs = [n for n in nodes_of(path) if n.point_count > 0]

@@ -153,7 +153,7 @@ def test_stats_count_what_the_server_sent(server, files, tmp_path, capsys):
     the file are kept for the first image); the kept nodes read with their chunks' bytes
     as laspy's hierarchy gives them; the panel's line says what was fetched."""
     from progressive.loaders.copc import CopcStatus
-    from progressive.viewer.panel import copc_lines
+    from progressive.viewer.status import copc_lines
 
     name = "lone-star.copc.laz" if "lone-star.copc.laz" in files else "sample.copc.laz"
     theirs = [n for n in nodes_of(files[name]) if n.point_count > 0]
@@ -175,7 +175,7 @@ def test_requests_in_flight_are_bounded(files):
     """Nodes are fetched a few at a time: with every node's answer slowed, the server (one
     of this test's own) holds exactly `in_flight` requests at once, never more, and the
     status (and the panel's line) says so while it does."""
-    from progressive.viewer.panel import copc_lines
+    from progressive.viewer.status import copc_lines
 
     name = "lone-star.copc.laz" if "lone-star.copc.laz" in files else "sample.copc.laz"
     nodes = open_copc(files[name]).hierarchy.nodes

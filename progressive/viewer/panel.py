@@ -19,11 +19,11 @@ from imgui_bundle import imgui
 from progressive.camera import NO_CLIP, Clip, Returns, project
 from progressive.colors import NO_RANGE, Colormap, ColorMode, Palette
 from progressive.effects import MAX_POINT_SIZE, EyeDome
-from progressive.loaders.copc import CopcStatus
 from progressive.loaders.types import AttributeKind
 from progressive.measure import Measurement
 from progressive.viewer import clipbox
 from progressive.viewer.controls import KEYS, MOUSE_HELP, VIEW_ACTIONS, Action, BudgetMode
+from progressive.viewer.status import copc_lines
 
 ERROR_COLOUR = imgui.ImVec4(1.0, 0.35, 0.3, 1.0)
 NOTE_COLOUR = imgui.ImVec4(0.95, 0.8, 0.4, 1.0)
@@ -504,21 +504,6 @@ class Panel:
         imgui.set_current_context(self.context)
         self.renderer.shutdown()
         imgui.destroy_context(self.context)
-
-
-def copc_lines(c: CopcStatus) -> list[str]:
-    """The Files section's lines of a COPC file: what its octree keeps on the GPU of its
-    own, what has been read, over HTTP what has been fetched (the network's share of a
-    slow load), the damaged nodes skipped."""
-    lines = [f"    COPC levels {c.levels_kept} / {c.levels}, nodes {c.nodes_kept:,} / {c.nodes:,}",
-             f"    points {c.points_kept:,} / {c.points:,} kept",
-             f"    read {c.nodes_read:,} nodes, {c.bytes_read / 2**20:,.1f} MiB"]
-    if c.requests or c.requests_in_flight:
-        lines.append(f"    fetched {c.bytes_fetched / 2**20:,.1f} MiB in {c.requests:,} requests, "
-                     f"{c.requests_in_flight} in flight")
-    if c.nodes_skipped:
-        lines.append(f"    {c.nodes_skipped:,} damaged nodes skipped ({c.points_skipped:,} points)")
-    return lines
 
 
 def effect_lines(viewer) -> tuple[str, str]:
