@@ -128,7 +128,8 @@ def load_lines(load: dict) -> list[str]:
     for r in scaled:
         if r["threads"] != threads:
             continue
-        out.append(f"- Load {r['format']}, {r['points']:,} points, warm cache, {threads} parser threads: "
+        decoders = f", decoded by {r['decoders']}" if r.get("decoders") else ""
+        out.append(f"- Load {r['format']}, {r['points']:,} points, warm cache, {threads} parser threads{decoders}: "
                    f"{r['points_per_s'] / 1e6:.1f} M points/s, {r['gb_per_s']:.2f} GB/s: "
                    f"{_x(r['vs_laspy'])} `laspy.read()` plus conversion ({r['laspy_file']}), "
                    f"{r['share_of_raw']:.2g}× the raw read bandwidth of the same file (`load.md`).")

@@ -1,12 +1,15 @@
 """Load: points/s and GB/s of the loader for LAS, LAZ and the fast format at 1, 2, 4
 parser threads and the default (the cores available), cold and warm page cache, each
 beside what the same file costs to (a) `laspy.read()` plus the conversion a user would
-write, (b) read raw and (c) for LAZ, decode with lazrs's own parallel decoder alone;
-then time to first image and to fully loaded through `progressive.open()`."""
+write, (b) read raw and (c) for LAZ, decode with lazrs's own parallel decoder alone; a
+LAZ is loaded both ways, decoded by lazrs's threads in the loader's process and by
+decoder processes (loaders/laz_pool.py); then time to first image and to fully loaded
+through `progressive.open()`."""
 
 from __future__ import annotations
 
 import functools
+import itertools
 import statistics
 import time
 from collections.abc import Callable
@@ -23,6 +26,7 @@ from bench.report import Table
 from progressive.budget import BudgetParams
 from progressive.context import GLContext
 from progressive.loaders import CloudLoader
+from progressive.loaders.laz_pool import MIN_PROCESS_POINTS, Decoders, LazOptions
 from progressive.loaders.types import available_cores
 
 BLOCK = 8 << 20
@@ -68,8 +72,12 @@ def lazrs_decode(path: Path) -> None:
             left -= n
 
 
-def pipeline(path: Path, threads: int) -> None:
-    with CloudLoader([path], parser_threads=threads) as loader:
+LAZ_DECODERS = (Decoders.THREADS, Decoders.PROCESSES)
+"""The two ways a LAZ is decoded, side by side in one run."""
+
+
+def pipeline(path: Path, threads: int, decoders: Decoders = Decoders.AUTO) -> None:
+    with CloudLoader([path], parser_threads=threads, laz=LazOptions(decoders)) as loader:
         for _ in loader:
             pass
 
@@ -137,7 +145,7 @@ def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats
     cores = available_cores()
     threads = tuple(sorted({*threads, cores}))
     load = Table("load", "Load: points/s and GB/s, against laspy, raw reads and lazrs alone", "", "", (
-        "file", "format", "points", "MB", "cache", "parser threads", "s", "Mpoints/s", "GB/s",
+        "file", "format", "points", "MB", "cache", "parser threads", "LAZ decoders", "s", "Mpoints/s", "GB/s",
         "× laspy.read + convert", "share of raw read GB/s", "lazrs alone Mpoints/s", "share of lazrs alone"))
     rows = []
     cold_forced = {}
@@ -152,10 +160,11 @@ def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats
                 if case.format == "LAZ" else None
             if cold:
                 cold_forced[f"{case.label} {case.format}"] = raw_s
-            for t in threads:
-                s = timed(functools.partial(pipeline, case.path, t), case.path, cold, repeats)
+            for decoders, t in itertools.product(LAZ_DECODERS if case.format == "LAZ" else (None,), threads):
+                s = timed(functools.partial(pipeline, case.path, t, decoders or Decoders.AUTO), case.path, cold, repeats)
                 row = {"file": case.label, "format": case.format, "scaled": case.scaled, "bytes": size_b, "points": case.points,
-                       "cold": cold, "threads": t, "seconds": s, "points_per_s": case.points / s,
+                       "cold": cold, "threads": t, "decoders": decoders.value if decoders else None,
+                       "seconds": s, "points_per_s": case.points / s,
                        "gb_per_s": size_b / s / 1e9, "raw_seconds": raw_s, "laspy_seconds": laspy_s,
                        "laspy_file": baseline_path.name if baseline_path else None,
                        "vs_laspy": laspy_s / s if laspy_s else None, "share_of_raw": raw_s / s,
@@ -168,13 +177,17 @@ def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats
         forced = cold_forced[f"{r['file']} {r['format']}"] >= COLD_MIN_SLOWDOWN
         cache = ("cold" if forced else "cold (not forced)") if r["cold"] else "warm"
         r["cold_forced"] = forced if r["cold"] else None
-        load.rows.append((r["file"], r["format"], r["points"], r["bytes"] / 1e6, cache, r["threads"], r["seconds"],
+        load.rows.append((r["file"], r["format"], r["points"], r["bytes"] / 1e6, cache, r["threads"], r["decoders"],
+                          r["seconds"],
                           r["points_per_s"] / 1e6, r["gb_per_s"], r["vs_laspy"], f"{r['share_of_raw']:.2g}",
                           r["points"] / r["lazrs_seconds"] / 1e6 if r["lazrs_seconds"] else None,
                           f"{r['share_of_lazrs']:.2g}" if r["share_of_lazrs"] else None))
     load.notes = [
         (f"Cores available to the process (`os.sched_getaffinity`): {cores}; the loader's default parser threads "
-         f"are that many ({cores} rows). lazrs decodes LAZ on every core whatever the parser threads. "
+         f"are that many ({cores} rows). A LAZ is decoded on every core whatever the parser threads, either by "
+         "lazrs's threads in the loader's process (LAZ decoders `threads`: lazrs holds the GIL through each read) "
+         f"or by {cores} decoder processes, one a core, whose records the parser threads parse (`processes`; "
+         f"the loader's default for a file with {MIN_PROCESS_POINTS:,} points or more left after its first batches). "
          "Loader: `CloudLoader` (reader thread + parser threads) to float32 positions and attribute arrays. "
         "× laspy = seconds of `laspy.read()` plus float32 positions relative to the bounds' centre and one attribute "
         "(RGB, else intensity), divided by the loader's seconds, same file and cache state, same run; for the fast "

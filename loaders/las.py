@@ -377,8 +377,7 @@ def _pieces(path: str, laz: LazLayout | None, records: Records, count: int, piec
     left, else in this process, or else through laspy (every field)."""
     if laz is not None and (skip or laz.chunks):
         if decoders is not None and decoders.takes(count - sum(n for n, _ in laz.chunks[:skip])):
-            yield from decoders.decode(path, laz, count, head, records.dtype, piece,
-                                       None if layers is None else int(layers), skip)
+            yield from decoders.decode(path, laz, count, head, records.dtype, piece, layers, skip)
         else:
             yield from decode_chunks(path, laz, count, head, records.dtype, available_cores(),
                                      None if layers is None else layers.to_lazrs(), skip)

@@ -166,9 +166,12 @@ def _tasks(source: Source, start: int, batch_points: int, origin: np.ndarray,
         for batch in source.batches(batch_points, start):
             yield path, functools.partial(source.parse, batch)
         return
-    chunks = source.chunks(batch_points, salvage=partial, names=names, decoders=decoders) \
-        if isinstance(source, LasSource) \
-        else source.chunks(batch_points, salvage=partial)
+    if isinstance(source, CopcSource):      # its nodes are decoded by loaders/copc.py
+        chunks = source.chunks(batch_points, salvage=partial, names=names)
+    elif isinstance(source, LasSource):
+        chunks = source.chunks(batch_points, salvage=partial, names=names, decoders=decoders)
+    else:
+        chunks = source.chunks(batch_points, salvage=partial)
     for chunk in chunks:
         yield path, functools.partial(source.parse, chunk, start, origin, names)
         start += len(chunk)

@@ -1,0 +1,310 @@
+"""LAZ decoded in other processes, so that the GIL is not in the way.
+
+lazrs holds the GIL through a whole `decompress_points_with_chunk_table` call: decoding
+in the loader's process stops its parser threads and the render loop, and their parsing
+stops the decoding. A DecoderPool has decoder processes decode instead, one core each:
+fresh interpreters running loaders/laz_worker.py by path (subprocess, `python -P`), so
+no process holding a GL context or threads is forked and none imports the package. Each
+job is one run of whole chunks read through the chunk table by the worker itself and
+decoded into a memfd the loader made and sent with the job; the loader reads the job's
+records out of it (one copy, far cheaper than the decode) and closes it. No named
+segment: the memory is the kernel's to free once both sides close it, whatever ends a
+process, and the records are plain arrays, however long a batch keeps them. Jobs go to
+the workers in turn, ROUNDS_AHEAD a worker, and are handed back in file order.
+
+Linux only (memfd, descriptors sent over a Unix socket); elsewhere the loader decodes
+in its own process (`available`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import enum
+import itertools
+import os
+import pickle
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections import deque
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import laspy
+import lazrs
+import numpy as np
+
+from progressive.loaders.laz import TABLE_OFFSET_BYTES, Chunk, LazLayout, clipped
+from progressive.loaders.types import available_cores
+
+WORKER = Path(__file__).with_name("laz_worker.py")
+JOB_CHUNKS = 4096
+"""Most chunks in one job, so that its message stays far below a Unix socket's buffer."""
+ROUNDS_PER_WORKER = 4
+"""Jobs per worker at least, where the file has that many chunks: all end at about the
+same time (a file of few jobs would keep one worker decoding alone at its end)."""
+ROUNDS_AHEAD = 2
+"""Jobs in flight per worker: the next one waits in its socket while it decodes one."""
+MIN_PROCESS_POINTS = 2_000_000
+"""Points left to decode below which Decoders.AUTO stays in the loader's process: worker
+start-up and the parse of what it decodes first cost more than the processes save."""
+WAIT_S = 0.05
+"""How long a wait for a worker's answer blocks before it looks at whether the pool closed."""
+GRACE_S = 1.0
+"""How long closing waits for workers to end by themselves before they are killed."""
+ANSWER_BYTES = 1 << 16
+
+
+class Decoders(enum.Enum):
+    """Where a LAZ with a sound chunk table is decoded."""
+
+    AUTO = "auto"               # PROCESSES for files with at least MIN_PROCESS_POINTS left to decode
+    THREADS = "threads"         # lazrs's threads in the loader's process (the GIL held through each read)
+    PROCESSES = "processes"     # decoder processes wherever the platform has them
+
+
+@dataclass(frozen=True)
+class LazOptions:
+    """How a loader decodes LAZ files."""
+
+    decoders: Decoders = Decoders.AUTO
+    processes: int | None = None
+    """Decoder processes; None: the cores available to this process."""
+
+
+DEFAULTS = LazOptions()
+
+
+class PoolClosed(Exception):
+    """The pool was closed while a decode waited on it (the loader is stopping)."""
+
+
+class DecodeFailed(Exception):
+    """A worker could not decode a job: its message is the worker's exception's."""
+
+
+def available() -> bool:
+    """Whether this platform can run decoder processes."""
+    return (hasattr(os, "memfd_create") and hasattr(socket, "send_fds") and hasattr(socket, "AF_UNIX")
+            and bool(sys.executable) and WORKER.is_file())
+
+
+def lazrs_bits(layers: laspy.DecompressionSelection) -> int:
+    """`layers` as the integer lazrs.DecompressionSelection takes (laspy's flags are
+    numbered otherwise; its to_lazrs() gives an object a worker cannot be sent)."""
+    bits = lazrs.SELECTIVE_DECOMPRESS_XY_RETURNS_CHANNEL
+    for layer in laspy.DecompressionSelection:
+        if layers.is_set(layer):
+            bits |= getattr(lazrs, f"SELECTIVE_DECOMPRESS_{layer.name}")
+    return bits
+
+
+def runs(chunks: tuple[Chunk, ...], first_read: int, piece: int) -> list[tuple[int, int]]:
+    """(first, end) chunk indices of the jobs: whole chunks up to `first_read` points for
+    the first, up to `piece` for the others, at least one chunk and at most JOB_CHUNKS."""
+    out, at = [], 0
+    while at < len(chunks):
+        limit, end, held = (first_read if not out else piece), at, 0
+        while end < len(chunks) and end - at < JOB_CHUNKS and (end == at or held + chunks[end][0] <= limit):
+            held += chunks[end][0]
+            end += 1
+        out.append((at, end))
+        at = end
+    return out
+
+
+@dataclass
+class _Worker:
+    process: subprocess.Popen
+    sock: socket.socket
+
+
+@dataclass
+class _Job:
+    id: int
+    worker: _Worker
+    fd: int
+    points: int
+    nbytes: int
+
+
+class DecoderPool:
+    """Decoder processes, started at the first decode, ended by close(). One decode at a
+    time (the loader's reader thread); close() may come from any thread: it wakes a
+    decode waiting on a worker, which then raises PoolClosed."""
+
+    def __init__(self, processes: int | None = None, min_points: int = 0):
+        """min_points: the fewest points left to decode that the pool takes (`takes`)."""
+        self.processes = available_cores() if processes is None else processes
+        if self.processes < 1:
+            raise ValueError("a decoder pool needs at least one process")
+        self.min_points = min_points
+        self._workers: list[_Worker] = []
+        self._lock = threading.Lock()
+        self._closed = False
+        self._active = False
+        self._ids = itertools.count()
+
+    @classmethod
+    def chosen(cls, options: LazOptions) -> DecoderPool | None:
+        """The pool `options` ask for; None where they ask for threads or the platform has no processes."""
+        if options.decoders is Decoders.THREADS or not available():
+            return None
+        return cls(options.processes, MIN_PROCESS_POINTS if options.decoders is Decoders.AUTO else 0)
+
+    def takes(self, points: int) -> bool:
+        return points >= self.min_points
+
+    def pids(self) -> list[int]:
+        return [w.process.pid for w in self._workers]
+
+    def _start(self) -> None:
+        env = {**os.environ, "RAYON_NUM_THREADS": "1"}
+        for _ in range(self.processes):
+            ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+            try:
+                process = subprocess.Popen([sys.executable, "-P", str(WORKER), str(theirs.fileno())],
+                                           pass_fds=(theirs.fileno(),), env=env, stdin=subprocess.DEVNULL,
+                                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            except BaseException:
+                ours.close()
+                raise
+            finally:
+                theirs.close()
+            ours.settimeout(WAIT_S)
+            self._workers.append(_Worker(process, ours))
+
+    def decode(self, path: str, laz: LazLayout, points: int, first_read: int, dtype: np.dtype, piece: int,
+               layers: laspy.DecompressionSelection | None = None, skip: int = 0) -> Iterator[np.ndarray]:
+        """What laz.decode_chunks yields (the first `points` points of laz.chunks but
+        for the first `skip`; only the LAZ layers `layers` decoded, None: all), decoded
+        by the workers in jobs of whole chunks (the first of about `first_read` points,
+        then of at most `piece`, ROUNDS_PER_WORKER a worker where there are chunks enough),
+        as record arrays in file order, one per job."""
+        bits = None if layers is None else lazrs_bits(layers)
+        chunks = clipped(list(laz.chunks), points, None)
+        offset = laz.point_data + TABLE_OFFSET_BYTES + sum(n for _, n in chunks[:skip])
+        chunks = chunks[skip:]
+        left = sum(n for n, _ in chunks)
+        jobs = runs(chunks, first_read, min(piece, max(1, left // (self.processes * ROUNDS_PER_WORKER))))
+        starts = list(itertools.accumulate((sum(n for _, n in chunks[a:b]) for a, b in jobs), initial=offset))
+        with self._lock:
+            if self._closed:
+                raise PoolClosed("the decoder pool is closed")
+            if self._active:
+                raise RuntimeError("one decode at a time")
+            self._active = True
+            if not self._workers:
+                self._start()
+            workers = self._workers
+        pending: deque[_Job] = deque()
+        try:
+            for i, (first, end) in enumerate(jobs):
+                while len(pending) >= ROUNDS_AHEAD * len(workers):
+                    yield self._take(pending.popleft(), dtype)
+                pending.append(self._send(workers[i % len(workers)], path, starts[i], chunks[first:end],
+                                          laz.vlr_data, bits, dtype.itemsize))
+            while pending:
+                yield self._take(pending.popleft(), dtype)
+        finally:
+            for job in pending:
+                os.close(job.fd)
+            with self._lock:
+                self._active = False
+                if self._closed:
+                    _close_sockets(workers)
+
+    def _send(self, worker: _Worker, path: str, offset: int, table: tuple[Chunk, ...], vlr: bytes,
+              layers: int | None, itemsize: int) -> _Job:
+        points = sum(n for n, _ in table)
+        job = _Job(next(self._ids), worker, os.memfd_create("progressive-laz", os.MFD_CLOEXEC), points,
+                   points * itemsize)
+        try:
+            os.ftruncate(job.fd, job.nbytes)
+            message = pickle.dumps((job.id, path, offset, list(table), vlr, layers, job.nbytes))
+            try:
+                socket.send_fds(worker.sock, [message], [job.fd])
+            except OSError:
+                self._check_open()
+                raise
+        except BaseException:
+            os.close(job.fd)
+            raise
+        return job
+
+    def _take(self, job: _Job, dtype: np.dtype) -> np.ndarray:
+        """The job's records once its worker answers; its error, raised, if it failed."""
+        try:
+            _, error, text = self._answer(job)
+            if error is not None:
+                raise DecodeFailed(text or error)
+            records = np.empty(job.points, dtype)
+            view, got = memoryview(records).cast("B"), 0
+            while got < job.nbytes:
+                n = os.preadv(job.fd, [view[got:]], got)
+                if n <= 0:
+                    raise DecodeFailed("the LAZ decoder process left its job unfinished")
+                got += n
+            return records
+        finally:
+            os.close(job.fd)
+
+    def _answer(self, job: _Job) -> tuple:
+        """The worker's answer to `job` (it answers in the order it was sent jobs; the
+        answers to jobs of a decode given up are passed over)."""
+        while True:
+            self._check_open()
+            try:
+                raw = job.worker.sock.recv(ANSWER_BYTES)
+            except TimeoutError:
+                continue
+            except OSError:
+                self._check_open()
+                raise
+            if not raw:
+                self._check_open()
+                with contextlib.suppress(subprocess.TimeoutExpired):
+                    job.worker.process.wait(GRACE_S)
+                raise DecodeFailed(f"the LAZ decoder process ended (exit status {job.worker.process.returncode})")
+            answer = pickle.loads(raw)
+            if answer[0] == job.id:
+                return answer
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise PoolClosed("the decoder pool is closed")
+
+    def close(self) -> None:
+        """End the workers: their sockets are shut, so that they end (and a decode
+        waiting on them wakes); one that has not within GRACE_S is killed. Safe to call
+        again."""
+        with self._lock:
+            self._closed = True
+            workers, self._workers = self._workers, []
+            active = self._active
+            for w in workers:
+                with contextlib.suppress(OSError):
+                    w.sock.shutdown(socket.SHUT_RDWR)
+            if not active:
+                _close_sockets(workers)
+        deadline = time.monotonic() + GRACE_S
+        for w in workers:
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                w.process.wait(max(0.0, deadline - time.monotonic()))
+            if w.process.poll() is None:
+                w.process.kill()
+                w.process.wait()
+
+    def __enter__(self) -> DecoderPool:
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.close()
+
+
+def _close_sockets(workers: list[_Worker]) -> None:
+    for w in workers:
+        w.sock.close()

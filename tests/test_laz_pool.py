@@ -1,0 +1,229 @@
+"""LAZ decoded in decoder processes (loaders/laz_pool.py) against laspy and against the
+in-process decoder: every real LAZ file, one and several workers, in order, partial
+loads and damaged files as in-process, and no process or memory left behind."""
+
+from __future__ import annotations
+
+import io
+import os
+import signal
+import time
+
+import laspy
+import lazrs
+import numpy as np
+import pytest
+from test_loader_parallel import CHUNKED, assert_equals_laspy, records_of
+from test_loaders import assert_covers, joined, load, one_line_naming
+
+from conftest import SAMPLE, shared_file, shared_files
+from progressive.errors import InputError
+from progressive.loaders import CloudLoader, laz_pool
+from progressive.loaders.copc import CopcSource
+from progressive.loaders.las import open_las
+from progressive.loaders.laz import decode_chunks
+from progressive.loaders.laz_pool import DecoderPool, Decoders, LazOptions, runs
+
+pytestmark = pytest.mark.skipif(not laz_pool.available(), reason="no decoder processes on this platform")
+
+PROCESSES = LazOptions(Decoders.PROCESSES, processes=3)
+THREADS = LazOptions(Decoders.THREADS)
+LAZ_FILES = [p for p in shared_files() if p.suffix.lower() == ".laz"]
+
+
+def started_pools(monkeypatch) -> list[DecoderPool]:
+    """Every pool that decodes from now on, to check afterwards that it was used and ended."""
+    pools = []
+    original = DecoderPool.decode
+
+    def decode(self, *args, **kwargs):
+        pools.append(self)
+        yield from original(self, *args, **kwargs)
+    monkeypatch.setattr(DecoderPool, "decode", decode)
+    return pools
+
+
+def ended(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(")")[-1].split()[0] in ("Z", "X")
+    except FileNotFoundError:
+        return True
+
+
+def open_fds() -> set[str]:
+    return set(os.listdir("/proc/self/fd"))
+
+
+@pytest.mark.parametrize("path", LAZ_FILES or [pytest.param(None, marks=pytest.mark.skip("no shared data"))],
+                         ids=lambda p: getattr(p, "name", "none"))
+def test_every_real_laz_through_processes_equals_laspy(path, monkeypatch):
+    """Every real LAZ file loads through the processes where its chunk table allows
+    (through laspy where not, and a COPC file through its nodes, as in-process) to
+    exactly laspy's points and attributes."""
+    with laspy.open(path) as reader:
+        if reader.header.point_count > 3_000_000:
+            pytest.skip(f"{path.name} is large; the loader is measured in bench/")
+    pools = started_pools(monkeypatch)
+    las = laspy.read(path)
+    loader, batches = load([path], laz=PROCESSES)
+    assert loader.done and not loader.warnings
+    assert_equals_laspy(loader, batches, las)
+    source = loader._sources[0]
+    assert bool(pools) == (bool(source.laz.chunks) and not isinstance(source, CopcSource))
+
+
+@pytest.mark.parametrize("name", CHUNKED)
+def test_pool_decode_equals_in_process_for_one_and_several_workers(name):
+    """The pool yields what decode_chunks yields, in file order, with the probe's chunks
+    skipped, a cut count, a small first job, and only the layers asked for."""
+    path = shared_file(name)
+    source = open_las(path)
+    laz, dtype = source.laz, source.records.dtype
+    expected = records_of(path)
+    chunk = laz.chunks[0][0]
+    cut = min(len(expected), 2 * chunk + 17)
+    selected = laspy.DecompressionSelection.base() | laspy.DecompressionSelection.Z
+    for processes in (1, 3):
+        with DecoderPool(processes) as pool:
+            for first_read, piece in ((1, 2 * chunk), (chunk + 1, 7_919), (len(expected), 500_000)):
+                got = list(pool.decode(str(path), laz, len(expected), first_read, dtype, piece))
+                np.testing.assert_array_equal(np.concatenate(got), expected, err_msg=f"{processes} workers")
+                assert len(got[0]) <= max(first_read, chunk)
+            skipped = list(pool.decode(str(path), laz, len(expected), 1, dtype, chunk, skip=1))
+            np.testing.assert_array_equal(np.concatenate(skipped) if skipped else expected[:0],
+                                          expected[laz.chunks[0][0]:])
+            np.testing.assert_array_equal(np.concatenate(list(pool.decode(str(path), laz, cut, 1, dtype, chunk))),
+                                          expected[:cut])
+            layered = np.concatenate(list(pool.decode(str(path), laz, len(expected), 1, dtype, chunk, selected)))
+            in_process = np.concatenate(list(decode_chunks(str(path), laz, len(expected), 1, dtype, 2,
+                                                           selected.to_lazrs())))
+            for field in ("X", "Y", "Z"):
+                np.testing.assert_array_equal(layered[field], in_process[field])
+
+
+def test_jobs_are_runs_of_whole_chunks():
+    chunks = tuple((n, 10) for n in (50, 50, 50, 50, 30, 200, 50))
+    assert runs(chunks, 60, 100) == [(0, 1), (1, 3), (3, 5), (5, 6), (6, 7)]
+    assert runs(chunks, 1, 1000) == [(0, 1), (1, 7)]
+    assert runs((), 1, 1) == []
+
+
+@pytest.mark.parametrize("name", ["pine_plot.laz", "las_with_several_extra_byte_bloc.laz"])
+def test_loader_batches_equal_with_threads_and_processes(name, monkeypatch):
+    """The same points whichever decodes, for any parser threads and batch sizes that
+    cut chunks (where batches end follows the jobs, as in-process it follows the reads)."""
+    path = shared_file(name)
+    las = laspy.read(path)
+    chunk = open_las(path).laz.chunks[0][0]
+    pools = started_pools(monkeypatch)
+    for threads, batch, processes in ((1, chunk - 1, 1), (3, 7_919, 2), (2, 500_000, 4)):
+        _, reference = load([path], parser_threads=threads, batch_points=batch, laz=THREADS)
+        loader, batches = load([path], parser_threads=threads, batch_points=batch,
+                               laz=LazOptions(Decoders.PROCESSES, processes))
+        assert_covers(batches, len(las.points), batch)
+        np.testing.assert_array_equal(joined(batches), joined(reference))
+        assert_equals_laspy(loader, batches, las)
+    assert len(pools) == 3 and all(not p.pids() for p in pools)
+
+
+def test_auto_keeps_small_files_in_process(monkeypatch):
+    """Decoders.AUTO starts no process for a file of fewer points left than MIN_PROCESS_POINTS."""
+    path = shared_file("pine_plot.laz")
+    pools = started_pools(monkeypatch)
+    load([path])
+    assert not pools
+    monkeypatch.setattr(laz_pool, "MIN_PROCESS_POINTS", 1)
+    load([path])
+    assert len(pools) == 1
+
+
+@pytest.fixture(scope="module")
+def damaged_laz(tmp_path_factory):
+    """The sample as a LAZ of 50,000-point chunks whose second chunk's bytes are
+    overwritten (the chunk table still adds up)."""
+    stream = io.BytesIO()
+    laspy.read(SAMPLE).write(stream, laz_backend=laspy.LazBackend.Lazrs)
+    data = bytearray(stream.getvalue())
+    header = laspy.LasHeader.read_from(io.BytesIO(bytes(data)))
+    table_stream = io.BytesIO(bytes(data))
+    table_stream.seek(header.offset_to_point_data)
+    table = lazrs.read_chunk_table(table_stream, lazrs.LazVlr(bytes(header.vlrs.get("LasZipVlr")[0].record_data)))
+    second = header.offset_to_point_data + 8 + table[0][1]
+    data[second + table[1][1] // 3: second + table[1][1] // 3 + 64] = bytes(range(64))
+    path = tmp_path_factory.mktemp("damaged") / "damaged.laz"
+    path.write_bytes(bytes(data))
+    return path
+
+
+def test_damaged_file_reads_as_in_process(damaged_laz, monkeypatch):
+    """A chunk that fails to decode in a worker: a partial load keeps what the in-process
+    decoder keeps, with the same warning; a full load fails in the same one line."""
+    pools = started_pools(monkeypatch)
+    for batch in (20_000, 500_000):
+        reference_loader, reference = load([damaged_laz], partial=True, batch_points=batch, laz=THREADS)
+        loader, batches = load([damaged_laz], partial=True, batch_points=batch, laz=PROCESSES)
+        assert pools, "the pool should have decoded the file"
+        assert_covers(batches, sum(b.count for b in reference), batch)
+        np.testing.assert_array_equal(joined(batches), joined(reference))
+        assert loader.warnings == reference_loader.warnings
+    errors = []
+    for options in (THREADS, PROCESSES):
+        with pytest.raises(InputError) as err:
+            load([damaged_laz], laz=options)
+        one_line_naming(err.value, damaged_laz)
+        errors.append(str(err.value))
+    assert errors[0] == errors[1]
+    assert all(not p.pids() for p in pools)
+
+
+def test_nothing_is_left_behind_after_close_mid_load(monkeypatch):
+    """Closing a loader while its workers decode ends them within the grace time and
+    leaves no descriptor (memfd, socket) open and nothing in /dev/shm."""
+    path = shared_file("pine_plot.laz")
+    shm = set(os.listdir("/dev/shm")) if os.path.isdir("/dev/shm") else set()
+    fds = open_fds()
+    pools = started_pools(monkeypatch)
+    loader = CloudLoader([path], batch_points=20_000, parser_threads=1,
+                         laz=LazOptions(Decoders.PROCESSES, processes=2))
+    batches = iter(loader)
+    next(batches)
+    deadline = time.monotonic() + 10
+    while not pools[0].pids() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    pids = pools[0].pids()
+    assert pids
+    t0 = time.monotonic()
+    loader.close()
+    assert time.monotonic() - t0 < laz_pool.GRACE_S + 2
+    assert all(ended(p) for p in pids)
+    del batches
+    assert open_fds() <= fds
+    if shm or os.path.isdir("/dev/shm"):
+        assert set(os.listdir("/dev/shm")) <= shm
+
+
+def test_a_worker_that_dies_is_one_line_not_a_hang(monkeypatch):
+    """A decoder process killed mid-load: the load fails in one line naming the file,
+    the other workers are ended, and nothing waits for the dead one."""
+    path = shared_file("pine_plot.laz")
+    pools = started_pools(monkeypatch)
+    fds = open_fds()
+    loader = CloudLoader([path], batch_points=5_000, parser_threads=1, laz=LazOptions(Decoders.PROCESSES, processes=2))
+    batches = iter(loader)
+    next(batches)
+    deadline = time.monotonic() + 10
+    while not pools[0].pids() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    pids = pools[0].pids()
+    os.kill(pids[0], signal.SIGKILL)
+    t0 = time.monotonic()
+    with pytest.raises(InputError) as err:
+        for _ in batches:
+            pass
+    assert time.monotonic() - t0 < 10
+    one_line_naming(err.value, path)
+    loader.close()
+    assert all(ended(p) for p in pids)
+    del batches
+    assert open_fds() <= fds
