@@ -17,8 +17,8 @@ from progressive.camera import Returns
 from progressive.colors import DEFAULT_PALETTE, NO_RANGE, Colormap, ColorMode, ColorStyle, Palette
 from progressive.context import GLContext
 from progressive.errors import ProgressiveError
-from progressive.loaders.records import EXPONENT
-from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, CloudInfo
+from progressive.loaders.records import ELEVATION, EXPONENT
+from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, CloudInfo, nonfinite_records
 from progressive.packing import batch_words, pack_into
 from progressive.passes.distribute import DistributePass
 from progressive.passes.percentile import PercentilePass
@@ -137,7 +137,7 @@ class Scene:
         k = (group[-1][0] + group[-1][1] - 1) // BATCH_POINTS - first + 1
         boxes = batch_boxes.empty_boxes(k)
         for part in parts:
-            at, part_boxes = batch_boxes.boxes_of(_positions(part), part.start)
+            at, part_boxes = batch_boxes.boxes_of(_positions(part), part.start, _all_finite(part))
             batch_boxes.merge(boxes, at - first, part_boxes)
         grids = {(p.grid.scale, p.grid.offset) if p.grid is not None else None for p in parts}
         least = None
@@ -400,10 +400,25 @@ def _copied_rows(batch: Batch, lo: int, hi: int) -> Batch:
 def _hidden_points(batch: Batch, attribute: AttributeInfo, origin_z: float) -> int:
     """Points of a batch never drawn, as pack_into counts them: a coordinate not finite,
     or a shown scalar not finite (a fast-format batch's only where it says it has such)."""
-    shown = np.isfinite(_positions(batch)).all(axis=1)
-    if attribute.kind is AttributeKind.SCALAR and (batch.records is None or batch.nonfinite_values.get(attribute.name)):
+    positions = _positions(batch)
+    finite = _all_finite(batch)
+    hides = attribute.kind is AttributeKind.SCALAR and (batch.records is None or batch.nonfinite_values.get(attribute.name))
+    if hides and batch.records is None and attribute.name != ELEVATION:
+        hides = batch.attributes[attribute.name].dtype.kind == "f"     # an integer's word is always finite
+    if finite and not hides:
+        return 0
+    shown = np.isfinite(positions).all(axis=1) if not finite else np.ones(batch.count, dtype=bool)
+    if hides:
         shown &= (batch_words(batch, attribute, origin_z) & EXPONENT) != EXPONENT
     return int(batch.count - np.count_nonzero(shown))
+
+
+def _all_finite(batch: Batch) -> bool:
+    """Every coordinate of the batch finite (a fast-format batch's in one contiguous
+    pass over its records: its positions are a strided view)."""
+    if batch.records is not None:
+        return nonfinite_records(batch.records)[0] == 0
+    return batch_boxes.all_finite(batch.positions)
 
 
 def _positions(batch: Batch) -> np.ndarray:

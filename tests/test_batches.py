@@ -32,22 +32,32 @@ def numpy_boxes(p: np.ndarray) -> np.ndarray:
     return out
 
 
+@pytest.mark.parametrize("finite", [False, True], ids=["nonfinite", "finite"])
 @pytest.mark.parametrize("cuts", [[], [1], [BATCH_POINTS], [5000, 5001, 30_000], [BATCH_POINTS * 2 - 1]])
-def test_boxes_of_any_split_equal_numpy(cuts):
+def test_boxes_of_any_split_equal_numpy(cuts, finite):
     rng = np.random.default_rng(len(cuts))
     n = 3 * BATCH_POINTS + 77
     p = rng.normal(0, 100, (n, 3)).astype(np.float32)
-    p[rng.integers(0, n, 50)] = np.nan
-    p[rng.integers(0, n, 30), 1] = np.nan               # one coordinate: the whole point never draws
-    p[rng.integers(0, n, 30), 0] = rng.choice([np.inf, -np.inf], 30)
-    p[BATCH_POINTS:2 * BATCH_POINTS] = np.nan          # a batch of points that never draw stays empty
+    if not finite:
+        p[rng.integers(0, n, 50)] = np.nan
+        p[rng.integers(0, n, 30), 1] = np.nan               # one coordinate: the whole point never draws
+        p[rng.integers(0, n, 30), 0] = rng.choice([np.inf, -np.inf], 30)
+        p[BATCH_POINTS:2 * BATCH_POINTS] = np.nan          # a batch of points that never draw stays empty
     boxes = batches.empty_boxes(4)
     edges = [0, *cuts, n]
     for a, b in zip(edges[:-1], edges[1:]):
         first, new = batches.boxes_of(p[a:b], a)
         batches.merge(boxes, first, new)
     assert np.array_equal(boxes, numpy_boxes(p))
-    assert not (boxes[1, 0:3] <= boxes[1, 4:7]).any()
+    assert (boxes[1, 0:3] <= boxes[1, 4:7]).all() == finite
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_all_finite_sees_any_nonfinite_value(bad):
+    p = np.random.default_rng(3).normal(0, 1e30, (1000, 3)).astype(np.float32)
+    assert batches.all_finite(p) and batches.all_finite(p[:0])
+    p[617, 2] = bad
+    assert not batches.all_finite(p)
 
 
 def cameras(info) -> dict[str, Camera]:
