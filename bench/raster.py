@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import statistics
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -141,6 +142,18 @@ def views(cloud: TiledCloud, aspect: float) -> dict[str, Camera]:
             "close-up": close_up(cloud, aspect)}
 
 
+def wall_ms(glc: GLContext, r: Renderer, view, repeats: int) -> float:
+    """Wall-clock ms of a visibility clear and the raster pass (as the last render left
+    its precision), between two glFinish: a check on the timestamps that needs no query."""
+    glc.ctx.finish()
+    t0 = time.perf_counter()
+    for _ in range(repeats):
+        r.vis.clear()
+        r.raster.draw(view, 0, r.store.capacity)
+    glc.ctx.finish()
+    return (time.perf_counter() - t0) / repeats * 1e3
+
+
 def measure(glc: GLContext, cloud: TiledCloud, layouts, sizes, repeats: int) -> list[dict]:
     """Every variant of a layout, size and view is timed in turn, round after round
     (after one warm-up round), so a clock or cache that drifts during the run is shared
@@ -165,6 +178,7 @@ def measure(glc: GLContext, cloud: TiledCloud, layouts, sizes, repeats: int) -> 
                 exact = None
                 for r, style, t, (_, _, precision) in zip(renderers, styles, times, variant):
                     frame = r.render(cam, width, height, style, precision=precision)
+                    wall = wall_ms(glc, r, uniforms, repeats)
                     exact = frame.slots if exact is None else exact
                     ms = statistics.median(t[1:])
                     read = bytes_read(scene.store, uniforms, precision) * r.raster.passes
@@ -172,7 +186,7 @@ def measure(glc: GLContext, cloud: TiledCloud, layouts, sizes, repeats: int) -> 
                                  "view": view, "raster": r.raster_path, "ms": ms, "ms_all": t[1:],
                                  "subgroup_reduction": getattr(r.raster, "partitioned", False),
                                  "batch_groups": getattr(r.raster, "batch_groups", False),
-                                 "precision": precision.value,
+                                 "precision": precision.value, "wall_ms": wall,
                                  "passes": r.raster.passes, "points_per_s": cloud.points / (ms / 1e3),
                                  "bytes_per_point": read / cloud.points, "bytes_per_s": read / (ms / 1e3),
                                  "pixels_differing": int(np.count_nonzero(frame.slots != exact)),
@@ -194,7 +208,7 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
     table = Table(f"raster_{max(points)}", "Brute-force rasterization of every point", f"{SAMPLE.name} tiled on a grid",
                   ", ".join(f"{n:,}" for n in points), (
                       "points", "size", "store order", "view", "rasterizer", "work group", "subgroup reduction",
-                      "precision", "ms (median)", "Mpoints/s", "B/point read", "GB/s read",
+                      "precision", "ms (median)", "wall ms", "Mpoints/s", "B/point read", "GB/s read",
                       "share of copy bandwidth", "share of read bandwidth", "× GL_POINTS", "batches culled", "× overview", "covered pixels",
                       "pixels ≠ first row"))
     def twin(r: dict, **keys) -> float:
@@ -212,7 +226,7 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
         r["share_of_read"] = r["bytes_per_s"] / read_rate
         table.rows.append((r["points"], f"{r['width']}x{r['height']}", r["layout"], r["view"], r["raster"],
                            "batch" if r["batch_groups"] else "256 slots", "yes" if r["subgroup_reduction"] else "no",
-                           r["precision"], r["ms"], r["points_per_s"] / 1e6, r["bytes_per_point"], r["bytes_per_s"] / 1e9,
+                           r["precision"], r["ms"], r["wall_ms"], r["points_per_s"] / 1e6, r["bytes_per_point"], r["bytes_per_s"] / 1e9,
                            r["share_of_copy"], r["share_of_read"], r["vs_points"], r["batches_culled"], r["vs_overview"], r["covered_pixels"],
                            r["pixels_differing"]))
     missing = [] if glc.caps.atomic_int64 else [
@@ -220,7 +234,8 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
         "atomics); `--raster compute` falls back to the 32-bit two-pass path here.")]
     table.notes = missing + [
         (f"Same auto camera for every row; GPU time of the raster pass from timestamps, median of {repeats} after "
-        f"one warm-up. B/point read = bytes of the store a raster reads (from the cull pass's twins: "
+        f"one warm-up; wall ms = a visibility clear and the raster pass {repeats} times between two glFinish, "
+        f"by the CPU's clock, a check on the timestamps. B/point read = bytes of the store a raster reads (from the cull pass's twins: "
         f"{RECORD_BYTES} B a float record, 4 B a position word, for the points of batches in view; × passes, "
         f"the 32-bit path reads twice) / the cloud's points; GB/s read = those bytes / time. Precision: exact reads "
         f"all three 10-bit words of a position (30 bits), adaptive the fewest that keep each point within "
