@@ -1,8 +1,8 @@
 """Attribute words packed straight into staging memory (attribute switching, paper
 3.5), GPU-free: bit for bit loaders/records.py attribute_word, the reference, written
-into the slot it goes to, in blocks whose temporaries stay in cache; a run of kept
-batches is packed by several threads (numpy releases the GIL), so packing keeps up
-with the GPU's scatter."""
+into the slot it goes to by one numpy call a kind (no temporaries of a batch's size);
+a run of kept batches is packed by several threads (numpy releases the GIL), so
+packing keeps up with the GPU's scatter."""
 
 from __future__ import annotations
 
@@ -16,8 +16,7 @@ from progressive.loaders.records import ELEVATION, attribute_word
 from progressive.loaders.types import AttributeInfo, AttributeKind, Batch
 
 BLOCK_POINTS = 1 << 16
-"""Points converted at a time where a value passes through float64 (temporaries of
-512 KiB: in cache)."""
+"""Points packed at a time by the reference, for RGB not stored as contiguous bytes."""
 PACK_THREADS = min(8, os.cpu_count() or 1)
 """Threads that pack a run of words (each a part of it)."""
 THREAD_POINTS = 1 << 18
@@ -33,36 +32,37 @@ class WordPacker:
 
     def pack(self, out: np.ndarray, batch: Batch, lo: int, hi: int) -> None:
         """out[...] = the words of rows [lo, hi) of `batch` (out: (hi - lo,) uint32,
-        maybe mapped memory: written, never read)."""
+        maybe mapped memory: written, never read). Each kind is one numpy call over the
+        rows where it can be (its loop buffers in cache and releases the GIL)."""
         attr = self.attribute
-        if attr.name == ELEVATION:
-            self._blocks(out, batch.positions[lo:hi, 2], self.origin_z - attr.offset, add=True)
-            return
-        values = batch.attributes[attr.name][lo:hi]
-        if attr.kind is AttributeKind.CATEGORY:
-            np.copyto(out, values.reshape(hi - lo), casting="unsafe")
-        elif attr.kind is AttributeKind.RGB:
-            for a in range(0, hi - lo, BLOCK_POINTS):
-                b = min(hi - lo, a + BLOCK_POINTS)
-                out[a:b] = attribute_word(batch.rows(lo + a, lo + b), attr, self.origin_z)
-        else:
-            self._blocks(out, values, attr.offset, add=False)
-
-    @staticmethod
-    def _blocks(out: np.ndarray, values: np.ndarray, shift: float, add: bool) -> None:
-        """float32(float64(values) ± shift) bits, block by block."""
         floats = out.view(np.float32)
-        tmp = np.empty(min(BLOCK_POINTS, values.shape[0]), dtype=np.float64)
         with np.errstate(over="ignore", invalid="ignore"):
-            for a in range(0, values.shape[0], BLOCK_POINTS):
-                b = min(values.shape[0], a + BLOCK_POINTS)
-                t = tmp[: b - a]
-                t[...] = values[a:b]
-                if add:
-                    t += shift
-                else:
-                    t -= shift
-                floats[a:b] = t
+            if attr.name == ELEVATION:      # float32(float64(z) + (origin_z - offset))
+                np.add(batch.positions[lo:hi, 2], self.origin_z - attr.offset, out=floats, dtype=np.float64,
+                       casting="same_kind")
+                return
+            values = batch.attributes[attr.name][lo:hi]
+            if attr.kind is AttributeKind.CATEGORY:
+                np.copyto(out, values.reshape(hi - lo), casting="unsafe")
+            elif attr.kind is AttributeKind.RGB:
+                self._rgb(out, batch, values, lo, hi)
+            else:                           # float32(float64(value) - offset)
+                np.subtract(values.reshape(hi - lo), attr.offset, out=floats, dtype=np.float64, casting="same_kind")
+
+    def _rgb(self, out: np.ndarray, batch: Batch, values: np.ndarray, lo: int, hi: int) -> None:
+        """R | G << 8 | B << 16 | 0xFF000000: the contiguous RGB bytes read as
+        little-endian words 3 bytes apart (the fourth byte, the next point's red, is
+        then set by the alpha), the last point on its own (its word would read past)."""
+        n = hi - lo
+        if values.dtype != np.uint8 or not values.flags.c_contiguous or n == 0:
+            for a in range(0, n, BLOCK_POINTS):
+                b = min(n, a + BLOCK_POINTS)
+                out[a:b] = attribute_word(batch.rows(lo + a, lo + b), self.attribute, self.origin_z)
+            return
+        words = np.ndarray((n - 1,), dtype="<u4", buffer=values.reshape(-1), strides=(3,))
+        np.bitwise_or(words, np.uint32(0xFF000000), out=out[: n - 1])
+        r, g, b = (int(c) for c in values[-1])
+        out[n - 1] = r | g << 8 | b << 16 | 0xFF000000
 
 
 class WordRun:

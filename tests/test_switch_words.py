@@ -96,6 +96,24 @@ def test_packer_equals_attribute_word_on_hard_values(dtype):
     np.testing.assert_array_equal(out, attribute_word(batch, attribute, 0.0)[3:])
 
 
+@pytest.mark.parametrize("layout", ["contiguous", "strided", "uint16"])
+@pytest.mark.parametrize("rows", [(0, 0), (0, 1), (5, 6), (0, 70_001), (3, 70_000)])
+def test_packer_equals_attribute_word_on_rgb(layout, rows):
+    """Contiguous bytes read as words 3 bytes apart, up to the last point; other
+    layouts through the reference."""
+    rng = np.random.default_rng(4)
+    n = 70_001
+    rgb = rng.integers(0, 256, (n, 6), dtype=np.uint8)
+    values = {"contiguous": np.ascontiguousarray(rgb[:, :3]), "strided": rgb[:, ::2],
+              "uint16": rgb[:, :3].astype(np.uint16)}[layout]
+    attribute = AttributeInfo("rgb", AttributeKind.RGB, values.dtype)
+    batch = Batch(start=0, positions=np.zeros((n, 3), dtype=np.float32), attributes={"rgb": values})
+    lo, hi = rows
+    out = np.zeros(hi - lo, dtype=np.uint32)
+    WordPacker(attribute, 0.0).pack(out, batch, lo, hi)
+    np.testing.assert_array_equal(out, attribute_word(batch, attribute, 0.0)[lo:hi])
+
+
 def test_run_fill_in_pieces_and_threads_equals_the_reference(sample_batches):
     info, batches = sample_batches
     attribute = info.attribute("rgb")
