@@ -164,21 +164,35 @@ class Scene:
         word store encodes them in their batches' frames (set already): the batches kept
         as a LAS file's integers are staged as their cells."""
         words = batch_words(batch, attribute, float(self.info.origin[2]))
-        kept = self.store.words and batch.grid is not None     # a LAS batch may be kept as its integers
-        b = np.arange(batch.start, batch.start + batch.count) // BATCH_POINTS if kept else None
-        integer = self.store.integer[b] if kept else np.zeros(0, dtype=bool)
+        kept = self.store.words and batch.grid is not None and batch.count > 0   # a LAS batch may keep its integers
+        first = batch.start // BATCH_POINTS
+        integer = self.store.integer[first: (batch.start + batch.count - 1) // BATCH_POINTS + 1] if kept \
+            else np.zeros(0, dtype=bool)
         if not integer.any():
             return self.distribute.upload_packed(lambda out, lo, hi: pack_into(out, batch, attribute, words, lo, hi),
                                                  batch.count, batch.start)
         if not integer.all():       # batches of both kinds: each run of one kind on its own
-            cuts = np.flatnonzero(np.diff(integer)) + 1
+            cuts = (first + np.flatnonzero(np.diff(integer)) + 1) * BATCH_POINTS - batch.start
             edges = [0, *cuts.tolist(), batch.count]
             return sum(self._upload_records(batch.rows(lo, hi), attribute) for lo, hi in zip(edges, edges[1:]))
-        least, shift = self.store.least_cells[b], self.store.cell_shifts[b]
+        # Each batch's least integers and shifts as uint32: the differences are in [0, 2^31), so wrapping
+        # subtraction gives them exactly, shifted they stay under 2^30 (encoding.cell_shifts).
+        touched = slice(first, first + integer.shape[0])
+        least = (self.store.least_cells[touched] & 0xFFFFFFFF).astype(np.uint32)
+        shift = self.store.cell_shifts[touched].astype(np.uint32)
+        cells = batch.grid.cells.astype(np.int32, copy=False).view(np.uint32)
         hides = attribute.kind is AttributeKind.SCALAR
 
         def fill(out: np.ndarray, lo: int, hi: int) -> int:
-            out[:, :3] = (batch.grid.cells[lo:hi] - least[lo:hi]) << shift[lo:hi]
+            at = lo
+            while at < hi:          # batch by batch: its least and shift, no array of them a point
+                b = (batch.start + at) // BATCH_POINTS
+                end = min(hi, (b + 1) * BATCH_POINTS - batch.start)
+                for axis in range(3):     # a column at a time: long loops (rows of 3 would be the inner loop)
+                    part = out[at - lo: end - lo, axis]
+                    np.subtract(cells[at:end, axis], least[b - first, axis], out=part)
+                    np.left_shift(part, shift[b - first, axis], out=part)
+                at = end
             out[:, 3] = words[lo:hi]
             if not hides:
                 return 0

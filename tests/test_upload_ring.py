@@ -251,3 +251,27 @@ def test_points_never_drawn_are_counted_once_across_a_switch(gl, sample_batches,
         scene.add_batch(b)
     assert scene.skipped == hidden(scene, bad) > 0
     scene.release()
+
+
+def test_negative_file_integers_are_staged_exactly(gl, sample_batches):
+    """A LAS batch's cells are staged in uint32 arithmetic (wrapping subtraction of the
+    batch's least integers): exact for integers far below zero too."""
+    from progressive.encoding import pack_words
+    from progressive.permutation import BATCH_POINTS
+
+    info, batches = sample_batches
+    moved = [dataclasses.replace(b, grid=dataclasses.replace(b.grid, cells=b.grid.cells - np.int32(2_000_000_000)))
+             for b in batches]
+    scene = Scene(gl, info, info.attribute("intensity"))
+    for b in moved:
+        scene.add_batch(b)
+    ids = np.arange(info.points)
+    batch = ids // BATCH_POINTS
+    store = scene.store
+    assert store.integer[batch].all() and (store.least_cells[batch] < -1_000_000_000).all()
+    integers = np.concatenate([b.grid.cells for b in moved]).astype(np.int64)
+    cells = (integers - store.least_cells[batch]) << store.cell_shifts[batch]
+    held = store.read_words()[store.permutation.forward(ids).astype(np.int64)]
+    assert np.array_equal(held[:, :3], pack_words(cells))
+    assert store.cell_shifts[batch].max() > 0
+    scene.release()
