@@ -9,8 +9,9 @@ no switches for them): "load" keeps only the record reads, "+ project" adds the
 filters and the projection, "+ read" the read-before-atomicMin, "atomic, no read"
 every atomic without the read before it, "full" is the renderer's own. On the word
 store each stage runs at exact and adaptive precision, beside "load, no decode" (the
-words loaded, not decoded) and the full walk with 2 or 8 records prefetched instead of
-PREFETCH, and with the subgroup reduction. 64-bit only
+words loaded, not decoded) and the full walk with 1, 2 or 8 records prefetched instead of
+PREFETCH, with the subgroup reduction, and with four-word loads (ComputeTuning.vector_loads;
+its load and projection stages too). 64-bit only
 (llvmpipe lacks the atomics: the section says so and times the reads alone).
 """
 
@@ -75,9 +76,15 @@ NO_DECODE = ("    if (words.x == HIDDEN_WORD) return uvec3(EMPTY);\n",
 VARIANTS = {
     "load, no decode": (raster_compute.PREFETCH, ComputeTuning(),
                         {"raster_compute.comp": STAGES["load"], "points.glsl": NO_DECODE}),
+    "full, prefetch 1": (1, ComputeTuning(), {}),
     "full, prefetch 2": (2, ComputeTuning(), {}),
     "full, prefetch 8": (8, ComputeTuning(), {}),
     "full, subgroup reduction": (raster_compute.PREFETCH, ComputeTuning(subgroup_reduction=True), {}),
+    "full, four-word loads": (raster_compute.PREFETCH, ComputeTuning(vector_loads=True), {}),
+    "load, four-word loads": (raster_compute.PREFETCH, ComputeTuning(vector_loads=True),
+                              {"raster_compute.comp": STAGES["load"]}),
+    "+ project, four-word loads": (raster_compute.PREFETCH, ComputeTuning(vector_loads=True),
+                                   {"raster_compute.comp": STAGES["+ project"]}),
 }
 """Walks beside the stages, on the word store: name -> (records prefetched, tuning, patches)."""
 

@@ -97,8 +97,8 @@ def rasters(glc: GLContext) -> list[Raster]:
 def variants(glc: GLContext, batched: bool, words: bool) -> list[tuple[Raster, ComputeTuning, Precision]]:
     """Each rasterizer; the compute ones on the batched layout also one invocation a slot
     (against one work group a batch) and, where the GPU has it, with the subgroup
-    reduction, and on the word store a batch walk with adaptive precision, so each
-    choice is measured side by side."""
+    reduction, and on the word store a batch walk with four-word loads and with adaptive
+    precision, so each choice is measured side by side."""
     reduce = subgroup_reduction_available(glc)
     tunings = [ComputeTuning(batch_groups=g, subgroup_reduction=s) for g in ((False, True) if batched else (False,))
                for s in ((False, True) if reduce else (False,))]
@@ -108,7 +108,9 @@ def variants(glc: GLContext, batched: bool, words: bool) -> list[tuple[Raster, C
             out.append((r, ComputeTuning(), Precision.EXACT))
             continue
         out += [(r, t, Precision.EXACT) for t in tunings]
-        out += [(r, ComputeTuning(), Precision.ADAPTIVE)] if words else []
+        vector = ComputeTuning(vector_loads=True)
+        out += [(r, vector, Precision.EXACT), (r, ComputeTuning(), Precision.ADAPTIVE),
+                (r, vector, Precision.ADAPTIVE)] if words else []
     return out
 
 
@@ -186,6 +188,7 @@ def measure(glc: GLContext, cloud: TiledCloud, layouts, sizes, repeats: int) -> 
                                  "view": view, "raster": r.raster_path, "ms": ms, "ms_all": t[1:],
                                  "subgroup_reduction": getattr(r.raster, "partitioned", False),
                                  "batch_groups": getattr(r.raster, "batch_groups", False),
+                                 "vector_loads": getattr(r.raster, "vector_loads", False),
                                  "precision": precision.value, "wall_ms": wall,
                                  "passes": r.raster.passes, "points_per_s": cloud.points / (ms / 1e3),
                                  "bytes_per_point": read / cloud.points, "bytes_per_s": read / (ms / 1e3),
@@ -219,13 +222,13 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
     for r in rows:
         base = twin(r, view="overview", raster="GL_POINTS")
         overview = twin(r, view="overview", raster=r["raster"], subgroup_reduction=r["subgroup_reduction"],
-                        batch_groups=r["batch_groups"], precision=r["precision"])
+                        batch_groups=r["batch_groups"], vector_loads=r["vector_loads"], precision=r["precision"])
         r["vs_points"] = base / r["ms"] if r["view"] == "overview" else None
         r["vs_overview"] = overview / r["ms"]
         r["share_of_copy"] = r["bytes_per_s"] / copy
         r["share_of_read"] = r["bytes_per_s"] / read_rate
         table.rows.append((r["points"], f"{r['width']}x{r['height']}", r["layout"], r["view"], r["raster"],
-                           "batch" if r["batch_groups"] else "256 slots", "yes" if r["subgroup_reduction"] else "no",
+                           ("batch, 4-word loads" if r["vector_loads"] else "batch") if r["batch_groups"] else "256 slots", "yes" if r["subgroup_reduction"] else "no",
                            r["precision"], r["ms"], r["wall_ms"], r["points_per_s"] / 1e6, r["bytes_per_point"], r["bytes_per_s"] / 1e9,
                            r["share_of_copy"], r["share_of_read"], r["vs_points"], r["batches_culled"], r["vs_overview"], r["covered_pixels"],
                            r["pixels_differing"]))

@@ -37,6 +37,9 @@ def chunk_capacity(max_ssbo_bytes: int, item_bytes: int = RECORD_BYTES) -> int:
     return min(max_ssbo_bytes, 2**31 - 1) // item_bytes
 
 
+QUAD_WORDS = 4
+"""A word plane's buffers hold a multiple of this many words, so a batch walk's 16-byte
+loads of four words (ComputeTuning.vector_loads) stay aligned in the second buffer too."""
 PLANE_CHUNKS = MAX_POINT_CHUNKS // encoding.PLANES
 """Buffers of each plane of the word store at most (the bindings are shared)."""
 
@@ -113,6 +116,7 @@ class PointStore:
         words = position_encoding is encoding.Encoding.WORDS and self.permutation.batches > 0
         self.encoding = encoding.Encoding.WORDS if words else encoding.Encoding.FLOAT
         limit = chunk_capacity(glc.caps.max_ssbo_bytes, 4 if words else RECORD_BYTES)
+        limit -= limit % QUAD_WORDS if words else 0
         self.chunk_points = min(chunk_points or limit, limit)
         # A capacity that holds the cloud holds the layout's padding too (under one batch).
         self.capacity = slots if capacity is None or capacity >= count else max(0, capacity)
@@ -152,8 +156,8 @@ class PointStore:
         item = 4 if words else RECORD_BYTES
         for plane in planes:
             for c in range(chunks):
-                n = max(1, min(self.chunk_points, self.capacity - c * self.chunk_points))
-                buf = glc.ctx.buffer(reserve=n * item)
+                n = self._chunk_words(c)
+                buf = glc.ctx.buffer(reserve=(n + (-n) % QUAD_WORDS if words else n) * item)
                 buf.label = f"{plane}[{c}]"
                 glc.gl.clear_u32(buf.glo, EMPTY_WORD, total=buf.size)
                 self.buffers.append(buf)
@@ -226,12 +230,18 @@ class PointStore:
         if self.class_buffer is not None:
             self.class_buffer.bind_to_storage_buffer(Binding.CLASSES)
 
+    def _chunk_words(self, c: int) -> int:
+        """Records held by buffer c of each plane (a word plane's buffer is padded to a
+        multiple of QUAD_WORDS words)."""
+        return max(1, min(self.chunk_points, self.capacity - c * self.chunk_points))
+
     def raw_words(self) -> np.ndarray:
         """Every record as (capacity, 4) uint32 in record order (StoreLayout): the float
         record, or the word store's three position words and attribute word (tests and
         debugging only)."""
-        planes = [np.concatenate([np.frombuffer(b.read(), dtype=np.uint32) for b in
-                                  self.buffers[p * self.chunks: (p + 1) * self.chunks]])
+        item = 4 if self.words else RECORD_BYTES
+        planes = [np.concatenate([np.frombuffer(b.read(size=self._chunk_words(c) * item), dtype=np.uint32) for c, b in
+                                  enumerate(self.buffers[p * self.chunks: (p + 1) * self.chunks])])
                   for p in range(len(self.buffers) // self.chunks)]
         return np.stack(planes, axis=1) if self.words else planes[0].reshape(-1, 4)
 

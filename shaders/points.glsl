@@ -12,20 +12,54 @@
 #if POINT_CHUNKS > 2
 #error "the word store binds at most two buffers a plane"
 #endif
-layout(std430, binding = BINDING_POINTS_0) buffer Words0a { uint words0a[]; };
-layout(std430, binding = BINDING_POINTS_0 + POINT_CHUNKS) buffer Words1a { uint words1a[]; };
-layout(std430, binding = BINDING_POINTS_0 + 2 * POINT_CHUNKS) buffer Words2a { uint words2a[]; };
-layout(std430, binding = BINDING_POINTS_0 + 3 * POINT_CHUNKS) buffer Attributes0 { uint attributes0[]; };
+// VECTOR_WORDS (a batch walk's four-word loads): the planes are read as uvec4s, a word
+// as a component of one (every plane buffer holds a multiple of 4 words), and not written.
+#ifdef VECTOR_WORDS
+#define PLANE_ACCESS readonly
+#define PLANE_TYPE uvec4
+#define WORD_AT(a, index) a[(index) >> 2u][(index) & 3u]
+#else
+#define PLANE_ACCESS
+#define PLANE_TYPE uint
+#define WORD_AT(a, index) a[index]
+#endif
+layout(std430, binding = BINDING_POINTS_0) PLANE_ACCESS buffer Words0a { PLANE_TYPE words0a[]; };
+layout(std430, binding = BINDING_POINTS_0 + POINT_CHUNKS) PLANE_ACCESS buffer Words1a { PLANE_TYPE words1a[]; };
+layout(std430, binding = BINDING_POINTS_0 + 2 * POINT_CHUNKS) PLANE_ACCESS buffer Words2a { PLANE_TYPE words2a[]; };
+layout(std430, binding = BINDING_POINTS_0 + 3 * POINT_CHUNKS) PLANE_ACCESS buffer Attributes0 { PLANE_TYPE attributes0[]; };
 #if POINT_CHUNKS > 1
-layout(std430, binding = BINDING_POINTS_1) buffer Words0b { uint words0b[]; };
-layout(std430, binding = BINDING_POINTS_1 + POINT_CHUNKS) buffer Words1b { uint words1b[]; };
-layout(std430, binding = BINDING_POINTS_1 + 2 * POINT_CHUNKS) buffer Words2b { uint words2b[]; };
-layout(std430, binding = BINDING_POINTS_1 + 3 * POINT_CHUNKS) buffer Attributes1 { uint attributes1[]; };
-#define PLANE_READ(a, b, index) ((index) < uint(CHUNK_POINTS) ? a[index] : b[(index) - uint(CHUNK_POINTS)])
+layout(std430, binding = BINDING_POINTS_1) PLANE_ACCESS buffer Words0b { PLANE_TYPE words0b[]; };
+layout(std430, binding = BINDING_POINTS_1 + POINT_CHUNKS) PLANE_ACCESS buffer Words1b { PLANE_TYPE words1b[]; };
+layout(std430, binding = BINDING_POINTS_1 + 2 * POINT_CHUNKS) PLANE_ACCESS buffer Words2b { PLANE_TYPE words2b[]; };
+layout(std430, binding = BINDING_POINTS_1 + 3 * POINT_CHUNKS) PLANE_ACCESS buffer Attributes1 { PLANE_TYPE attributes1[]; };
+#define PLANE_READ(a, b, index) ((index) < uint(CHUNK_POINTS) ? WORD_AT(a, index) : WORD_AT(b, (index) - uint(CHUNK_POINTS)))
+#define QUAD_READ(a, b, index) ((index) < uint(CHUNK_POINTS) ? a[(index) >> 2u] : b[((index) - uint(CHUNK_POINTS)) >> 2u])
 #define PLANE_WRITE(a, b, index, value) if ((index) < uint(CHUNK_POINTS)) a[index] = (value); else b[(index) - uint(CHUNK_POINTS)] = (value)
 #else
-#define PLANE_READ(a, b, index) a[index]
+#define PLANE_READ(a, b, index) WORD_AT(a, index)
+#define QUAD_READ(a, b, index) a[(index) >> 2u]
 #define PLANE_WRITE(a, b, index, value) a[index] = (value)
+#endif
+
+#ifdef VECTOR_WORDS
+// Whether records first.. first + span - 1 can be read as quads: one buffer holds them
+// all, and they start on a multiple of 4 in it.
+bool quads_aligned(uint first, uint span) {
+#if POINT_CHUNKS > 1
+    if (first < uint(CHUNK_POINTS) && first + span > uint(CHUNK_POINTS)) return false;
+    return ((first < uint(CHUNK_POINTS) ? first : first - uint(CHUNK_POINTS)) & 3u) == 0u;
+#else
+    return (first & 3u) == 0u;
+#endif
+}
+
+// Plane `plane`'s words of records index.. index + 3 (index as quads_aligned allows).
+uvec4 quad_words(uint plane, uint index) {
+    if (plane == 0u) return QUAD_READ(words0a, words0b, index);
+    if (plane == 1u) return QUAD_READ(words1a, words1b, index);
+    if (plane == 2u) return QUAD_READ(words2a, words2b, index);
+    return QUAD_READ(attributes0, attributes1, index);
+}
 #endif
 
 layout(std430, binding = BINDING_BATCH_FRAMES) readonly buffer Frames { vec4 batch_frames[]; };  // base, step per batch
@@ -80,6 +114,7 @@ uvec4 load_point(uint slot) {
     return uvec4(decode_position(slot_batch_of(slot), index, 3u), attribute_word(index));
 }
 
+#ifndef VECTOR_WORDS
 // Writes a slot's four words as distribute stages them (component < 0: the position
 // words and the attribute word) or only its attribute word (component 3).
 void store_point(uint slot, uvec4 words, int component) {
@@ -91,6 +126,7 @@ void store_point(uint slot, uvec4 words, int component) {
     }
     PLANE_WRITE(attributes0, attributes1, index, words.w);
 }
+#endif
 #else
 layout(std430, binding = BINDING_POINTS_0) buffer Points0 { uvec4 points0[]; };
 #if POINT_CHUNKS > 1

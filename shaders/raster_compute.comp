@@ -95,11 +95,45 @@ void main() {
     vec3 frame_base = batch_frames[2u * b].xyz, frame_step = batch_frames[2u * b + 1u].xyz;
 #endif
     uint stride = u_batches * SLICE_POINTS;
+    uint last = first + (count - 1u);
+#ifdef VECTOR_WORDS
+    // Where the batch's records lie together and aligned, each invocation takes four
+    // consecutive records of a slice and loads each word plane's four words at once
+    // (the paper's uvec4 prefetch): QUADS invocations a slice, SLICES_A_PASS slices a pass.
+    const uint QUADS = SLICE_POINTS / 4u, SLICES_A_PASS = gl_WorkGroupSize.x / QUADS;
+    uint block = batch_record(b);
+    if (store_batches != 0u && quads_aligned(block, BATCH_SLOTS)) {
+        uint lane = 4u * (gl_LocalInvocationID.x % QUADS);
+        for (uint k = gl_LocalInvocationID.x / QUADS; k < ROUNDS; k += SLICES_A_PASS) {
+            uint slot = k * stride + b * SLICE_POINTS + lane;   // of the first of the four
+            if (slot > last) break;
+            if (slot + 3u < first) continue;
+            uint index = block + k * SLICE_POINTS + lane;
+            uvec4 w0, w1 = uvec4(0u), w2 = uvec4(0u), at = uvec4(EMPTY);
+            if (slot >= first && slot + 3u <= last) {
+                w0 = quad_words(0u, index);
+                if (levels > 1u) w1 = quad_words(1u, index);
+                if (levels > 2u) w2 = quad_words(2u, index);
+                if (u_filtering != 0u) at = quad_words(3u, index);
+            } else {
+                // A range that starts or ends inside these four: each record on its own.
+                for (uint m = 0u; m < 4u; ++m) {
+                    bool held = slot + m >= first && slot + m <= last;
+                    uvec3 w = held ? point_words(index + m, levels) : uvec3(HIDDEN_WORD);
+                    w0[m] = w.x; w1[m] = w.y; w2[m] = w.z;
+                    at[m] = held && u_filtering != 0u ? attribute_word(index + m) : EMPTY;
+                }
+            }
+            for (uint m = 0u; m < 4u; ++m)
+                raster(slot + m, slot + m, uvec4(position_bits(uvec3(w0[m], w1[m], w2[m]), levels, frame_base, frame_step), at[m]));
+        }
+        return;
+    }
+#endif
     uint base = b * SLICE_POINTS + gl_LocalInvocationID.x;
     // The batch's records: one contiguous block (RecordOrder.BATCHES), else in slot order.
     uint records = store_batches == 0u ? base : batch_record(b) + gl_LocalInvocationID.x;
     uint record_stride = store_batches == 0u ? stride : SLICE_POINTS;
-    uint last = first + (count - 1u);
     uint k = first > base ? (first - base + stride - 1u) / stride : 0u;
     for (; k < ROUNDS && base + k * stride <= last; k += PREFETCH) {
         uint slots[PREFETCH];

@@ -14,7 +14,7 @@ from progressive.camera import Camera, auto_camera, project, view_uniforms
 from progressive.passes.cull import CullPass
 from progressive.passes.raster_compute import ComputeRaster, ComputeTuning
 from progressive.passes.visibility import EMPTY
-from progressive.permutation import BATCH_POINTS, SLICE_POINTS
+from progressive.permutation import BATCH_POINTS, BATCH_SLOTS, SLICE_POINTS
 from progressive.renderer import Renderer
 from progressive.scene import Scene
 
@@ -157,7 +157,8 @@ def test_stats_report_batches_culled(tmp_path, sample):
     assert counts["outside"] == {"total": total, "drawn": 0, "culled": total, "bits": dict(exact, **{"30": 0})}
 
 
-TUNINGS = [ComputeTuning(batch_groups=g, subgroup_reduction=s) for g in (True, False) for s in (True, False)]
+TUNINGS = [ComputeTuning(vector_loads=True), ComputeTuning(vector_loads=True, subgroup_reduction=True)] + [
+    ComputeTuning(batch_groups=g, subgroup_reduction=s) for g in (True, False) for s in (True, False)]
 """Every way the compute raster walks the store; the last (one invocation a slot, an
 atomic a point) is the plain reference the others must equal."""
 
@@ -170,16 +171,30 @@ def slots_of_range(gl, r: Renderer, cam: Camera, first: int, count: int) -> np.n
     return r.vis.read()[:, :, 0].copy()
 
 
+def store_shape(info, shape: str) -> dict:
+    """Scene arguments: the whole cloud in one buffer a plane; two buffers a plane whose
+    split is a multiple of 4 words (the quads of a batch walk stay aligned in the second)
+    or is not (they fall back to one word a load there); a memory limit whose last
+    batch's records start off a multiple of 4."""
+    slots = -(-info.points // BATCH_POINTS) * BATCH_SLOTS
+    half = slots // 2 + 2 * SLICE_POINTS + 4
+    return {"whole": {}, "two buffers": {"chunk_points": half}, "two buffers, split off 4": {"chunk_points": half + 2},
+            "memory limit": {"capacity": int(slots * 0.6) + 3}}[shape]
+
+
 @pytest.mark.parametrize("atomic64", [True, False], ids=["64-bit", "32-bit"])
 @pytest.mark.parametrize("name", ["overview", "zoomed corner"])
-def test_every_tuning_keeps_the_ids(gl, sample, atomic64, name):
-    """One work group a batch and the subgroup reduction (where the GPU has
-    GL_NV_shader_subgroup_partitioned) give the ids of one invocation and one atomic per
-    point, for the whole store and for ranges that start and end inside slices."""
+@pytest.mark.parametrize("shape", ["whole", "two buffers", "two buffers, split off 4", "memory limit"])
+def test_every_tuning_keeps_the_ids(gl, sample, atomic64, name, shape):
+    """One work group a batch, its four-word loads and the subgroup reduction (where the
+    GPU has GL_NV_shader_subgroup_partitioned) give the ids of one invocation and one
+    atomic per point, for the whole store and for ranges that start and end inside
+    slices, with the planes in one or two buffers and under a memory limit."""
     if atomic64 and not gl.caps.atomic_int64:
         pytest.skip("no GL_NV_shader_atomic_int64")
     info, parts, _, _ = sample
-    scene = Scene(gl, info, find_attribute(info, "elevation"))
+    scene = Scene(gl, info, find_attribute(info, "elevation"), **store_shape(info, shape))
+    assert scene.store.chunks == (2 if shape.startswith("two") else 1)
     r = Renderer(gl, info, scene.attribute, width=W, height=H, scene=scene)
     cam = cameras(info)[name]
     round_slots = scene.store.permutation.batches * SLICE_POINTS
@@ -196,6 +211,7 @@ def test_every_tuning_keeps_the_ids(gl, sample, atomic64, name):
             if tuning.subgroup_reduction and not r.raster.partitioned:
                 continue
             assert r.raster.batch_groups == tuning.batch_groups
+            assert r.raster.vector_loads == (tuning.vector_loads and scene.store.words)
             seen[tuning] = [slots_of_range(gl, r, cam, *span) for span in ranges]
         reference = seen.pop(TUNINGS[-1])
         assert len(seen) >= 1 and (reference[0] != EMPTY).any()

@@ -257,8 +257,9 @@ def test_file_fill_order_stores_file_order_and_converges(gl, cloud):
 
 @pytest.mark.parametrize("view", ["overview", "corner"])
 def test_fill_pieces_walk_batches_frame_for_frame(gl, cloud, brute, view):
-    """Fill pieces walked by one work group a batch (culled batches skipped whole) give
-    every frame the ids of one invocation a slot, and converge to brute force."""
+    """Fill pieces walked by one work group a batch (culled batches skipped whole), with
+    one word a load or four, give every frame the ids of one invocation a slot, and
+    converge to brute force."""
     from progressive.batches import in_view as batches_in_view
     from progressive.camera import view_uniforms
     from progressive.passes.raster_compute import ComputeTuning
@@ -269,21 +270,24 @@ def test_fill_pieces_walk_batches_frame_for_frame(gl, cloud, brute, view):
         position=tuple(lo + (hi - lo) * [0.15, 0.15, 0.0] + [0, 0, 0.4 * (hi - lo)[0]]),
         target=tuple(lo + (hi - lo) * [0.15, 0.15, 0.0]), up=(0, 1, 0), near=1.0, far=1e4)
     runs = {}
-    for groups in (True, False):
+    for tuning in (ComputeTuning(vector_loads=True), ComputeTuning(), ComputeTuning(batch_groups=False)):
         pr = ProgressiveRenderer(gl, info, default_attribute(info), ProgressiveOptions(
-            W, H, budget=BudgetParams(fixed=B), batches_per_frame=100, tuning=ComputeTuning(batch_groups=groups)))
+            W, H, budget=BudgetParams(fixed=B), batches_per_frame=100, tuning=tuning))
         for b in batches:
             pr.add_batch(b)
-        assert pr.raster.batch_groups == groups
+        assert pr.raster.batch_groups == tuning.batch_groups
+        assert pr.raster.vector_loads == (tuning.vector_loads and pr.store.words)
         style = pr.scene.style()
-        runs[groups] = []
+        runs[tuning] = []
         for _ in range(math.ceil(info.points / B) + 1):
             pr.frame(cam, style)
-            runs[groups].append(pr.read_ids())
+            runs[tuning].append(pr.read_ids())
         shown = batches_in_view(pr.store.boxes, view_uniforms(cam, info.origin, W, H))
         assert shown.any() and (shown.all() == (view == "overview"))
         gl.check()
         pr.release()
-    assert all(np.array_equal(a, b) for a, b in zip(runs[True], runs[False]))
-    assert not np.array_equal(runs[True][0], runs[True][-1])
-    assert np.array_equal(runs[True][-1], brute(cam))
+    reference = runs.pop(ComputeTuning(batch_groups=False))
+    for frames in runs.values():
+        assert all(np.array_equal(a, b) for a, b in zip(frames, reference))
+    assert not np.array_equal(reference[0], reference[-1])
+    assert np.array_equal(reference[-1], brute(cam))

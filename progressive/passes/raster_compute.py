@@ -37,10 +37,14 @@ class ComputeTuning:
     batched layout, walking its slices in the range, instead of one invocation per
     slot: a culled batch costs its group one read, not a read per point.
     subgroup_reduction: where GL_NV_shader_subgroup_partitioned exists, the points of a
-    subgroup that hit one pixel are reduced to one atomic (the least key)."""
+    subgroup that hit one pixel are reduced to one atomic (the least key).
+    vector_loads: a batch walk on the word store gives each invocation four consecutive
+    records and reads each word plane's four words as one 16-byte load (where the
+    batch's records are aligned), instead of PREFETCH records a slice apart."""
 
     batch_groups: bool = True
     subgroup_reduction: bool = False
+    vector_loads: bool = False
 
 
 DEFAULT_TUNING = ComputeTuning()
@@ -64,6 +68,7 @@ class ComputeRaster:
         self.atomic64 = atomic64
         self.partitioned = tuning.subgroup_reduction and subgroup_reduction_available(glc)
         self.batch_groups = tuning.batch_groups and store.batched
+        self.vector_loads = tuning.vector_loads and self.batch_groups and store.words
         self.culling = culling if store.batched else None
         self.passes = 1 if atomic64 else 2
         self.precision = precision
@@ -87,6 +92,8 @@ class ComputeRaster:
                 defines.update(ATOMIC64=0, DEPTH_PASS=int(pass_index == 0))
                 ext = ()
                 label = f"raster32 {('depth', 'index')[pass_index]} {source.name.lower()}"
+            if self.vector_loads and self._walks_batches(source):
+                defines["VECTOR_WORDS"] = 1
             defines["PARTITIONED"] = int(self.partitioned)
             ext += SUBGROUP_PARTITIONED if self.partitioned else ()
             self._programs[key] = shaderlib.compute(self.glc.ctx, "raster_compute.comp", defines, ext, label)
