@@ -10,7 +10,7 @@ filters and the projection, "+ read" the read-before-atomicMin, "atomic, no read
 every atomic without the read before it, "full" is the renderer's own. On the word
 store each stage runs at exact and adaptive precision, beside "load, no decode" (the
 words loaded, not decoded) and the full walk with 1, 2 or 8 records prefetched instead of
-PREFETCH, with the subgroup reduction, and with four-word loads (ComputeTuning.vector_loads;
+PREFETCH, with the subgroup reduction, with the decode not `precise`, and with four-word loads (ComputeTuning.vector_loads;
 its load and projection stages too). 64-bit only
 (llvmpipe lacks the atomics: the section says so and times the reads alone).
 """
@@ -73,6 +73,9 @@ STAGES = {
 NO_DECODE = ("    if (words.x == HIDDEN_WORD) return uvec3(EMPTY);\n",
              "    if (words.x != 0x7FC00001u) return words ^ uvec3(levels);\n")
 """points.glsl's position_bits cut after its hidden test: the words are loaded, not decoded."""
+FUSED = ("    precise vec3 offset = vec3(point_cells(words, levels)) * step;\n    precise vec3 p = base + offset;\n",
+         "    vec3 p = base + vec3(point_cells(words, levels)) * step;\n")
+"""position_bits without `precise` (the compiler may fuse the decode; its twin would differ): what exactness costs."""
 VARIANTS = {
     "load, no decode": (raster_compute.PREFETCH, ComputeTuning(),
                         {"raster_compute.comp": STAGES["load"], "points.glsl": NO_DECODE}),
@@ -81,6 +84,7 @@ VARIANTS = {
     "full, prefetch 8": (8, ComputeTuning(), {}),
     "full, subgroup reduction": (raster_compute.PREFETCH, ComputeTuning(subgroup_reduction=True), {}),
     "full, four-word loads": (raster_compute.PREFETCH, ComputeTuning(vector_loads=True), {}),
+    "full, decode fused": (raster_compute.PREFETCH, ComputeTuning(), {"points.glsl": FUSED}),
     "load, four-word loads": (raster_compute.PREFETCH, ComputeTuning(vector_loads=True),
                               {"raster_compute.comp": STAGES["load"]}),
     "+ project, four-word loads": (raster_compute.PREFETCH, ComputeTuning(vector_loads=True),
