@@ -232,6 +232,11 @@ class KeptRecords:
     def nbytes(self) -> int:
         return sum(p.nbytes for p in self._parts)
 
+    @property
+    def chunks(self) -> int:
+        """The LAZ chunks the records not taken yet hold."""
+        return self._chunks
+
     def take(self) -> tuple[list[np.ndarray], int]:
         """The records in file order and the LAZ chunks they hold; nothing after the first take."""
         parts, chunks = self._parts, self._chunks
@@ -261,19 +266,32 @@ class LasSource:
         parsed, a LAZ of point format 6-10 decodes only the layers they need (what
         `selection` says); the other fields of its records hold no meaningful values.
         The records `kept` by the probe come first where they hold those layers; the
-        rest is decoded by `decoders` where they take that many points (laz_pool.py)."""
+        rest is decoded by `decoders` where they take the file (pool_for)."""
         head = min(batch_points, FIRST_BATCH_POINTS)
         if self.laz is None:
             count = self.info.points
             starts = [0, *range(head, count, batch_points)]
             return (Span(first, min(count, end) - first) for first, end in zip(starts, [*starts[1:], count], strict=True))
+        pool = self.pool_for(decoders, names)
         parts, skip = self.kept.take() if self.kept is not None else ([], 0)
-        needed = ALL_LAYERS if names is None else layers(names)
-        if parts and self.info.point_format >= 6 and needed | self.kept.layers != self.kept.layers:
+        if parts and not self._reuses(names):
             parts, skip = [], 0         # the probe left out layers that the batches need
         decoded = decode(self.info.path, self.laz, self.records, self.info.points, batch_points, salvage=salvage,
-                         selection=None if names is None else needed, head=head, skip=skip, decoders=decoders)
+                         selection=None if names is None else layers(names), head=head, skip=skip, decoders=pool)
         return itertools.chain(_batches(parts, head, batch_points), decoded) if parts else decoded
+
+    def _reuses(self, names: tuple[str, ...] | None) -> bool:
+        """Whether the kept records hold every layer that batches of `names` need."""
+        needed = ALL_LAYERS if names is None else layers(names)
+        return self.info.point_format < 6 or needed | self.kept.layers == self.kept.layers
+
+    def pool_for(self, decoders: DecoderPool | None, names: tuple[str, ...] | None = None) -> DecoderPool | None:
+        """`decoders` where chunks() hands them this file: a LAZ decoded in parallel with
+        the points they take left after the kept records that batches of `names` reuse."""
+        if decoders is None or self.laz is None or not self.laz.chunks:
+            return None
+        skip = self.kept.chunks if self.kept is not None and self._reuses(names) else 0
+        return decoders if decoders.takes(self.info.points - sum(n for n, _ in self.laz.chunks[:skip])) else None
 
     def parse(self, chunk: np.ndarray | Span, start: int, origin: np.ndarray, names: tuple[str, ...]) -> Batch:
         """A Batch of the named attributes; positions are computed in float64 as laspy
@@ -373,10 +391,10 @@ def _pieces(path: str, laz: LazLayout | None, records: Records, count: int, piec
     """The first `count` records in file order, in arrays of any size, the first of about
     `head` points: read straight into numpy (the text patches of an uncompressed file lie
     before its points), decoded by lazrs over several chunks at once (only the `layers`
-    selected; the first `skip` chunks left out) in `decoders` where they take the points
-    left, else in this process, or else through laspy (every field)."""
+    selected; the first `skip` chunks left out) by `decoders` where given, else in this
+    process, or else through laspy (every field)."""
     if laz is not None and (skip or laz.chunks):
-        if decoders is not None and decoders.takes(count - sum(n for n, _ in laz.chunks[:skip])):
+        if decoders is not None:
             yield from decoders.decode(path, laz, count, head, records.dtype, piece, layers, skip)
         else:
             yield from decode_chunks(path, laz, count, head, records.dtype, available_cores(),

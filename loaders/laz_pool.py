@@ -43,14 +43,22 @@ from progressive.loaders.types import available_cores
 WORKER = Path(__file__).with_name("laz_worker.py")
 JOB_CHUNKS = 4096
 """Most chunks in one job, so that its message stays far below a Unix socket's buffer."""
-ROUNDS_PER_WORKER = 4
+ROUNDS_PER_WORKER = 8
 """Jobs per worker at least, where the file has that many chunks: all end at about the
 same time (a file of few jobs would keep one worker decoding alone at its end)."""
 ROUNDS_AHEAD = 2
 """Jobs in flight per worker: the next one waits in its socket while it decodes one."""
-MIN_PROCESS_POINTS = 2_000_000
-"""Points left to decode below which Decoders.AUTO stays in the loader's process: worker
-start-up and the parse of what it decodes first cost more than the processes save."""
+MIN_PROCESS_POINTS = 4_000_000
+"""Points left to decode below which Decoders.AUTO stays in the loader's process, where
+starting the workers costs more than they save (H200, 16 cores: 0.06 s slower for the
+1.5 M points a 2 M-point file has left, 0.4 s faster for 20 M: even near 4 M, interpolated)."""
+CORES_PER_PARSER = 4
+"""Parser threads that parse a pool's records at once: one per this many of its
+processes, at least MIN_PARSERS. Parsing takes about a tenth of the decode's time, and
+more threads contending for the GIL slow the thread that feeds the workers (H200, 16
+cores, 20 M points: 13.7 M points/s with 16 parsing at once, 14.8 with 8, 16.2 with 4
+or 2; lazrs alone 19.7)."""
+MIN_PARSERS = 2
 WAIT_S = 0.05
 """How long a wait for a worker's answer blocks before it looks at whether the pool closed."""
 GRACE_S = 1.0
@@ -142,6 +150,8 @@ class DecoderPool:
         if self.processes < 1:
             raise ValueError("a decoder pool needs at least one process")
         self.min_points = min_points
+        self.parse_gate = threading.BoundedSemaphore(max(MIN_PARSERS, self.processes // CORES_PER_PARSER))
+        """Held by a parser thread while it parses records of this pool's (pipeline.py)."""
         self._workers: list[_Worker] = []
         self._lock = threading.Lock()
         self._closed = False
@@ -227,9 +237,9 @@ class DecoderPool:
             message = pickle.dumps((job.id, path, offset, list(table), vlr, layers, job.nbytes))
             try:
                 socket.send_fds(worker.sock, [message], [job.fd])
-            except OSError:
+            except OSError as exc:
                 self._check_open()
-                raise
+                raise _ended(worker) from exc
         except BaseException:
             os.close(job.fd)
             raise
@@ -266,9 +276,7 @@ class DecoderPool:
                 raise
             if not raw:
                 self._check_open()
-                with contextlib.suppress(subprocess.TimeoutExpired):
-                    job.worker.process.wait(GRACE_S)
-                raise DecodeFailed(f"the LAZ decoder process ended (exit status {job.worker.process.returncode})")
+                raise _ended(job.worker)
             answer = pickle.loads(raw)
             if answer[0] == job.id:
                 return answer
@@ -303,6 +311,13 @@ class DecoderPool:
 
     def __exit__(self, *exc_info) -> None:
         self.close()
+
+
+def _ended(worker: _Worker) -> DecodeFailed:
+    """A worker gone (killed, or lazrs aborted it): its job's decode error."""
+    with contextlib.suppress(subprocess.TimeoutExpired):
+        worker.process.wait(GRACE_S)
+    return DecodeFailed(f"the LAZ decoder process ended (exit status {worker.process.returncode})")
 
 
 def _close_sockets(workers: list[_Worker]) -> None:

@@ -166,15 +166,23 @@ def _tasks(source: Source, start: int, batch_points: int, origin: np.ndarray,
         for batch in source.batches(batch_points, start):
             yield path, functools.partial(source.parse, batch)
         return
+    parse = source.parse
     if isinstance(source, CopcSource):      # its nodes are decoded by loaders/copc.py
         chunks = source.chunks(batch_points, salvage=partial, names=names)
     elif isinstance(source, LasSource):
+        if pool := source.pool_for(decoders, names):
+            parse = functools.partial(_gated, pool.parse_gate, parse)
         chunks = source.chunks(batch_points, salvage=partial, names=names, decoders=decoders)
     else:
         chunks = source.chunks(batch_points, salvage=partial)
     for chunk in chunks:
-        yield path, functools.partial(source.parse, chunk, start, origin, names)
+        yield path, functools.partial(parse, chunk, start, origin, names)
         start += len(chunk)
+
+
+def _gated(gate: threading.Semaphore, parse: Callable[..., Batch], *args) -> Batch:
+    with gate:
+        return parse(*args)
 
 
 def _as_input_error(path: str, exc: BaseException) -> InputError:

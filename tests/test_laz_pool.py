@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import io
 import os
-import signal
 import time
 
 import laspy
@@ -204,26 +203,25 @@ def test_nothing_is_left_behind_after_close_mid_load(monkeypatch):
 
 
 def test_a_worker_that_dies_is_one_line_not_a_hang(monkeypatch):
-    """A decoder process killed mid-load: the load fails in one line naming the file,
-    the other workers are ended, and nothing waits for the dead one."""
+    """A decoder process killed (here before its first job): the load fails in one line
+    naming the file, the other workers are ended, and nothing waits for the dead one."""
     path = shared_file("pine_plot.laz")
-    pools = started_pools(monkeypatch)
     fds = open_fds()
-    loader = CloudLoader([path], batch_points=5_000, parser_threads=1, laz=LazOptions(Decoders.PROCESSES, processes=2))
-    batches = iter(loader)
-    next(batches)
-    deadline = time.monotonic() + 10
-    while not pools[0].pids() and time.monotonic() < deadline:
-        time.sleep(0.01)
-    pids = pools[0].pids()
-    os.kill(pids[0], signal.SIGKILL)
+    started = []
+    original = DecoderPool._start
+
+    def start_and_kill(self):
+        original(self)
+        started.extend(self.pids())
+        victim = self._workers[1].process
+        victim.kill()
+        victim.wait()
+    monkeypatch.setattr(DecoderPool, "_start", start_and_kill)
     t0 = time.monotonic()
     with pytest.raises(InputError) as err:
-        for _ in batches:
-            pass
+        load([path], batch_points=5_000, parser_threads=1, laz=LazOptions(Decoders.PROCESSES, processes=2))
     assert time.monotonic() - t0 < 10
     one_line_naming(err.value, path)
-    loader.close()
-    assert all(ended(p) for p in pids)
-    del batches
+    assert "decoder process ended" in str(err.value)
+    assert started and all(ended(p) for p in started)
     assert open_fds() <= fds
