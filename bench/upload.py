@@ -1,8 +1,9 @@
 """Upload: the ring of persistently mapped staging slots beside the copy fallback (the
 same context as a driver without GL_ARB_buffer_storage offers it), in one run. For the
 bundled sample tiled to each size: seconds and points/s of bench.synthetic.load (tiles
-made, packed, distributed, glFinish) and of Scene.add_batch alone, and the pieces that
-went through the ring or were copied; then the time to the first image of `progressive
+made, packed, distributed, glFinish), of Scene.add_batch alone and of the GPU side
+alone (packed records staged and distributed again), and the pieces that went
+through the ring or were copied; then the time to the first image of `progressive
 view` (headless) with each, fresh processes with warm caches (as bench/startup.py's
 "Mesa + program cache").
 
@@ -68,6 +69,7 @@ def uploads(sizes: list[int], repeats: int) -> tuple[list[dict], object]:
     rows = []
     for points in sizes:
         cloud = tiled(str(SAMPLE), points)
+        records = list(cloud.batches())
         runs = {s: [] for s in Staging}
         for _ in range(repeats):
             for s in Staging:
@@ -75,17 +77,29 @@ def uploads(sizes: list[int], repeats: int) -> tuple[list[dict], object]:
                 d = scene.distribute
                 assert d.staging is s
                 runs[s].append({"seconds": seconds, "add_batch": scene.upload_seconds,
-                                "ring": d.stats.ring, "copied": d.stats.copied})
+                                "ring": d.stats.ring, "copied": d.stats.copied,
+                                "distribute": distribute_seconds(scene, records)})
                 scene.release()
         ratio = statistics.median(r["add_batch"] / c["add_batch"] for r, c in zip(runs[Staging.RING], runs[Staging.COPY]))
         for s in Staging:
-            med = {k: statistics.median(r[k] for r in runs[s]) for k in ("seconds", "add_batch")}
-            best = {k: min(r[k] for r in runs[s]) for k in ("seconds", "add_batch")}
+            med = {k: statistics.median(r[k] for r in runs[s]) for k in ("seconds", "add_batch", "distribute")}
+            best = {k: min(r[k] for r in runs[s]) for k in ("seconds", "add_batch", "distribute")}
             rows.append({"points": points, "staging": s.value, "runs": runs[s], "median": med, "best": best,
                          "ring_over_copy": ratio, "ring": runs[s][-1]["ring"], "copied": runs[s][-1]["copied"]})
     caps = glc.caps
     glc.release()
     return rows, caps
+
+
+def distribute_seconds(scene, records) -> float:
+    """The GPU side of loading alone: every batch's records, packed already, staged and
+    distributed again (its frames are set: the same words), to glFinish."""
+    scene.glc.ctx.finish()
+    t0 = time.perf_counter()
+    for start, rec in records:
+        scene.distribute.upload(rec, start)
+    scene.glc.ctx.finish()
+    return time.perf_counter() - t0
 
 
 def run(sizes: list[int], repeats: int, startup_repeats: int, size: tuple[int, int]):
@@ -97,7 +111,8 @@ def run(sizes: list[int], repeats: int, startup_repeats: int, size: tuple[int, i
     table = Table("upload", "Uploads: a ring of persistently mapped staging slots beside the copy fallback",
                   "autzen_trim.las tiled", ", ".join(f"{n:,}" for n in sizes),
                   ("points", "staging", "load s", "M points/s", "add_batch s (best)", "M points/s (add_batch)",
-                   "add_batch ring / copy", "pieces ring / copied", "first image s (best)", "upload s (first image)"))
+                   "add_batch ring / copy", "pieces ring / copied", "stage + distribute s (best)",
+                   "M points/s (stage + distribute)", "first image s (best)", "upload s (first image)"))
     load_before = os.getloadavg()[0]
     warm = {"mesa": tempfile.mkdtemp(prefix="mesa-warm-"), "programs": tempfile.mkdtemp(prefix="programs-warm-")}
     env = environment(WARM, warm)
@@ -118,6 +133,8 @@ def run(sizes: list[int], repeats: int, startup_repeats: int, size: tuple[int, i
         table.rows.append((r["points"], s.value, med["seconds"], r["points"] / med["seconds"] / 1e6,
                            f"{cell(med['add_batch'])} ({cell(r['best']['add_batch'])})",
                            r["points"] / med["add_batch"] / 1e6, r["ring_over_copy"], f"{r['ring']} / {r['copied']}",
+                           f"{cell(med['distribute'])} ({cell(r['best']['distribute'])})",
+                           r["points"] / med["distribute"] / 1e6,
                            f"{cell(first[s]['process'])} ({cell(best[s])})", first[s]["upload"]))
     table.notes = [
         (f"One run, ring and copy alternating, median of {repeats} (best in brackets); add_batch ring / copy: the "
@@ -128,7 +145,10 @@ def run(sizes: list[int], repeats: int, startup_repeats: int, size: tuple[int, i
          "glMapNamedBufferRange through ctypes); each piece is packed straight into a free slot, a fence per slot "
          "(glClientWaitSync, timeout 0) tells when it is free again, a piece finding its slot busy is copied. "
          "Copy: the same context as a driver without buffer storage offers it, each piece packed into host memory "
-         "and copied into an orphaned buffer."),
+         "and copied into an orphaned buffer. stage + distribute s: the GPU side of loading alone, after each load: "
+         "every batch's records, packed already, copied into the staging memory and distributed again (the word "
+         "store encodes them in their frames, set by the load), to glFinish; add_batch's batch boxes, frames and "
+         "packing are left out."),
         (f"first image s: `progressive view` headless on the bundled sample at {size[0]}x{size[1]}, a fresh process "
          f"from spawn to glFinish after the first frame with points, median of {startup_repeats}, caches warm "
          "(Mesa's shader cache and the program binary cache, as bench/startup.py's last state); upload s: the "
