@@ -17,7 +17,7 @@ import pytest
 from progressive.encoding import Encoding
 from progressive.loaders.records import attribute_word
 from progressive.loaders.types import AttributeInfo, AttributeKind, Batch
-from progressive.permutation import BATCH_POINTS
+from progressive.permutation import BATCH_POINTS, FillOrder
 from progressive.pointstore import EMPTY_WORD
 from progressive.scene import Scene
 from progressive.wordpack import WordPacker, WordRun, threaded
@@ -252,4 +252,19 @@ def test_parts_encoded_again_during_a_switch_are_rewritten(gl, sample_batches):
     assert scene.held[1] is None
     switch(scene, a)
     np.testing.assert_array_equal(scene.store.read_words()[:, 3], expected_words(scene, [z, x, y], a))
+    scene.release()
+
+
+@pytest.mark.parametrize("order", [FillOrder.SHUFFLED, FillOrder.FILE], ids=lambda o: o.name.lower())
+def test_switch_on_the_unbatched_baselines(gl, sample_batches, order):
+    """The benchmarks' baselines (one shuffle of the whole cloud, file order: float
+    records) switch through the general scatter."""
+    info, batches = sample_batches
+    scene = Scene(gl, info, info.attribute("intensity"), keep_batches=True, order=order)
+    for b in resplit(batches):
+        scene.add_batch(b)
+    attribute = info.attribute("rgb")
+    switch(scene, attribute)
+    assert not scene.store.batched
+    np.testing.assert_array_equal(scene.store.read_words()[:, 3], expected_words(scene, batches, attribute))
     scene.release()
