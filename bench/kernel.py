@@ -7,7 +7,7 @@ stages cut off one by one, on the same tiled cloud in one run.
 Stages are cut by rewriting the raster shader's text here (the renderer's shader has
 no switches for them): "load" keeps only the record reads, "+ project" adds the
 filters and the projection, "+ read" the read-before-atomicMin, "atomic, no read"
-every atomic without the read before it, "full" is the renderer's own. On the word
+every atomic without the read before it, "full" the whole one-word walk. On the word
 store each stage runs at exact and adaptive precision, beside "load, no decode" (the
 words loaded, not decoded) and the full walk with 1, 2 or 8 records prefetched instead of
 PREFETCH, with the subgroup reduction, with the decode not `precise`, and with four-word loads (ComputeTuning.vector_loads;
@@ -76,15 +76,18 @@ NO_DECODE = ("    if (words.x == HIDDEN_WORD) return uvec3(EMPTY);\n",
 FUSED = ("    precise vec3 offset = vec3(point_cells(words, levels)) * step;\n    precise vec3 p = base + offset;\n",
          "    vec3 p = base + vec3(point_cells(words, levels)) * step;\n")
 """position_bits without `precise` (the compiler may fuse the decode; its twin would differ): what exactness costs."""
+ONE_WORD = ComputeTuning(vector_loads=False)
+"""The stages' walk: one word a load, PREFETCH records a slice apart (the four-word
+walk, the renderer's 64-bit default, is a variant beside it)."""
 VARIANTS = {
-    "load, no decode": (raster_compute.PREFETCH, ComputeTuning(),
+    "load, no decode": (raster_compute.PREFETCH, ONE_WORD,
                         {"raster_compute.comp": STAGES["load"], "points.glsl": NO_DECODE}),
-    "full, prefetch 1": (1, ComputeTuning(), {}),
-    "full, prefetch 2": (2, ComputeTuning(), {}),
-    "full, prefetch 8": (8, ComputeTuning(), {}),
-    "full, subgroup reduction": (raster_compute.PREFETCH, ComputeTuning(subgroup_reduction=True), {}),
+    "full, prefetch 1": (1, ONE_WORD, {}),
+    "full, prefetch 2": (2, ONE_WORD, {}),
+    "full, prefetch 8": (8, ONE_WORD, {}),
+    "full, subgroup reduction": (raster_compute.PREFETCH, ComputeTuning(subgroup_reduction=True, vector_loads=False), {}),
     "full, four-word loads": (raster_compute.PREFETCH, ComputeTuning(vector_loads=True), {}),
-    "full, decode fused": (raster_compute.PREFETCH, ComputeTuning(), {"points.glsl": FUSED}),
+    "full, decode fused": (raster_compute.PREFETCH, ONE_WORD, {"points.glsl": FUSED}),
     "load, four-word loads": (raster_compute.PREFETCH, ComputeTuning(vector_loads=True),
                               {"raster_compute.comp": STAGES["load"]}),
     "+ project, four-word loads": (raster_compute.PREFETCH, ComputeTuning(vector_loads=True),
@@ -154,7 +157,7 @@ def stages(glc: GLContext, points: int, size: tuple[int, int], repeats: int) -> 
         r = Renderer(glc, cloud.info, cloud.attribute, width=width, height=height, scene=scene)
         style = r.style()
         runs = [(stage, {} if patch is None else {"raster_compute.comp": patch}, raster_compute.PREFETCH,
-                 ComputeTuning()) for stage, patch in STAGES.items()]
+                 ONE_WORD) for stage, patch in STAGES.items()]
         if scene.store.words:
             runs += [(name, patches, prefetch, tuning) for name, (prefetch, tuning, patches) in VARIANTS.items()]
         precisions = (Precision.EXACT, Precision.ADAPTIVE) if scene.store.words else (Precision.EXACT,)

@@ -100,17 +100,16 @@ def variants(glc: GLContext, batched: bool, words: bool) -> list[tuple[Raster, C
     reduction, and on the word store a batch walk with four-word loads and with adaptive
     precision, so each choice is measured side by side."""
     reduce = subgroup_reduction_available(glc)
-    tunings = [ComputeTuning(batch_groups=g, subgroup_reduction=s) for g in ((False, True) if batched else (False,))
-               for s in ((False, True) if reduce else (False,))]
+    tunings = [ComputeTuning(batch_groups=g, subgroup_reduction=s, vector_loads=False)
+               for g in ((False, True) if batched else (False,)) for s in ((False, True) if reduce else (False,))]
     out = []
     for r in rasters(glc):
         if r is Raster.POINTS:
             out.append((r, ComputeTuning(), Precision.EXACT))
             continue
         out += [(r, t, Precision.EXACT) for t in tunings]
-        vector = ComputeTuning(vector_loads=True)
-        out += [(r, vector, Precision.EXACT), (r, ComputeTuning(), Precision.ADAPTIVE),
-                (r, vector, Precision.ADAPTIVE)] if words else []
+        one, four = ComputeTuning(vector_loads=False), ComputeTuning(vector_loads=True)
+        out += [(r, four, Precision.EXACT), (r, one, Precision.ADAPTIVE), (r, four, Precision.ADAPTIVE)] if words else []
     return out
 
 

@@ -157,8 +157,8 @@ def test_stats_report_batches_culled(tmp_path, sample):
     assert counts["outside"] == {"total": total, "drawn": 0, "culled": total, "bits": dict(exact, **{"30": 0})}
 
 
-TUNINGS = [ComputeTuning(vector_loads=True), ComputeTuning(vector_loads=True, subgroup_reduction=True)] + [
-    ComputeTuning(batch_groups=g, subgroup_reduction=s) for g in (True, False) for s in (True, False)]
+TUNINGS = [ComputeTuning(batch_groups=g, vector_loads=v, subgroup_reduction=s)
+           for g, v in ((True, True), (True, False), (False, False)) for s in (True, False)]
 """Every way the compute raster walks the store; the last (one invocation a slot, an
 atomic a point) is the plain reference the others must equal."""
 
@@ -211,7 +211,7 @@ def test_every_tuning_keeps_the_ids(gl, sample, atomic64, name, shape):
             if tuning.subgroup_reduction and not r.raster.partitioned:
                 continue
             assert r.raster.batch_groups == tuning.batch_groups
-            assert r.raster.vector_loads == (tuning.vector_loads and scene.store.words)
+            assert r.raster.vector_loads == bool(tuning.vector_loads and tuning.batch_groups and scene.store.words)
             seen[tuning] = [slots_of_range(gl, r, cam, *span) for span in ranges]
         reference = seen.pop(TUNINGS[-1])
         assert len(seen) >= 1 and (reference[0] != EMPTY).any()

@@ -270,13 +270,13 @@ def test_fill_pieces_walk_batches_frame_for_frame(gl, cloud, brute, view):
         position=tuple(lo + (hi - lo) * [0.15, 0.15, 0.0] + [0, 0, 0.4 * (hi - lo)[0]]),
         target=tuple(lo + (hi - lo) * [0.15, 0.15, 0.0]), up=(0, 1, 0), near=1.0, far=1e4)
     runs = {}
-    for tuning in (ComputeTuning(vector_loads=True), ComputeTuning(), ComputeTuning(batch_groups=False)):
+    for tuning in (ComputeTuning(vector_loads=True), ComputeTuning(vector_loads=False), ComputeTuning(batch_groups=False)):
         pr = ProgressiveRenderer(gl, info, default_attribute(info), ProgressiveOptions(
             W, H, budget=BudgetParams(fixed=B), batches_per_frame=100, tuning=tuning))
         for b in batches:
             pr.add_batch(b)
         assert pr.raster.batch_groups == tuning.batch_groups
-        assert pr.raster.vector_loads == (tuning.vector_loads and pr.store.words)
+        assert pr.raster.vector_loads == bool(tuning.vector_loads and tuning.batch_groups and pr.store.words)
         style = pr.scene.style()
         runs[tuning] = []
         for _ in range(math.ceil(info.points / B) + 1):

@@ -40,11 +40,13 @@ class ComputeTuning:
     subgroup that hit one pixel are reduced to one atomic (the least key).
     vector_loads: a batch walk on the word store gives each invocation four consecutive
     records and reads each word plane's four words as one 16-byte load (where the
-    batch's records are aligned), instead of PREFETCH records a slice apart."""
+    batch's records are aligned), instead of PREFETCH records a slice apart. None: on
+    the 64-bit path only; the 32-bit two-pass path measured slower with it on the H200
+    (bench/results/nvidia-h200/raster_100000000.md), where the 64-bit walk gained."""
 
     batch_groups: bool = True
     subgroup_reduction: bool = False
-    vector_loads: bool = False
+    vector_loads: bool | None = None
 
 
 DEFAULT_TUNING = ComputeTuning()
@@ -68,7 +70,8 @@ class ComputeRaster:
         self.atomic64 = atomic64
         self.partitioned = tuning.subgroup_reduction and subgroup_reduction_available(glc)
         self.batch_groups = tuning.batch_groups and store.batched
-        self.vector_loads = tuning.vector_loads and self.batch_groups and store.words
+        vector = atomic64 if tuning.vector_loads is None else tuning.vector_loads
+        self.vector_loads = vector and self.batch_groups and store.words
         self.culling = culling if store.batched else None
         self.passes = 1 if atomic64 else 2
         self.precision = precision
