@@ -26,6 +26,7 @@ from bench.report import Table
 from progressive.budget import BudgetParams
 from progressive.context import GLContext
 from progressive.loaders import CloudLoader
+from progressive.loaders.copc import is_copc
 from progressive.loaders.laz_pool import MIN_PROCESS_POINTS, Decoders, LazOptions
 from progressive.loaders.types import available_cores
 
@@ -160,7 +161,8 @@ def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats
                 if case.format == "LAZ" else None
             if cold:
                 cold_forced[f"{case.label} {case.format}"] = raw_s
-            for decoders, t in itertools.product(LAZ_DECODERS if case.format == "LAZ" else (None,), threads):
+            pooled = case.format == "LAZ" and not is_copc(case.path)      # COPC nodes are decoded by loaders/copc.py
+            for decoders, t in itertools.product(LAZ_DECODERS if pooled else (None,), threads):
                 s = timed(functools.partial(pipeline, case.path, t, decoders or Decoders.AUTO), case.path, cold, repeats)
                 row = {"file": case.label, "format": case.format, "scaled": case.scaled, "bytes": size_b, "points": case.points,
                        "cold": cold, "threads": t, "decoders": decoders.value if decoders else None,
@@ -187,7 +189,8 @@ def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats
          f"are that many ({cores} rows). A LAZ is decoded on every core whatever the parser threads, either by "
          "lazrs's threads in the loader's process (LAZ decoders `threads`: lazrs holds the GIL through each read) "
          f"or by {cores} decoder processes, one a core, whose records the parser threads parse (`processes`; "
-         f"the loader's default for a file with {MIN_PROCESS_POINTS:,} points or more left after its first batches). "
+         f"the loader's default for a file with {MIN_PROCESS_POINTS:,} points or more left after its first batches; "
+         "a COPC file's nodes are decoded in the loader's process, one row). "
          "Loader: `CloudLoader` (reader thread + parser threads) to float32 positions and attribute arrays. "
         "× laspy = seconds of `laspy.read()` plus float32 positions relative to the bounds' centre and one attribute "
         "(RGB, else intensity), divided by the loader's seconds, same file and cache state, same run; for the fast "

@@ -37,7 +37,8 @@ import laspy
 import lazrs
 import numpy as np
 
-from progressive.loaders.laz import TABLE_OFFSET_BYTES, Chunk, LazLayout, clipped
+from progressive.loaders.laz import TABLE_OFFSET_BYTES, Chunk, LazLayout, clipped, decode_chunks
+from progressive.loaders.laz_worker import READY
 from progressive.loaders.types import available_cores
 
 WORKER = Path(__file__).with_name("laz_worker.py")
@@ -63,6 +64,8 @@ WAIT_S = 0.05
 """How long a wait for a worker's answer blocks before it looks at whether the pool closed."""
 GRACE_S = 1.0
 """How long closing waits for workers to end by themselves before they are killed."""
+START_S = 10.0
+"""How long the workers may take to start (import lazrs) before the loader decodes itself."""
 ANSWER_BYTES = 1 << 16
 
 
@@ -156,6 +159,7 @@ class DecoderPool:
         self._lock = threading.Lock()
         self._closed = False
         self._active = False
+        self._failed = False
         self._ids = itertools.count()
 
     @classmethod
@@ -171,21 +175,38 @@ class DecoderPool:
     def pids(self) -> list[int]:
         return [w.process.pid for w in self._workers]
 
-    def _start(self) -> None:
+    def _start(self) -> list[_Worker]:
+        """The workers, each ready (lazrs imported) within START_S; none where one is not
+        (a Python without lazrs, say): then the loader's process decodes."""
         env = {**os.environ, "RAYON_NUM_THREADS": "1"}
-        for _ in range(self.processes):
-            ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
-            try:
-                process = subprocess.Popen([sys.executable, "-P", str(WORKER), str(theirs.fileno())],
-                                           pass_fds=(theirs.fileno(),), env=env, stdin=subprocess.DEVNULL,
-                                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-            except BaseException:
-                ours.close()
-                raise
-            finally:
-                theirs.close()
-            ours.settimeout(WAIT_S)
-            self._workers.append(_Worker(process, ours))
+        workers: list[_Worker] = []
+        try:
+            for _ in range(self.processes):
+                ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+                try:
+                    process = subprocess.Popen([sys.executable, "-P", str(WORKER), str(theirs.fileno())],
+                                               pass_fds=(theirs.fileno(),), env=env, stdin=subprocess.DEVNULL,
+                                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                except BaseException:
+                    ours.close()
+                    raise
+                finally:
+                    theirs.close()
+                ours.settimeout(WAIT_S)
+                workers.append(_Worker(process, ours))
+            deadline = time.monotonic() + START_S
+            for w in workers:
+                while (ready := _ready(w)) is None and time.monotonic() < deadline and not self._closed:
+                    pass
+                if not ready:
+                    raise OSError("a LAZ decoder process did not start")
+        except OSError:
+            _end(workers)
+            return []
+        except BaseException:
+            _end(workers)
+            raise
+        return workers
 
     def decode(self, path: str, laz: LazLayout, points: int, first_read: int, dtype: np.dtype, piece: int,
                layers: laspy.DecompressionSelection | None = None, skip: int = 0) -> Iterator[np.ndarray]:
@@ -193,7 +214,8 @@ class DecoderPool:
         for the first `skip`; only the LAZ layers `layers` decoded, None: all), decoded
         by the workers in jobs of whole chunks (the first of about `first_read` points,
         then of at most `piece`, ROUNDS_PER_WORKER a worker where there are chunks enough),
-        as record arrays in file order, one per job."""
+        as record arrays in file order, one per job; where the workers cannot start, by
+        decode_chunks in this process."""
         bits = None if layers is None else lazrs_bits(layers)
         chunks = clipped(list(laz.chunks), points, None)
         offset = laz.point_data + TABLE_OFFSET_BYTES + sum(n for _, n in chunks[:skip])
@@ -202,16 +224,18 @@ class DecoderPool:
         jobs = runs(chunks, first_read, min(piece, max(1, left // (self.processes * ROUNDS_PER_WORKER))))
         starts = list(itertools.accumulate((sum(n for _, n in chunks[a:b]) for a, b in jobs), initial=offset))
         with self._lock:
-            if self._closed:
-                raise PoolClosed("the decoder pool is closed")
+            self._check_open()
             if self._active:
                 raise RuntimeError("one decode at a time")
             self._active = True
-            if not self._workers:
-                self._start()
-            workers = self._workers
+        workers: list[_Worker] = []
         pending: deque[_Job] = deque()
         try:
+            workers = self._workers or self._started()
+            if not workers:
+                yield from decode_chunks(path, laz, points, first_read, dtype, available_cores(),
+                                         None if layers is None else layers.to_lazrs(), skip)
+                return
             for i, (first, end) in enumerate(jobs):
                 while len(pending) >= ROUNDS_AHEAD * len(workers):
                     yield self._take(pending.popleft(), dtype)
@@ -226,6 +250,21 @@ class DecoderPool:
                 self._active = False
                 if self._closed:
                     _close_sockets(workers)
+
+    def _started(self) -> list[_Worker]:
+        """The workers, started now; none where they cannot start (once failed, not tried
+        again)."""
+        if self._failed:
+            return []
+        started = self._start()
+        with self._lock:
+            closed = self._closed
+            if not closed:
+                self._workers, self._failed = started, not started
+        if closed:
+            _end(started)
+            self._check_open()
+        return started
 
     def _send(self, worker: _Worker, path: str, offset: int, table: tuple[Chunk, ...], vlr: bytes,
               layers: int | None, itemsize: int) -> _Job:
@@ -298,13 +337,7 @@ class DecoderPool:
                     w.sock.shutdown(socket.SHUT_RDWR)
             if not active:
                 _close_sockets(workers)
-        deadline = time.monotonic() + GRACE_S
-        for w in workers:
-            with contextlib.suppress(subprocess.TimeoutExpired):
-                w.process.wait(max(0.0, deadline - time.monotonic()))
-            if w.process.poll() is None:
-                w.process.kill()
-                w.process.wait()
+        _reap(workers)
 
     def __enter__(self) -> DecoderPool:
         return self
@@ -318,6 +351,32 @@ def _ended(worker: _Worker) -> DecodeFailed:
     with contextlib.suppress(subprocess.TimeoutExpired):
         worker.process.wait(GRACE_S)
     return DecodeFailed(f"the LAZ decoder process ended (exit status {worker.process.returncode})")
+
+
+def _ready(worker: _Worker) -> bool | None:
+    """Whether the worker said it is ready; None: not yet (WAIT_S passed)."""
+    try:
+        return worker.sock.recv(len(READY)) == READY
+    except TimeoutError:
+        return None
+    except OSError:
+        return False
+
+
+def _reap(workers: list[_Worker]) -> None:
+    """Wait for workers whose sockets are shut to end; kill those that have not within GRACE_S."""
+    deadline = time.monotonic() + GRACE_S
+    for w in workers:
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            w.process.wait(max(0.0, deadline - time.monotonic()))
+        if w.process.poll() is None:
+            w.process.kill()
+            w.process.wait()
+
+
+def _end(workers: list[_Worker]) -> None:
+    _close_sockets(workers)
+    _reap(workers)
 
 
 def _close_sockets(workers: list[_Worker]) -> None:

@@ -2,11 +2,12 @@
 lazrs and the standard library only, never the package, so it is ready in the time
 lazrs takes to import and shares no state (no GL context, no threads) with the loader.
 
-It reads jobs from the socket whose descriptor is its argument, one message each, with
-the memfd to decode into attached: it reads the job's compressed chunks from the file
-itself and decodes them on one core (RAYON_NUM_THREADS=1), then answers with the job's
-id and, where decoding failed, the exception's name and message. It ends when the
-socket closes; Ctrl+C reaches the whole process group and is the loader's to handle.
+It says READY on the socket whose descriptor is its argument, then reads jobs from it,
+one message each with the memfd to decode into attached: it reads the job's compressed
+chunks from the file itself and decodes them on one core (RAYON_NUM_THREADS=1), then
+answers with the job's id and, where decoding failed, the exception's name and message.
+It ends when the socket closes; Ctrl+C reaches the whole process group and is the
+loader's to handle.
 """
 
 import mmap
@@ -19,6 +20,8 @@ import sys
 
 import lazrs
 
+READY = b"ready"
+"""The first message, once lazrs is imported."""
 MESSAGE_BYTES = 1 << 20
 """Largest job message read (a job holds at most laz_pool.JOB_CHUNKS chunks)."""
 
@@ -71,6 +74,7 @@ def _decode(files: _Files, job: tuple, out_fd: int) -> None:
 def main(fd: int) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     sock = socket.socket(fileno=fd)
+    sock.sendall(READY)
     files = _Files()
     while True:
         try:

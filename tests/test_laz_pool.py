@@ -211,11 +211,11 @@ def test_a_worker_that_dies_is_one_line_not_a_hang(monkeypatch):
     original = DecoderPool._start
 
     def start_and_kill(self):
-        original(self)
-        started.extend(self.pids())
-        victim = self._workers[1].process
-        victim.kill()
-        victim.wait()
+        workers = original(self)
+        started.extend(w.process.pid for w in workers)
+        workers[1].process.kill()
+        workers[1].process.wait()
+        return workers
     monkeypatch.setattr(DecoderPool, "_start", start_and_kill)
     t0 = time.monotonic()
     with pytest.raises(InputError) as err:
@@ -224,4 +224,33 @@ def test_a_worker_that_dies_is_one_line_not_a_hang(monkeypatch):
     one_line_naming(err.value, path)
     assert "decoder process ended" in str(err.value)
     assert started and all(ended(p) for p in started)
+    assert open_fds() <= fds
+
+
+def test_workers_that_cannot_start_leave_the_decoding_here(tmp_path, monkeypatch):
+    """A worker that ends before it is ready (a Python without lazrs, say): the file is
+    decoded in the loader's process, to the same points, and no process is left."""
+    broken = tmp_path / "worker.py"
+    broken.write_text("import sys\nsys.exit(1)\n")
+    monkeypatch.setattr(laz_pool, "WORKER", broken)
+    pools = started_pools(monkeypatch)
+    path = shared_file("pine_plot.laz")
+    loader, batches = load([path], laz=PROCESSES)
+    assert pools and pools[0]._failed and not pools[0].pids()
+    assert_equals_laspy(loader, batches, laspy.read(path))
+
+
+def test_keyboard_interrupt_mid_load_ends_the_workers(monkeypatch):
+    """Ctrl+C while the consumer iterates (the CLI's Interrupted comes the same way): the
+    loader's context ends its workers, and no descriptor is left open."""
+    path = shared_file("pine_plot.laz")
+    fds = open_fds()
+    pools = started_pools(monkeypatch)
+    with pytest.raises(KeyboardInterrupt), CloudLoader([path], batch_points=20_000, parser_threads=1,
+                                                       laz=LazOptions(Decoders.PROCESSES, processes=2)) as loader:
+        for _ in loader:
+            pids = pools[0].pids() if pools else []
+            raise KeyboardInterrupt
+    assert pids and all(ended(p) for p in pids)
+    del loader
     assert open_fds() <= fds
