@@ -2,11 +2,12 @@
 
 One reader thread hands work to parser threads through a one-slot queue, in file order:
 the spans of an uncompressed file (each parser reads its own, without the GIL), LAZ
-points decoded by lazrs several chunks at a time on every core, the chunks of the other
-formats. Parsed batches wait in a queue of parser_threads slots. So at most about
-2 x parser_threads + 2 batches (and one LAZ read, and until the first file's first
-batches are parsed, the records its probe kept: las.KEPT_BYTES) are in memory at once,
-however large the cloud is. Parser threads default to the cores this process may use.
+points decoded by lazrs several chunks at a time on every core (a large file's by
+decoder processes: laz_pool.py), the chunks of the other formats. Parsed batches wait
+in a queue of parser_threads slots. So at most about 2 x parser_threads + 2 batches
+(and one LAZ read, or a pool's ROUNDS_AHEAD jobs a worker, and until the first file's
+first batches are parsed, the records its probe kept: las.KEPT_BYTES) are in memory at
+once, however large the cloud is. Parser threads default to the cores this process may use.
 An http(s):// URL is a COPC file read by range requests (`http` says how:
 loaders/http.py).
 """
