@@ -5,6 +5,7 @@ switched by streaming one word a point (paper 3.5) instead of reloading the file
 
 from __future__ import annotations
 
+import bisect
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
@@ -93,6 +94,7 @@ class Scene:
         self.held: list[AttributeInfo | None] = []
         """The attribute the GPU words of each kept batch hold (None: a mix, while a
         switch was under way when parts of it were encoded again)."""
+        self._by_start: list[tuple[int, int]] = []      # (start, index) of the kept batches, in file order
         self.switch: AttributeSwitch | None = None
         self._pool: ThreadPoolExecutor | None = None     # packs words; made at the first switch
         self._percentile: PercentilePass | None = None
@@ -122,6 +124,7 @@ class Scene:
         if self.keep_batches:
             # Without its integers (12 bytes a point of host memory): a kept batch sent
             # again (hidden points, attribute switching) is encoded from its positions.
+            bisect.insort(self._by_start, (batch.start, len(self.batches)))
             self.batches.append(replace(batch, grid=None) if batch.grid is not None else batch)
             self.held.append(self.attribute)
         self.loaded += batch.count
@@ -207,8 +210,11 @@ class Scene:
         kept loader batches holding them and another attribute now hold a mix (with no
         switch under way every kept batch holds the attribute shown)."""
         lo, hi = b * BATCH_POINTS, (b + 1) * BATCH_POINTS
-        for k, kept in enumerate(self.batches):
-            if self.held[k] != self.attribute and kept.start < hi and kept.start + kept.count > lo:
+        at = max(0, bisect.bisect_right(self._by_start, (lo, len(self.batches))) - 1)
+        for start, k in self._by_start[at:]:
+            if start >= hi:
+                break
+            if self.held[k] != self.attribute and start + self.batches[k].count > lo:
                 self.held[k] = None
 
     def begin_switch(self, attribute: AttributeInfo) -> AttributeSwitch:
@@ -224,7 +230,7 @@ class Scene:
         previous = (*old.previous, old.attribute) if old and not old.done else (self.attribute,)
         if old is not None and old.next_row:
             self.held[old.order[old.next_batch]] = None     # streamed in part: a mix
-        order = sorted(range(len(self.batches)), key=lambda k: self.batches[k].start)
+        order = [k for _, k in self._by_start]
         self.switch = AttributeSwitch(attribute, previous, len(self.batches), sum(b.count for b in self.batches),
                                       order)
         self.attribute = attribute
@@ -377,6 +383,7 @@ class Scene:
         self.store.release()
         self.batches.clear()
         self.held.clear()
+        self._by_start.clear()
 
 
 CLASSIFICATION = "classification"
