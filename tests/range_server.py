@@ -1,13 +1,16 @@
 """An HTTP server on 127.0.0.1 serving files by range requests, in a thread, for the
 COPC-over-HTTP tests: the standard library's http.server with a Range handler, and the
 faults of bad networks on demand (ranges ignored, connections dropped mid-answer, slow
-answers). It counts what it answers, for the status the reader reports.
+answers). It counts what it answers, for the status the reader reports. With `tls`
+(a certificate and its key, self_signed makes them) it serves HTTPS.
 """
 
 from __future__ import annotations
 
 import re
 import socket
+import ssl
+import subprocess
 import threading
 import time
 from dataclasses import dataclass, field
@@ -33,10 +36,20 @@ class Faults:
     idle kept-alive connections does)."""
 
 
+def self_signed(folder: Path) -> tuple[Path, Path]:
+    """A certificate for 127.0.0.1 signed by its own key (the openssl command), and the
+    key: a client trusts it only where told to (SSL_CERT_FILE)."""
+    cert, key = folder / "server.pem", folder / "server.key"
+    subprocess.run(["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "2", "-subj",
+                    "/CN=127.0.0.1", "-addext", "subjectAltName=IP:127.0.0.1", "-keyout", str(key), "-out", str(cert)],
+                   check=True, capture_output=True, timeout=60)
+    return cert, key
+
+
 class RangeServer:
     """`with RangeServer({"name": path}) as server: server.url("name")`."""
 
-    def __init__(self, files: dict[str, Path]):
+    def __init__(self, files: dict[str, Path], tls: tuple[Path, Path] | None = None):
         self.files = {name: Path(path).read_bytes() for name, path in files.items()}
         self.faults = Faults()
         self.lock = threading.Lock()
@@ -46,6 +59,11 @@ class RangeServer:
         self.active = self.most_active = 0      # requests being answered now, and at most so far
         self.connections = 0                    # accepted
         self._server = _Server(("127.0.0.1", 0), _Handler)
+        self.scheme = "https" if tls else "http"
+        if tls:
+            context = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
+            context.load_cert_chain(*map(str, tls))
+            self._server.socket = context.wrap_socket(self._server.socket, server_side=True)
         self._server.daemon_threads = True
         self._server.block_on_close = False
         self._server.owner = self
@@ -53,7 +71,7 @@ class RangeServer:
                                         daemon=True)
 
     def url(self, name: str) -> str:
-        return f"http://127.0.0.1:{self._server.server_address[1]}/{name}"
+        return f"{self.scheme}://127.0.0.1:{self._server.server_address[1]}/{name}"
 
     def counts(self) -> tuple[int, int]:
         with self.lock:

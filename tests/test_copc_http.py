@@ -15,7 +15,7 @@ import time
 import laspy
 import numpy as np
 import pytest
-from range_server import Faults, RangeServer
+from range_server import Faults, RangeServer, self_signed
 from test_copc import SMALL, damaged_copc, limit_for, nodes_of, plain_copy
 
 from conftest import SAMPLE, SHARED_DATA
@@ -334,6 +334,50 @@ def test_server_that_ignores_ranges(server, tmp_path, capsys):
     code, _, err, took = run_cli(["render", *SMALL, server.url("sample.copc.laz"), "--out", str(out)], capsys)
     assert_one_error(code, err, "ignores range requests", "200")
     assert not out.exists() and took < BOUND_S
+
+
+@pytest.fixture(scope="module")
+def tls(tmp_path_factory):
+    """A self-signed certificate for 127.0.0.1 and its key."""
+    return self_signed(tmp_path_factory.mktemp("tls"))
+
+
+def test_https_equals_local(files, tls, tmp_path, capsys, monkeypatch):
+    """Over HTTPS, from a server whose self-signed certificate the client is told to
+    trust (SSL_CERT_FILE, as a user with a private CA does), info --json and render
+    --ids equal the local file's."""
+    monkeypatch.setenv("SSL_CERT_FILE", str(tls[0]))
+    local = str(files["sample.copc.laz"])
+    with RangeServer(files, tls=tls) as secure:
+        url = secure.url("sample.copc.laz")
+        assert url.startswith("https://")
+        descs, ids = [], []
+        for source in (url, local):
+            code, out, err, _ = run_cli(["info", "--json", source], capsys)
+            assert code == 0, err
+            descs.append(json.loads(out.replace(json.dumps(source)[1:-1], "FILE")))
+            path = tmp_path / "ids.npy"
+            code, _, err, _ = run_cli(["render", *SMALL, source, "--ids", str(path)], capsys)
+            assert code == 0, err
+            ids.append(np.load(path))
+        assert secure.counts()[1] > 0
+    assert descs[0] == descs[1]
+    np.testing.assert_array_equal(ids[0], ids[1])
+    assert (ids[0] != 0xFFFFFFFF).sum() > 500
+
+
+def test_https_certificate_not_trusted(files, tls, tmp_path, capsys, monkeypatch):
+    """A certificate nobody vouches for: one line that says so, exit status 2, nothing
+    written, for render and info."""
+    monkeypatch.delenv("SSL_CERT_FILE", raising=False)
+    out = tmp_path / "out.png"
+    with RangeServer(files, tls=tls) as secure:
+        url = secure.url("sample.copc.laz")
+        code, _, err, _ = run_cli(["render", *SMALL, url, "--out", str(out)], capsys)
+        assert_one_error(code, err, url, "certificate verify failed")
+        assert not out.exists()
+        code, _, err, _ = run_cli(["info", url], capsys)
+        assert_one_error(code, err, url, "certificate verify failed")
 
 
 def test_nothing_there(server, tmp_path, capsys):
