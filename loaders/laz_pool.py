@@ -223,6 +223,8 @@ class DecoderPool:
         left = sum(n for n, _ in chunks)
         jobs = runs(chunks, first_read, min(piece, max(1, left // (self.processes * ROUNDS_PER_WORKER))))
         starts = list(itertools.accumulate((sum(n for _, n in chunks[a:b]) for a, b in jobs), initial=offset))
+        if not jobs:
+            return
         with self._lock:
             self._check_open()
             if self._active:
