@@ -3,7 +3,8 @@ first, within a point budget.
 
 A node's screen-space error is its spacing (the distance between its points: the file's
 root spacing halved at each level) projected at its nearest distance to the eye, in
-pixels; a node wholly behind the eye has none. Nodes are taken greedily, the largest
+pixels; a node wholly behind the eye, or (where the view knows its up direction and
+aspect) wholly beyond a side of the image, has none. Nodes are taken greedily, the largest
 error first, a node only once its parent is taken (so the kept set is a tree cut from
 the root and, since a child does not repeat its parent's points, a set without
 duplicates), until the next one does not fit. A child's error is at most half its
@@ -26,13 +27,17 @@ import numpy as np
 class View:
     """What the node choice needs of a camera, in the files' coordinates: the eye, the
     direction it looks, the image height in pixels and either the vertical field of view
-    (perspective) or the world height the image spans (orthographic)."""
+    (perspective) or the world height the image spans (orthographic); with `up` and
+    `aspect` (width over height) also the sides of the image, so nodes off screen rank
+    last. Without them only what is behind the eye does."""
 
     position: tuple[float, float, float]
     forward: tuple[float, float, float]
     image_height: int
     fov_y_deg: float | None = 60.0
     ortho_height: float | None = None
+    up: tuple[float, float, float] | None = None
+    aspect: float | None = None
 
     def __post_init__(self) -> None:
         if (self.fov_y_deg is None) == (self.ortho_height is None):
@@ -47,6 +52,32 @@ class View:
             raise ValueError("a view's field of view must be in (0, 180) degrees")
         if self.ortho_height is not None and not (math.isfinite(self.ortho_height) and self.ortho_height > 0):
             raise ValueError("a view's orthographic height must be a positive number")
+        if (self.up is None) != (self.aspect is None):
+            raise ValueError("a view's sides need both its up direction and its aspect")
+        if self.aspect is not None and not (math.isfinite(self.aspect) and self.aspect > 0):
+            raise ValueError("a view's aspect must be a positive number")
+        if self.up is not None and not all(map(math.isfinite, self.up)):
+            raise ValueError("a view's up must be finite")
+
+    def side_planes(self) -> list[tuple[np.ndarray, float]] | None:
+        """The image's four sides as (n, c): a point p is on the image's side of one where
+        (p - eye)·n + c >= 0. None where the sides are unknown, or up is along forward."""
+        if self.up is None:
+            return None
+        f = np.asarray(self.forward, np.float64)
+        f = f / np.linalg.norm(f)
+        r = np.cross(f, np.asarray(self.up, np.float64))
+        if not np.linalg.norm(r) > 1e-9:
+            return None
+        r /= np.linalg.norm(r)
+        u = np.cross(r, f)
+        if self.ortho_height is not None:
+            half_h = self.ortho_height / 2.0
+            half_w = half_h * self.aspect
+            return [(-r, half_w), (r, half_w), (-u, half_h), (u, half_h)]
+        tan_y = math.tan(math.radians(self.fov_y_deg) / 2.0)
+        tan_x = tan_y * self.aspect
+        return [(tan_x * f - r, 0.0), (tan_x * f + r, 0.0), (tan_y * f - u, 0.0), (tan_y * f + u, 0.0)]
 
     def pixels_per_unit(self, distance: np.ndarray) -> np.ndarray:
         """Pixels one world unit spans at each `distance` from the eye (inf at 0)."""
@@ -84,13 +115,16 @@ class Nodes:
         return cls(*(np.concatenate(column) for column in zip(*parts)))
 
     def errors(self, view: View) -> np.ndarray:
-        """Each node's screen-space error in pixels for `view` (0 wholly behind the eye or
-        without a spacing; inf for a node the eye is in)."""
+        """Each node's screen-space error in pixels for `view` (0 wholly behind the eye,
+        beyond a side of the image or without a spacing; inf for a node the eye is in)."""
         eye = np.asarray(view.position, np.float64)
         hi = self.lo + self.side[:, None]
         nearest = np.linalg.norm(np.clip(eye, self.lo, hi) - eye, axis=1)
         forward = np.asarray(view.forward, np.float64)
         ahead = np.maximum((self.lo - eye) * forward, (hi - eye) * forward).sum(axis=1) >= 0
+        for n, c in view.side_planes() or ():
+            # the cube's corner farthest along n: on screen's side of the plane, or none is
+            ahead &= np.maximum((self.lo - eye) * n, (hi - eye) * n).sum(axis=1) + c >= 0
         with np.errstate(invalid="ignore"):
             return np.where(ahead & (self.spacing > 0), self.spacing * view.pixels_per_unit(nearest), 0.0)
 

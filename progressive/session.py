@@ -117,13 +117,14 @@ class SessionOptions:
     pyproj); None: files whose EPSG codes differ are refused."""
 
 
-def node_view(camera: Camera, height: int) -> View:
-    """What the COPC node choice needs of a camera (loaders/copc_choice.py View, plain
-    numbers: the loaders stand below the camera)."""
+def node_view(camera: Camera, width: int, height: int) -> View:
+    """What the COPC node choice needs of a camera and its image (loaders/copc_choice.py
+    View, plain numbers: the loaders stand below the camera)."""
     forward = tuple(np.subtract(camera.target, camera.position).tolist())
+    sides = {"up": tuple(map(float, camera.up)), "aspect": width / height}
     if camera.orthographic:
-        return View(tuple(camera.position), forward, height, fov_y_deg=None, ortho_height=camera.height)
-    return View(tuple(camera.position), forward, height, camera.fov_y_deg)
+        return View(tuple(camera.position), forward, height, fov_y_deg=None, ortho_height=camera.height, **sides)
+    return View(tuple(camera.position), forward, height, camera.fov_y_deg, **sides)
 
 
 class Session:
@@ -138,9 +139,9 @@ class Session:
         self.target = target_crs(options.reproject) if options.reproject else None
         budget = None if options.gpu_memory_limit is None else memory.points_within(
             options.gpu_memory_limit, options.width * options.height, CLASS_BYTES if options.class_filter else 0)
-        aspect, height = options.width / options.height, options.height
-        view = (node_view(options.camera, height) if options.camera is not None
-                else lambda lo, hi: node_view(auto_camera(lo, hi, aspect), height))
+        width, height = options.width, options.height
+        view = (node_view(options.camera, width, height) if options.camera is not None
+                else lambda lo, hi: node_view(auto_camera(lo, hi, width / height), width, height))
         self.loader = open_loader(paths, partial=options.partial, reproject=self.target, point_budget=budget,
                                   http=options.http, view=view)
         self._given_range = options.value_range

@@ -329,7 +329,7 @@ def test_limit_renders_the_nodes_its_view_needs_exactly(case, view, sample_copc,
     cam = Camera.from_json(cam_path.read_text())
     header = laspy.open(path).header
     chosen = cam if camera else auto_camera(np.asarray(header.mins), np.asarray(header.maxs), W / H)
-    (cut,) = keep_levels((open_copc(path),), budget, node_view(chosen, H))
+    (cut,) = keep_levels((open_copc(path),), budget, node_view(chosen, W, H))
     index = kept_file_indices(path, cut)
     s = json.loads(stats.read_text())
     assert s["points"] == s["points_on_gpu"] == index.size <= budget
@@ -465,7 +465,7 @@ def test_stats_and_panel_report_levels_nodes_points_and_bytes(tmp_path, capsys):
         kept = theirs
         budget = sum(per_level[:-1]) + per_level[-1] // 2
         if cut:
-            view = node_view(auto_camera(np.asarray(header.mins), np.asarray(header.maxs), W / H), H)
+            view = node_view(auto_camera(np.asarray(header.mins), np.asarray(header.maxs), W / H), W, H)
             (chosen,) = keep_levels((open_copc(path),), budget, view)
             keys = {tuple(int(e[k]) for k in ("level", "x", "y", "z")) for e in chosen.hierarchy.nodes[chosen.kept_nodes()]}
             kept = [n for n in theirs if (n.key.level, n.key.x, n.key.y, n.key.z) in keys]

@@ -6,6 +6,7 @@ inputs whatever their order, deeper near the camera)."""
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 
@@ -42,6 +43,26 @@ def octree(rng, levels: int, keep: float, files: int = 1) -> tuple[Nodes, list]:
     return Nodes.of_files(described), described
 
 
+def on_screen(view: View, corners: np.ndarray) -> bool:
+    """Whether a cube (its 8 corners) may meet the image: not all its corners beyond one
+    side, in the camera's frame (x right, y up, z ahead); always without sides."""
+    if view.up is None:
+        return True
+    f = np.asarray(view.forward, np.float64) / np.linalg.norm(view.forward)
+    r = np.cross(f, view.up)
+    r /= np.linalg.norm(r)
+    u = np.cross(r, f)
+    d = corners - np.asarray(view.position)
+    x, y, z = d @ r, d @ u, d @ f
+    if view.ortho_height is not None:
+        half_x = half_y = view.ortho_height / 2
+        half_x *= view.aspect
+    else:
+        half_y = z * math.tan(math.radians(view.fov_y_deg) / 2)
+        half_x = half_y * view.aspect
+    return not ((x > half_x).all() or (x < -half_x).all() or (y > half_y).all() or (y < -half_y).all())
+
+
 def reference(described, view: View, budget: int) -> set:
     """(file, level, x, y, z) of the nodes kept, brute force: cubes from the keys, the
     nearest distance per axis, ahead from the 8 corners, all nodes sorted."""
@@ -55,7 +76,7 @@ def reference(described, view: View, budget: int) -> set:
             gap = np.maximum(np.maximum(lo - eye, 0), eye - (lo + side))
             distance = math.sqrt(float(gap @ gap))
             corners = lo + side * CORNERS
-            ahead = ((corners - eye) @ np.asarray(view.forward)).max() >= 0
+            ahead = ((corners - eye) @ np.asarray(view.forward)).max() >= 0 and on_screen(view, corners)
             if view.ortho_height is not None:
                 per_unit = view.image_height / view.ortho_height
             else:
@@ -81,23 +102,27 @@ def keys_of(nodes: Nodes, rows: np.ndarray) -> set:
     return {(int(nodes.level[i]), int(nodes.file[i]), *map(int, nodes.key[i])) for i in rows}
 
 
-def random_view(rng, described, ortho: bool) -> View:
+def random_view(rng, described, ortho: bool, sides: bool = False) -> View:
     center, half = np.asarray(described[0][0]), described[0][1]
     eye = center + rng.uniform(-1.5, 1.5, 3) * half
     forward = tuple((center + rng.uniform(-1, 1, 3) * half - eye).tolist())
+    frame = {"up": tuple(rng.normal(size=3).tolist()), "aspect": float(rng.uniform(0.3, 3))} if sides else {}
     if ortho:
-        return View(tuple(eye.tolist()), forward, int(rng.integers(50, 2000)), None, float(rng.uniform(1, 300)))
-    return View(tuple(eye.tolist()), forward, int(rng.integers(50, 2000)), float(rng.uniform(10, 120)))
+        return View(tuple(eye.tolist()), forward, int(rng.integers(50, 2000)), None, float(rng.uniform(1, 300)), **frame)
+    return View(tuple(eye.tolist()), forward, int(rng.integers(50, 2000)), float(rng.uniform(10, 120)), **frame)
 
 
+@pytest.mark.parametrize("sides", [False, True], ids=["behind the eye", "off the image's sides"])
 @pytest.mark.parametrize("seed", range(12))
-def test_choice_equals_the_brute_force_reference(seed):
+def test_choice_equals_the_brute_force_reference(seed, sides):
+    """Without the image's sides a node ranks last only behind the eye; with them (up
+    and aspect) also wholly beyond a side, tested from its 8 corners in the camera's frame."""
     rng = np.random.default_rng(seed)
     nodes, described = octree(rng, levels=int(rng.integers(2, 6)), keep=float(rng.uniform(0.3, 0.9)),
                               files=int(rng.integers(1, 3)))
     total = int(nodes.points.sum())
     for ortho in (False, True):
-        view = random_view(rng, described, ortho)
+        view = random_view(rng, described, ortho, sides)
         for budget in (0, *rng.integers(0, total, 4).tolist(), total):
             rows = choose(nodes, view, budget)
             assert keys_of(nodes, rows) == {(d, f, x, y, z) for d, f, x, y, z in reference(described, view, budget)}
@@ -164,3 +189,26 @@ def test_view_needs_one_projection():
                 {"fov_y_deg": None, "ortho_height": 0.0}, {"position": (math.nan, 0.0, 0.0)}):
         with pytest.raises(ValueError):
             View(**{"position": (0.0, 0.0, 0.0), "forward": (1.0, 0.0, 0.0), "image_height": 100, **bad})
+
+
+def test_nodes_off_the_image_rank_last():
+    """A narrow view of one corner of a full octree, with room for the roots and half the
+    points of the other nodes that meet the image: with the image's sides every node
+    kept past the roots meets it, and the choice that knows only what is behind the
+    eye spends budget on nodes off screen."""
+    rng = np.random.default_rng(5)
+    nodes, described = octree(rng, levels=4, keep=1.0)
+    center, half = np.asarray(described[0][0]), described[0][1]
+    eye = center - np.array([2.5, 0.0, 0.0]) * half
+    corner = center + np.array([-1.0, 0.8, 0.8]) * half
+    blind = View(tuple(eye.tolist()), tuple((corner - eye).tolist()), 800, 12.0)
+    view = dataclasses.replace(blind, up=(0.0, 0.0, 1.0), aspect=1.5)
+    seen = np.array([on_screen(view, nodes.lo[i] + nodes.side[i] * CORNERS) for i in range(nodes.level.size)])
+    roots = nodes.level == 0
+    assert 0 < np.count_nonzero(seen & ~roots) < np.count_nonzero(~roots) // 4
+    budget = int(nodes.points[roots].sum() + nodes.points[seen & ~roots].sum() // 2)
+    rows = choose(nodes, view, budget)
+    cubes = [nodes.lo[i] + nodes.side[i] * CORNERS for i in rows if nodes.level[i] > 0]
+    assert cubes and all(on_screen(view, c) for c in cubes)
+    others = choose(nodes, blind, budget)
+    assert not all(on_screen(view, nodes.lo[i] + nodes.side[i] * CORNERS) for i in others if nodes.level[i] > 0)
