@@ -233,7 +233,7 @@ class DecoderPool:
         workers: list[_Worker] = []
         pending: deque[_Job] = deque()
         try:
-            workers = self._workers or self._started()
+            workers = self._started() if self._failed or not self._workers else self._workers
             if not workers:
                 yield from decode_chunks(path, laz, points, first_read, dtype, available_cores(),
                                          None if layers is None else layers.to_lazrs(), skip)
@@ -254,9 +254,13 @@ class DecoderPool:
                     _close_sockets(workers)
 
     def _started(self) -> list[_Worker]:
-        """The workers, started now; none where they cannot start (once failed, not tried
-        again)."""
+        """The workers, started now; none where they cannot start or one was lost (a
+        worker that failed to start or died is not tried again: the loader's process
+        decodes the files that follow)."""
         if self._failed:
+            with self._lock:
+                lost, self._workers = self._workers, []
+            _end(lost)
             return []
         started = self._start()
         with self._lock:
@@ -280,7 +284,7 @@ class DecoderPool:
                 socket.send_fds(worker.sock, [message], [job.fd])
             except OSError as exc:
                 self._check_open()
-                raise _ended(worker) from exc
+                raise self._lost(worker) from exc
         except BaseException:
             os.close(job.fd)
             raise
@@ -317,10 +321,17 @@ class DecoderPool:
                 raise
             if not raw:
                 self._check_open()
-                raise _ended(job.worker)
+                raise self._lost(job.worker)
             answer = pickle.loads(raw)
             if answer[0] == job.id:
                 return answer
+
+    def _lost(self, worker: _Worker) -> DecodeFailed:
+        """A worker gone (killed, or lazrs aborted it): its job's decode error."""
+        self._failed = True
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            worker.process.wait(GRACE_S)
+        return DecodeFailed(f"the LAZ decoder process ended (exit status {worker.process.returncode})")
 
     def _check_open(self) -> None:
         if self._closed:
@@ -346,13 +357,6 @@ class DecoderPool:
 
     def __exit__(self, *exc_info) -> None:
         self.close()
-
-
-def _ended(worker: _Worker) -> DecodeFailed:
-    """A worker gone (killed, or lazrs aborted it): its job's decode error."""
-    with contextlib.suppress(subprocess.TimeoutExpired):
-        worker.process.wait(GRACE_S)
-    return DecodeFailed(f"the LAZ decoder process ended (exit status {worker.process.returncode})")
 
 
 def _ready(worker: _Worker) -> bool | None:

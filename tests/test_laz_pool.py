@@ -227,6 +227,29 @@ def test_a_worker_that_dies_is_one_line_not_a_hang(monkeypatch):
     assert open_fds() <= fds
 
 
+def test_after_a_lost_worker_the_next_files_decode_here(monkeypatch):
+    """A worker lost on one file (partial load: its points up to there, a warning): the
+    files after it are decoded in the loader's process, to the same points."""
+    path = shared_file("pine_plot.laz")
+    original = DecoderPool._start
+    pools = started_pools(monkeypatch)
+
+    def start_and_kill(self):
+        workers = original(self)
+        workers[1].process.kill()
+        workers[1].process.wait()
+        return workers
+    monkeypatch.setattr(DecoderPool, "_start", start_and_kill)
+    _, reference = load([path, path], laz=THREADS)
+    loader, batches = load([path, path], partial=True, batch_points=5_000, laz=PROCESSES)
+    assert len(pools) == 2 and pools[0]._failed and not pools[0].pids()
+    assert len(loader.warnings) == 1 and "decoder process ended" in loader.warnings[0]
+    n = loader.info.files[0].points
+    assert_covers(batches, sum(b.count for b in batches), 5_000)
+    tail = joined(batches)[-n:]
+    np.testing.assert_array_equal(tail, joined(reference)[n:])
+
+
 def test_workers_that_cannot_start_leave_the_decoding_here(tmp_path, monkeypatch):
     """A worker that ends before it is ready (a Python without lazrs, say): the file is
     decoded in the loader's process, to the same points, and no process is left."""
