@@ -6,7 +6,11 @@ from __future__ import annotations
 
 import io
 import os
+import signal
+import subprocess
+import sys
 import time
+import uuid
 
 import laspy
 import lazrs
@@ -15,13 +19,14 @@ import pytest
 from test_loader_parallel import CHUNKED, assert_equals_laspy, records_of
 from test_loaders import assert_covers, joined, load, one_line_naming
 
-from conftest import SAMPLE, shared_file, shared_files
+from conftest import REPO, SAMPLE, shared_file, shared_files
 from progressive.errors import InputError
 from progressive.loaders import CloudLoader, laz_pool
 from progressive.loaders.copc import CopcSource
 from progressive.loaders.las import open_las
 from progressive.loaders.laz import decode_chunks
 from progressive.loaders.laz_pool import DecoderPool, Decoders, LazOptions, runs
+from progressive.loaders.types import BATCH_POINTS
 
 pytestmark = pytest.mark.skipif(not laz_pool.available(), reason="no decoder processes on this platform")
 
@@ -277,3 +282,72 @@ def test_keyboard_interrupt_mid_load_ends_the_workers(monkeypatch):
     assert pids and all(ended(p) for p in pids)
     del loader
     assert open_fds() <= fds
+
+
+@pytest.fixture(scope="module")
+def large_laz(tmp_path_factory):
+    """The sample tiled past MIN_PROCESS_POINTS after the first BATCH_POINTS, which the
+    probe decodes (the CLI decodes the rest in processes)."""
+    las = laspy.read(SAMPLE)
+    copies = (laz_pool.MIN_PROCESS_POINTS + BATCH_POINTS) // len(las.points) + 2
+    out = laspy.LasData(las.header)
+    out.points = laspy.ScaleAwarePointRecord(np.tile(las.points.array, copies), las.header.point_format,
+                                             las.header.scales, las.header.offsets)
+    path = tmp_path_factory.mktemp("large") / "large.laz"
+    out.write(path, laz_backend=laspy.LazBackend.LazrsParallel)
+    return path
+
+
+def tagged_workers(tag: str) -> list[int]:
+    """Decoder processes whose environment holds `tag` (this test's, not another run's)."""
+    found = []
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/cmdline", "rb") as f:
+                if b"laz_worker.py" not in f.read():
+                    continue
+            with open(f"/proc/{entry}/environ", "rb") as f:
+                if tag.encode() in f.read() and not ended(int(entry)):
+                    found.append(int(entry))
+        except OSError:
+            continue
+    return found
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGKILL])
+def test_signal_to_the_cli_while_processes_decode_leaves_none(tmp_path, large_laz, sig):
+    """The CLI signalled (SIGINT to its whole process group, as a terminal sends it;
+    SIGTERM to it alone) while its decoder processes decode: it ends with 128+signal
+    and no traceback, and no decoder process outlives it, nor one of a CLI killed
+    (SIGKILL: its workers see their sockets close)."""
+    tag = f"PROGRESSIVE_TEST_TAG={uuid.uuid4().hex}"
+    env = {**os.environ, tag.split("=")[0]: tag.split("=")[1]}
+    proc = subprocess.Popen([sys.executable, "-m", "progressive", "render", str(large_laz), "--width", "64",
+                             "--height", "48", "--out", str(tmp_path / "out.png")], cwd=REPO, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        deadline = time.monotonic() + 60
+        while not (found := tagged_workers(tag)) and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert found, "the CLI should be decoding in processes"
+        if sig == signal.SIGINT:
+            os.killpg(proc.pid, sig)
+        else:
+            proc.send_signal(sig)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+        proc.communicate()
+    if sig == signal.SIGKILL:
+        assert proc.returncode == -sig
+    else:
+        assert proc.returncode == 128 + sig, err
+        assert "Traceback" not in err and err == "", err
+    deadline = time.monotonic() + laz_pool.GRACE_S + 5
+    while tagged_workers(tag) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not tagged_workers(tag)
+    assert not (tmp_path / "out.png").exists()
