@@ -4,7 +4,8 @@ views of the file (patched bytes, a stand-in chunk table) where its own cannot b
 A sound chunk table lets decode_chunks read several chunks' bytes at once and have lazrs
 decode them on every core (`decompress_points_with_chunk_table`). lazrs holds the GIL
 while it decodes, so a read is kept to a few rounds of chunks per core: short enough
-that the render loop and the parser threads get the GIL back soon.
+that the render loop and the parser threads get the GIL back soon. A large file is
+decoded by decoder processes instead, through the same table (laz_pool.py).
 
 lazrs trusts the chunk table: it allocates for every chunk declared (aborting the process
 when it cannot), panics on byte counts that make no sense ("capacity overflow"), and with
