@@ -27,7 +27,7 @@ from progressive.budget import BudgetParams
 from progressive.context import GLContext
 from progressive.loaders import CloudLoader
 from progressive.loaders.copc import is_copc
-from progressive.loaders.laz_pool import MIN_PROCESS_POINTS, Decoders, LazOptions
+from progressive.loaders.laz_pool import MIN_AUTO_PROCESSES, MIN_PROCESS_POINTS, Decoders, LazOptions
 from progressive.loaders.types import available_cores
 
 BLOCK = 8 << 20
@@ -189,7 +189,8 @@ def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats
          f"are that many ({cores} rows). A LAZ is decoded on every core whatever the parser threads, either by "
          "lazrs's threads in the loader's process (LAZ decoders `threads`: lazrs holds the GIL through each read) "
          f"or by {cores} decoder processes, one a core, whose records the parser threads parse (`processes`; "
-         f"the loader's default for a file with {MIN_PROCESS_POINTS:,} points or more left after its first batches; "
+         f"the loader's default for a file with {MIN_PROCESS_POINTS:,} points or more left after its first batches "
+         f"where {MIN_AUTO_PROCESSES} cores or more are available; "
          "a COPC file's nodes are decoded in the loader's process, one row). "
          "Loader: `CloudLoader` (reader thread + parser threads) to float32 positions and attribute arrays. "
         "× laspy = seconds of `laspy.read()` plus float32 positions relative to the bounds' centre and one attribute "

@@ -53,6 +53,11 @@ MIN_PROCESS_POINTS = 4_000_000
 """Points left to decode below which Decoders.AUTO stays in the loader's process, where
 starting the workers costs more than they save (H200, 16 cores: 0.06 s slower for the
 1.5 M points a 2 M-point file has left, 0.4 s faster for 20 M: even near 4 M, interpolated)."""
+MIN_AUTO_PROCESSES = 4
+"""Fewest processes Decoders.AUTO starts: on two cores what they save depends on the
+machine (H200, 20 M points, faster than the loader's process by 18 % at two cores, 4 %
+at four, 8 % at eight, measured before CORES_PER_PARSER, and 33 % at sixteen with it;
+slower by 10-20 % on the llvmpipe machine's two cores, bench/results/llvmpipe/load.md)."""
 CORES_PER_PARSER = 4
 """Parser threads that parse a pool's records at once: one per this many of its
 processes, at least MIN_PARSERS. Parsing takes about a tenth of the decode's time, and
@@ -72,7 +77,7 @@ ANSWER_BYTES = 1 << 16
 class Decoders(enum.Enum):
     """Where a LAZ with a sound chunk table is decoded."""
 
-    AUTO = "auto"               # PROCESSES for files with at least MIN_PROCESS_POINTS left to decode
+    AUTO = "auto"               # PROCESSES for files with MIN_PROCESS_POINTS left, MIN_AUTO_PROCESSES cores
     THREADS = "threads"         # lazrs's threads in the loader's process (the GIL held through each read)
     PROCESSES = "processes"     # decoder processes wherever the platform has them
 
@@ -165,9 +170,11 @@ class DecoderPool:
     @classmethod
     def chosen(cls, options: LazOptions) -> DecoderPool | None:
         """The pool `options` ask for; None where they ask for threads or the platform has no processes."""
-        if options.decoders is Decoders.THREADS or not available():
+        processes = available_cores() if options.processes is None else options.processes
+        auto = options.decoders is Decoders.AUTO
+        if options.decoders is Decoders.THREADS or not available() or (auto and processes < MIN_AUTO_PROCESSES):
             return None
-        return cls(options.processes, MIN_PROCESS_POINTS if options.decoders is Decoders.AUTO else 0)
+        return cls(processes, MIN_PROCESS_POINTS if auto else 0)
 
     def takes(self, points: int) -> bool:
         return points >= self.min_points

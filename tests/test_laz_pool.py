@@ -131,15 +131,21 @@ def test_loader_batches_equal_with_threads_and_processes(name, monkeypatch):
     assert len(pools) == 3 and all(not p.pids() for p in pools)
 
 
-def test_auto_keeps_small_files_in_process(monkeypatch):
-    """Decoders.AUTO starts no process for a file of fewer points left than MIN_PROCESS_POINTS."""
+def test_auto_keeps_small_files_and_few_cores_in_process(monkeypatch):
+    """Decoders.AUTO starts no process for a file of fewer points left than
+    MIN_PROCESS_POINTS, nor for fewer cores than MIN_AUTO_PROCESSES."""
     path = shared_file("pine_plot.laz")
     pools = started_pools(monkeypatch)
+    monkeypatch.setattr(laz_pool, "MIN_AUTO_PROCESSES", 1)
     load([path])
     assert not pools
     monkeypatch.setattr(laz_pool, "MIN_PROCESS_POINTS", 1)
     load([path])
     assert len(pools) == 1
+    monkeypatch.setattr(laz_pool, "MIN_AUTO_PROCESSES", 3)
+    assert DecoderPool.chosen(LazOptions(processes=2)) is None
+    assert DecoderPool.chosen(LazOptions(processes=3)) is not None
+    assert DecoderPool.chosen(LazOptions(Decoders.PROCESSES, processes=1)) is not None
 
 
 @pytest.fixture(scope="module")
@@ -324,8 +330,10 @@ def test_signal_to_the_cli_while_processes_decode_leaves_none(tmp_path, large_la
     (SIGKILL: its workers see their sockets close)."""
     tag = f"PROGRESSIVE_TEST_TAG={uuid.uuid4().hex}"
     env = {**os.environ, tag.split("=")[0]: tag.split("=")[1]}
-    proc = subprocess.Popen([sys.executable, "-m", "progressive", "render", str(large_laz), "--width", "64",
-                             "--height", "48", "--out", str(tmp_path / "out.png")], cwd=REPO, env=env,
+    argv = ["render", str(large_laz), "--width", "64", "--height", "48", "--out", str(tmp_path / "out.png")]
+    cli = ("from progressive.loaders import laz_pool; laz_pool.MIN_AUTO_PROCESSES = 1\n"   # processes on any machine
+           f"from progressive.cli import main; raise SystemExit(main({argv!r}))")
+    proc = subprocess.Popen([sys.executable, "-c", cli], cwd=REPO, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
