@@ -348,8 +348,12 @@ class Session:
         (None where the CRS allows none) and every attribute, read back from its file;
         the pixel and depth it was found at. None: nothing there."""
         hit = self.nearest_shown(x, y, radius)
-        if hit is None:
-            return None
+        return None if hit is None else self.picked_record(hit)
+
+    def picked_record(self, hit: tuple[int, float, tuple[int, int]]) -> dict:
+        """pick's record of a point nearest_shown found. It reads the point's file (over
+        HTTP, fetches its node), and touches no GPU object, so a window may run it on
+        another thread and keep drawing."""
         index, depth, pixel = hit
         record = self.geography.place(index, read_record(self.info, index))
         return {**record, "pixel": list(pixel), "depth": depth}

@@ -34,6 +34,8 @@ class Faults:
     close_idle: bool = False
     """Close every connection after its answer, without saying so (as a server that drops
     idle kept-alive connections does)."""
+    pause: float = 0.0
+    """Seconds every answer waits before it starts (a slow network)."""
 
 
 def self_signed(folder: Path) -> tuple[Path, Path]:
@@ -122,8 +124,8 @@ class _Handler(BaseHTTPRequestHandler):
         data = owner.files.get(self.path.lstrip("/"))
         wanted = RANGE.fullmatch(self.headers.get("Range", ""))
         start = int(wanted.group(1)) if wanted else 0
-        if faults.delays.get(start):
-            time.sleep(faults.delays[start])
+        if faults.delays.get(start) or faults.pause:
+            time.sleep(faults.delays.get(start, 0.0) + faults.pause)
         try:
             if data is None:
                 self._answer(owner, 404, b"not found\n", {})

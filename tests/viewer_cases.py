@@ -74,6 +74,15 @@ def settle(v, limit=200):
     raise AssertionError("viewer did not converge")
 
 
+def finish_reads(v, limit: float = 10.0):
+    """Steps until a click's point, read back from its file on the viewer's reader
+    thread, has arrived (a local file's within the click itself, mostly)."""
+    t0 = time.perf_counter()
+    while v.reading:
+        assert time.perf_counter() - t0 < limit, "the picked point was not read back"
+        v.step()
+
+
 def no_gl_error(v):
     assert v.glc.ctx.error == "GL_NO_ERROR"
 
@@ -162,6 +171,7 @@ def test_orbit_pan_zoom_and_reset(viewer):
     viewer.mouse_button(glfw.MOUSE_BUTTON_LEFT, True, 100, 100)
     viewer.cursor(160, 90)
     viewer.mouse_button(glfw.MOUSE_BUTTON_LEFT, False, 160, 90)
+    finish_reads(viewer)
     # framed at home, it turns about the cloud's centre, which keeps its place on screen
     assert viewer.orbit.pivot == home.pivot and viewer.orbit.distance == pytest.approx(home.distance)
     np.testing.assert_allclose(screen_points(viewer.camera, np.array([home.pivot]), W, H)[0],
@@ -200,8 +210,10 @@ def test_double_click_reports_the_files_coordinates(viewer):
     pid = int(ids[ys[k], xs[k]])
     viewer.mouse_button(glfw.MOUSE_BUTTON_LEFT, True, xs[k] + 0.5, ys[k] + 0.5)
     viewer.mouse_button(glfw.MOUSE_BUTTON_LEFT, False, xs[k] + 0.5, ys[k] + 0.5)
+    finish_reads(viewer)
     viewer.mouse_button(glfw.MOUSE_BUTTON_LEFT, True, xs[k] + 0.5, ys[k] + 0.5)
     viewer.mouse_button(glfw.MOUSE_BUTTON_LEFT, False, xs[k] + 0.5, ys[k] + 0.5)
+    finish_reads(viewer)
     expected = np.array([las.x[pid], las.y[pid], las.z[pid]])
     np.testing.assert_array_equal(viewer.last_focus, expected)
     assert viewer.orbit.target == tuple(expected.tolist())
@@ -404,12 +416,50 @@ def test_click_picks_the_point_and_the_panel_shows_it(viewer):
     x, y = float(cols[len(cols) // 2]) + 0.5, float(rows[len(rows) // 2]) + 0.5
     viewer.mouse_button(glfw.MOUSE_BUTTON_LEFT, True, x, y)
     viewer.mouse_button(glfw.MOUSE_BUTTON_LEFT, False, x, y)
+    finish_reads(viewer)
     p = viewer.picked
     assert p is not None and p["index"] == int(ids[int(y), int(x)])
     las = laspy.read(SAMPLE)
     assert p["x"] == round(float(las.x[p["index"]]), 2) and p["attributes"]["intensity"] == int(las.intensity[p["index"]])
     viewer.step()
     no_gl_error(viewer)
+
+
+def test_a_pick_over_a_slow_network_leaves_the_window_drawing(display, tmp_path):
+    """A COPC file over HTTP whose server answers each request a second late: a click
+    finds its point on the GPU at once, the window keeps drawing while the point's node
+    is fetched, and the record that then arrives is laspy's."""
+    from range_server import RangeServer
+
+    from progressive.cli import main
+    from progressive.viewer.app import Viewer, ViewerOptions
+
+    copc = tmp_path / "sample.copc.laz"
+    assert main(["convert", str(SAMPLE), str(copc)]) == 0
+    with RangeServer({copc.name: copc}) as server:
+        v = Viewer([server.url(copc.name)], ViewerOptions(SessionOptions(width=W, height=H), **EXACT))
+        try:
+            settle(v)
+            ids = v.session.ids()
+            rows, cols = np.nonzero(ids != EMPTY)
+            x, y = float(cols[len(cols) // 2]) + 0.5, float(rows[len(rows) // 2]) + 0.5
+            server.faults.pause = 1.0
+            t0 = time.perf_counter()
+            v.mouse_button(glfw.MOUSE_BUTTON_LEFT, True, x, y)
+            v.mouse_button(glfw.MOUSE_BUTTON_LEFT, False, x, y)
+            assert v.reading and v.picked is None and time.perf_counter() - t0 < 0.5
+            frames = v.frames
+            while v.reading and time.perf_counter() - t0 < 10:
+                v.step()
+            assert not v.reading and v.frames - frames >= 5      # drawn all the while
+            p = v.picked
+            assert p is not None and p["index"] == int(ids[int(y), int(x)]) and v.error is None
+            las = laspy.read(copc)
+            assert p["x"] == round(float(las.x[p["index"]]), 2) and p["attributes"]["intensity"] == int(
+                las.intensity[p["index"]])
+            no_gl_error(v)
+        finally:
+            v.close()
 
 
 def test_shift_clicks_measure_between_picked_points(viewer):
@@ -423,6 +473,7 @@ def test_shift_clicks_measure_between_picked_points(viewer):
         x, y = float(cols[k]) + 0.5, float(rows[k]) + 0.5
         viewer.mouse_button(glfw.MOUSE_BUTTON_LEFT, True, x, y, shift=True)
         viewer.mouse_button(glfw.MOUSE_BUTTON_LEFT, False, x, y, shift=True)
+        finish_reads(viewer)
     las = laspy.read(SAMPLE)
     xyz = np.stack([las.x, las.y, las.z], axis=1)[[int(ids[rows[k], cols[k]]) for k in chosen]]
     m = viewer.measurement
@@ -565,6 +616,7 @@ def test_dragging_a_clip_face_moves_it_and_the_image_is_the_clipped_render(viewe
         viewer.cursor(*to_window(start + (end - start) * k / 5))
         viewer.step()
     viewer.mouse_button(glfw.MOUSE_BUTTON_LEFT, False, *to_window(end))
+    finish_reads(viewer)
     clip = viewer.settings.clip
     assert viewer.picked is None and viewer.dragged_face() is None
     assert lo[0] < clip.hi[0] < hi[0]
@@ -599,6 +651,7 @@ def test_section_along_the_measured_line_and_its_profile_view(viewer):
         x, y = float(cols[k]) + 0.5, float(rows[k]) + 0.5
         viewer.mouse_button(glfw.MOUSE_BUTTON_LEFT, True, x, y, shift=True)
         viewer.mouse_button(glfw.MOUSE_BUTTON_LEFT, False, x, y, shift=True)
+        finish_reads(viewer)
     a, b = viewer.measurement.points[-2:]
     width = 0.02 * float(np.hypot(b[0] - a[0], b[1] - a[1]))
     viewer.set_section_width(width)
@@ -756,6 +809,7 @@ def click_a_point(viewer, share=0.5) -> int:
     x, y = float(cols[k]) + 0.5, float(rows[k]) + 0.5
     viewer.mouse_button(glfw.MOUSE_BUTTON_LEFT, True, x, y)
     viewer.mouse_button(glfw.MOUSE_BUTTON_LEFT, False, x, y)
+    finish_reads(viewer)
     viewer.step()
     return int(ids[rows[k], cols[k]])
 
@@ -873,6 +927,7 @@ def test_files_in_two_crs_refused_then_reprojected(display, two_crs_files):
         for _ in range(2):
             v.mouse_button(glfw.MOUSE_BUTTON_LEFT, True, cols[k] + 0.5, rows[k] + 0.5)
             v.mouse_button(glfw.MOUSE_BUTTON_LEFT, False, cols[k] + 0.5, rows[k] + 0.5)
+            finish_reads(v)
         index = int(ids[rows[k], cols[k]]) - n
         las = laspy.read(two_crs_files[1])
         x, y = pyproj.Transformer.from_crs("EPSG:2992", UTM, always_xy=True).transform(las.x[index], las.y[index])
@@ -1040,6 +1095,7 @@ def test_dragging_the_panel_edge_sets_its_width_within_the_clamp(display):
             assert v.panel_units == pytest.approx(expected)
             assert v.at_home() and box_on_screen(v)[:, 0].min() >= v.free_area[0]
         v.mouse_button(glfw.MOUSE_BUTTON_LEFT, False, start + 52, 120)
+        finish_reads(v)
         assert v.picked is None and v.dragged_panel == pytest.approx(start + 50)
         settle(v)
         x0, _, x1, y1 = v.free_area
@@ -1061,6 +1117,7 @@ def test_dragging_the_panel_edge_sets_its_width_within_the_clamp(display):
         v.mouse_button(glfw.MOUSE_BUTTON_LEFT, True, edge + 1, 100)
         v.cursor(edge + 41, 100)
         v.mouse_button(glfw.MOUSE_BUTTON_LEFT, False, edge + 41, 100)
+        finish_reads(v)
         assert v.panel_units == pytest.approx(edge + 40) and v.orbit == chosen
         v.step()
         no_gl_error(v)

@@ -6,6 +6,9 @@ from __future__ import annotations
 
 import enum
 import time
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -41,6 +44,10 @@ DOUBLE_CLICK_PIXELS = 4.0
 MESSAGE_SECONDS = 12.0         # how long a note stays in the panel
 CURSOR_SEARCH = 7              # pixels around the cursor searched for a point (zoom, focus)
 IDLE_WAIT_SECONDS = 0.05       # converged and no input: wait for events instead of spinning
+READ_WAIT_SECONDS = 0.05
+"""How long a click waits on the window's thread for its point read back from the file:
+a local file's read is done by then; a slower one (a COPC node over HTTP) finishes on
+the reader thread while the window keeps drawing."""
 HISTOGRAM_BINS = 64
 SCALE_BAR_PIXELS = 160         # the scale bar is the longest 1, 2 or 5 x 10^k file units shorter than this
 UNIT_SYMBOLS = {"metre": "m", "foot": "ft", "US survey foot": "ftUS", "kilometre": "km"}
@@ -151,6 +158,8 @@ class Viewer:
         self.last_passes: tuple[str, ...] = ()
         self.last_focus: np.ndarray | None = None
         self.picked: dict | None = None     # Session.pick's record of the last clicked point
+        self._reader: ThreadPoolExecutor | None = None      # reads picked points off the window's thread
+        self._reading: tuple[Future, Callable, Session] | None = None   # the read under way, what takes its result
         self.measurement = Measurement(())  # Shift+clicked points
         self.last_screenshot: Path | None = None
         self._drag: Drag | None = None
@@ -418,7 +427,8 @@ class Viewer:
         """One iteration: input, one frame, present, panel, swap."""
         now = time.perf_counter()
         seconds, self._last_time = now - self._last_time, now
-        idle = self.session is not None and self.session.converged and self._drag is None and self._dropped is None
+        idle = (self.session is not None and self.session.converged and self._drag is None and self._dropped is None
+                and self._reading is None)
         if idle:
             glfw.wait_events_timeout(IDLE_WAIT_SECONDS)
         else:
@@ -429,6 +439,7 @@ class Viewer:
         if self._dropped is not None:
             (paths, add), self._dropped = self._dropped, None
             self.open(paths, add)
+        self._collect()
         self._fly(seconds)
         size = self.framebuffer_size
         if self.session is not None:
@@ -497,6 +508,9 @@ class Viewer:
         self.close()
 
     def close(self) -> None:
+        if self._reader is not None:
+            self._reader.shutdown(wait=False, cancel_futures=True)
+            self._reader, self._reading = None, None
         if self.panel is not None:
             self.panel.release()
             self.panel = None
@@ -609,37 +623,72 @@ class Viewer:
         hit = self.session.nearest_shown(*self.to_framebuffer(x, y), CURSOR_SEARCH)
         return None if hit is None else hit[:2]
 
-    def point_at(self, x: float, y: float) -> np.ndarray | None:
-        """Exact float64 coordinates of the point under the cursor in the cloud's CRS (read
-        from its file; reprojected with --reproject, as the cloud is drawn)."""
-        hit = self.pick(x, y)
-        if hit is None:
-            return None
+    @property
+    def reading(self) -> bool:
+        """A picked point is being read back from its file."""
+        return self._reading is not None
+
+    def _read(self, work: Callable, done: Callable) -> None:
+        """Read a picked point back (`work`, a file read) on the reader thread, and hand
+        it to `done` on the window's thread: at once where it takes under
+        READ_WAIT_SECONDS, else at a later step, the window drawing meanwhile. A newer
+        click's read replaces an older one's, whose result is then dropped."""
+        if self._reader is None:
+            self._reader = ThreadPoolExecutor(1, thread_name_prefix="progressive-pick")
+        self._reading = (self._reader.submit(work), done, self.session)
+        if not self._collect(READ_WAIT_SECONDS):
+            self.say("reading the picked point from its file ...")
+
+    def _collect(self, wait: float = 0.0) -> bool:
+        """Hand a finished read to what takes it (an error to the panel); False while it
+        is under way."""
+        if self._reading is None:
+            return True
+        future, done, session = self._reading
         try:
-            return self.session.point(hit[0])
+            result = future.result(timeout=wait)
+        except FutureTimeout:
+            return False
         except (OSError, ValueError, ProgressiveError) as exc:
+            self._reading = None
             self.fail(f"reading the picked point: {exc}")
-            return None
+            return True
+        self._reading = None
+        if session is self.session:       # not a cloud dropped in since
+            done(result)
+        return True
 
     def pick_point(self, x: float, y: float, measure: bool = False) -> None:
         """Remember all of the point shown nearest to window position (x, y) (or nothing);
-        `measure`: add it to the measurement too."""
+        `measure`: add it to the measurement too. The point is found on the GPU here and
+        read back from its file on the reader thread."""
         if self.session is None:
             return
-        try:
-            self.picked = self.session.pick(*self.to_framebuffer(x, y), CURSOR_SEARCH)
-        except (OSError, ValueError, ProgressiveError) as exc:
-            self.fail(f"reading the picked point: {exc}")
+        hit = self.session.nearest_shown(*self.to_framebuffer(x, y), CURSOR_SEARCH)
+        if hit is None:
+            self.picked = None
             return
-        if measure and self.picked is not None:
-            self.measurement = self.measurement.add((self.picked["x"], self.picked["y"], self.picked["z"]))
+
+        def picked(record: dict) -> None:
+            self.picked = record
+            if measure:
+                self.measurement = self.measurement.add((record["x"], record["y"], record["z"]))
+        session = self.session
+        self._read(lambda: session.picked_record(hit), picked)
 
     def focus(self, x: float, y: float) -> None:
-        point = self.point_at(x, y)
-        if point is not None:
+        """Orbit about the point under the cursor, at its exact coordinates in the cloud's
+        CRS (read back from its file, as a pick is; reprojected with --reproject)."""
+        hit = self.pick(x, y)
+        if hit is None:
+            return
+
+        def focused(point: np.ndarray) -> None:
             self.last_focus = point
             self.orbit, self.pasted = self.navigator.focus(self.orbit, point), None
             self.say("focus " + ", ".join(f"{v:.6f}" for v in point))
+        session = self.session
+        self._read(lambda: session.point(hit[0]), focused)
 
     # ---- input ---------------------------------------------------------------------
     def _install_callbacks(self) -> None:
