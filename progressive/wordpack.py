@@ -6,19 +6,19 @@ packing keeps up with the GPU's scatter."""
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable, Sequence
 from concurrent.futures import Executor
 
 import numpy as np
 
 from progressive.loaders.records import ELEVATION, attribute_word
-from progressive.loaders.types import AttributeInfo, AttributeKind, Batch
+from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, available_cores
 
 BLOCK_POINTS = 1 << 16
 """Points packed at a time by the reference, for RGB not stored as contiguous bytes."""
-PACK_THREADS = min(8, os.cpu_count() or 1)
-"""Threads that pack a run of words (each a part of it)."""
+PACK_THREADS = min(8, available_cores())
+"""Threads that pack a run of words (each a part of it): the cores this process may use
+(as the loader's parser threads), at most 8."""
 THREAD_POINTS = 1 << 18
 """Fewest points a packing thread is handed: below it, threads cost more than they save."""
 
