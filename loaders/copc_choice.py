@@ -142,11 +142,13 @@ class Nodes:
         return parent
 
 
-def choose(nodes: Nodes, view: View, budget: int) -> np.ndarray:
+def choose(nodes: Nodes, view: View, budget: int, parent: np.ndarray | None = None) -> np.ndarray:
     """Rows of the nodes kept for `view` within `budget` points, ascending: every root
-    (even past the budget: there is nothing coarser to show), then greedily by error."""
+    (even past the budget: there is nothing coarser to show), then greedily by error.
+    parent: nodes.parents(), where the caller keeps it (a choice made every time the
+    camera moves need not find the parents anew)."""
     errors = nodes.errors(view)
-    parent = nodes.parents()
+    parent = nodes.parents() if parent is None else parent
     children: dict[int, list[int]] = {}
     for i, p in enumerate(parent.tolist()):
         children.setdefault(p, []).append(i)

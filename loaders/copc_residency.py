@@ -176,7 +176,12 @@ class Residency:
         """Rows of choose's tree cut for `view` in store batches, the lost left out."""
         rows = np.nonzero(~self.lost)[0]
         columns = {f.name: getattr(self.nodes, f.name)[rows] for f in dataclasses.fields(Nodes)}
-        return rows[choose(Nodes(**{**columns, "points": self.cost[rows]}), view, self.budget)]
+        # The lost go with their whole subtrees, so every other row's parent is among the rows.
+        at = np.full(self.parent.size, -1, np.int64)
+        at[rows] = np.arange(rows.size)
+        up = self.parent[rows]
+        parent = np.where(up >= 0, at[np.maximum(up, 0)], -1)
+        return rows[choose(Nodes(**{**columns, "points": self.cost[rows]}), view, self.budget, parent)]
 
     def begin(self, plan: Plan) -> None:
         """Book a plan: its evictions freed, its requests loading in their batches."""
