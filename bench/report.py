@@ -77,6 +77,12 @@ class Table:
         (out / f"{self.name}.json").write_text(text)
 
 
+    def publish(self, run: RunInfo, out: Path | None, results: Path) -> None:
+        """Write to `out`, else to the machine's folder under `results`, and print it."""
+        self.write(out or results / run.machine, run)
+        print(self.markdown(run))
+
+
 def cell(v) -> str:
     if v is None:
         return ""

@@ -78,6 +78,24 @@ def spawn(module: str, kind: str, path: Path, size: tuple[int, int], env: dict[s
     return result
 
 
+def child_arguments(parser: argparse.ArgumentParser, kind: str) -> None:
+    """The hidden `--child KIND FILE W H` that spawn passes, and the size options."""
+    parser.add_argument("--child", nargs=4, metavar=(kind, "FILE", "W", "H"), help=argparse.SUPPRESS)
+    parser.add_argument("--width", type=int, default=1280)
+    parser.add_argument("--height", type=int, default=720)
+    parser.add_argument("--out", type=Path, default=None, help="results folder (default bench/results/<machine>)")
+
+
+def answer_child(args: argparse.Namespace, child) -> bool:
+    """In a process spawn started: run `child(kind, path, width, height)` and print its
+    JSON line for the parent; False in the parent."""
+    if not args.child:
+        return False
+    kind, path, w, h = args.child
+    print(json.dumps(child(kind, path, int(w), int(h))))
+    return True
+
+
 def one(command: str, path: Path, size: tuple[int, int], env: dict[str, str]) -> dict:
     return spawn("bench.startup", command, path, size, env)
 
@@ -121,25 +139,17 @@ def run(files: list[Path], size: tuple[int, int], repeats: int):
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--child", nargs=4, metavar=("COMMAND", "FILE", "W", "H"), help=argparse.SUPPRESS)
+    child_arguments(parser, "COMMAND")
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--width", type=int, default=1280)
-    parser.add_argument("--height", type=int, default=720)
-    parser.add_argument("--out", type=Path, default=None, help="results folder (default bench/results/<machine>)")
     args = parser.parse_args(argv)
-    if args.child:
-        command, path, w, h = args.child
-        print(json.dumps(child(command, path, int(w), int(h))))
+    if answer_child(args, child):
         return 0
     files = [SAMPLE] + ([LAZ] if LAZ.is_file() else [])
     table, device = run(files, (args.width, args.height), args.repeats)
     from bench.report import RunInfo
     from progressive.context import Capabilities
 
-    info = RunInfo.from_caps(Capabilities(**device), "startup")
-    out = args.out or RESULTS / info.machine
-    table.write(out, info)
-    print(table.markdown(info))
+    table.publish(RunInfo.from_caps(Capabilities(**device), "startup"), args.out, RESULTS)
     return 0
 
 

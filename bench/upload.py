@@ -14,7 +14,6 @@ writes bench/results/<machine>/upload.{md,json}."""
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import statistics
 import sys
@@ -162,27 +161,21 @@ def run(sizes: list[int], repeats: int, startup_repeats: int, size: tuple[int, i
 
 
 def main(argv: list[str] | None = None) -> int:
+    from bench.startup import answer_child, child_arguments
+
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--child", nargs=4, metavar=("STAGING", "FILE", "W", "H"), help=argparse.SUPPRESS)
+    child_arguments(parser, "STAGING")
     parser.add_argument("--points", default="2000000,10000000", help="comma-separated sizes")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--startup-repeats", type=int, default=5)
-    parser.add_argument("--width", type=int, default=1280)
-    parser.add_argument("--height", type=int, default=720)
-    parser.add_argument("--out", type=Path, default=None, help="results folder (default bench/results/<machine>)")
     args = parser.parse_args(argv)
-    if args.child:
-        staging, path, w, h = args.child
-        print(json.dumps(child(staging, path, int(w), int(h))))
+    if answer_child(args, child):
         return 0
     sizes = [int(v) for v in args.points.split(",")]
     table, caps = run(sizes, args.repeats, args.startup_repeats, (args.width, args.height))
     from bench.report import RunInfo
 
-    info = RunInfo.from_caps(caps, "upload")
-    out = args.out or RESULTS / info.machine
-    table.write(out, info)
-    print(table.markdown(info))
+    table.publish(RunInfo.from_caps(caps, "upload"), args.out, RESULTS)
     return 0
 
 
