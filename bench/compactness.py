@@ -26,15 +26,13 @@ import numpy as np
 from bench.data import SHARED
 from bench.report import RunInfo, Table
 from bench.synthetic import SAMPLE, Order, morton_order, tiled
-from progressive.batches import boxes_of, in_view
+from progressive.batches import MORTON_BITS, boxes_of, in_view, spread3
 from progressive.camera import Camera, Projection, ViewUniforms, view_uniforms
 from progressive.loaders.types import BATCH_POINTS as LOADER_POINTS
 from progressive.loaders.types import FIRST_BATCH_POINTS
 from progressive.permutation import BATCH_POINTS
 
 OUT = Path(__file__).resolve().parent / "results" / "llvmpipe"
-MORTON_BITS = 21
-"""Bits per axis of the Morton code: 63 of a uint64, as bench.synthetic.morton_order."""
 VIEW_CELLS = 10
 """A close-up view spans 1/VIEW_CELLS of the cloud's X and Y extent: at each corner, and
 VIEW_CELLS² of them tiling the cloud for the mean over every place."""
@@ -157,16 +155,6 @@ ORDERINGS = (
     Ordering("Morton, whole cloud (reference)", Rule.MORTON),
     Ordering("scrambled (reference)", Rule.SCRAMBLED),
 )
-
-
-def spread3(v: np.ndarray) -> np.ndarray:
-    """The low 21 bits of each uint64 spread to every third bit (the usual magic masks):
-    a Morton code in 5 shifts an axis where a bit loop takes 63."""
-    v = v & np.uint64(0x1FFFFF)
-    for shift, mask in ((32, 0x1F00000000FFFF), (16, 0x1F0000FF0000FF), (8, 0x100F00F00F00F00F),
-                        (4, 0x10C30C30C30C30C3), (2, 0x1249249249249249)):
-        v = (v | (v << np.uint64(shift))) & np.uint64(mask)
-    return v
 
 
 def morton_codes(xyz: np.ndarray, grid: Grid = Grid.CUBE) -> np.ndarray:

@@ -21,6 +21,7 @@ import numpy as np
 from bench.report import RunInfo, Table
 from bench.synthetic import SAMPLE, Order, TiledCloud, load, tiled
 from progressive import batches, encoding, shaderlib
+from progressive.batches import BatchOrder
 from progressive.bindings import Binding
 from progressive.camera import Camera, auto_camera, view_uniforms
 from progressive.context import GLContext, create_context
@@ -43,6 +44,7 @@ class Layout:
     fill: FillOrder
     records: RecordOrder = RecordOrder.BATCHES
     encoding: Encoding = Encoding.WORDS
+    batch_order: BatchOrder = BatchOrder.FILE
 
 
 LAYOUTS = (Layout("file order", Order.FILE, FillOrder.FILE), Layout("Morton order", Order.MORTON, FillOrder.FILE),
@@ -50,7 +52,9 @@ LAYOUTS = (Layout("file order", Order.FILE, FillOrder.FILE), Layout("Morton orde
            Layout("batched", Order.FILE, FillOrder.BATCHED),
            Layout("batched, float records", Order.FILE, FillOrder.BATCHED, encoding=Encoding.FLOAT),
            Layout("batched, records in slot order", Order.FILE, FillOrder.BATCHED, RecordOrder.SLOTS),
-           Layout("batched, scan order", Order.SCAN, FillOrder.BATCHED))
+           Layout("batched, scan order", Order.SCAN, FillOrder.BATCHED),
+           Layout("batched, scan order, Morton in loaded batches", Order.SCAN, FillOrder.BATCHED,
+                  batch_order=BatchOrder.MORTON))
 
 
 def median_gpu_ms(glc: GLContext, run, repeats: int) -> float:
@@ -161,7 +165,7 @@ def measure(glc: GLContext, cloud: TiledCloud, layouts, sizes, repeats: int) -> 
     by all of them instead of favouring whichever ran last."""
     rows = []
     for layout in layouts:
-        scene, upload_s = load(glc, cloud, layout.order, layout.fill, layout.records, layout.encoding)
+        scene, upload_s = load(glc, cloud, layout.order, layout.fill, layout.records, layout.encoding, layout.batch_order)
         for width, height in sizes:
             for view, cam in views(cloud, width / height).items():
                 uniforms = view_uniforms(cam, cloud.info.origin, width, height)

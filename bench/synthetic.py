@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from progressive.attributes import default_attribute
+from progressive.batches import BatchOrder
 from progressive.context import GLContext, create_context
 from progressive.encoding import Encoding
 from progressive.loaders import CloudLoader
@@ -131,10 +132,13 @@ def tiled(path: str, points: int, attribute: str | None = None) -> TiledCloud:
 
 
 def load(glc: GLContext, cloud: TiledCloud, order: Order = Order.FILE, fill: FillOrder = LAYOUT,
-         records: RecordOrder = RecordOrder.BATCHES, position_encoding: Encoding = Encoding.WORDS) -> tuple[Scene, float]:
-    """The tiled cloud on the GPU once, shared by every run; seconds to upload it."""
+         records: RecordOrder = RecordOrder.BATCHES, position_encoding: Encoding = Encoding.WORDS,
+         batch_order: BatchOrder = BatchOrder.FILE) -> tuple[Scene, float]:
+    """The tiled cloud on the GPU once, shared by every run; seconds to upload it (a
+    tile a loaded batch)."""
     t0 = time.perf_counter()
-    scene = Scene(glc, cloud.info, cloud.attribute, order=fill, records=records, position_encoding=position_encoding)
+    scene = Scene(glc, cloud.info, cloud.attribute, order=fill, records=records, position_encoding=position_encoding,
+                  batch_order=batch_order)
     for start, rec in cloud.batches(order):
         scene.add_batch(Batch(start=start, positions=rec[:, :3].view(np.float32), records=rec))
     glc.ctx.finish()

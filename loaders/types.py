@@ -173,6 +173,15 @@ class Batch:
                                    grid=grid)
 
 
+    def reordered(self, lo: int, hi: int, order: np.ndarray) -> Batch:
+        """The batch with rows lo..hi in the order `order` (indices into them): every
+        per-point array, the same points (bounds and non-finite counts stay)."""
+        rows = np.concatenate([np.arange(lo), lo + np.asarray(order, dtype=np.int64), np.arange(hi, self.count)])
+        grid = None if self.grid is None else replace(self.grid, cells=self.grid.cells[rows])
+        return replace(self, positions=self.positions[rows], attributes={k: v[rows] for k, v in self.attributes.items()},
+                       records=None if self.records is None else self.records[rows], grid=grid)
+
+
 def channel8(values: np.ndarray, sixteen_bit: bool) -> np.ndarray:
     """One colour channel (unsigned integers) as 8 bits by the rule of FileInfo.rgb_16bit:
     a 16-bit file's values shifted right by 8, an 8-bit file's clipped at RGB8_MAX."""

@@ -5,6 +5,8 @@ the cloud origin, exactly what the GPU projects."""
 
 from __future__ import annotations
 
+import enum
+
 import numpy as np
 
 from progressive.camera import ViewUniforms
@@ -15,6 +17,46 @@ BOX_FLOATS = 8
 BOX_MARGIN = 1e-5
 """Relative slack of the test, far above float32 rounding of a corner's projection:
 culling may keep a batch that is just outside, never drop one that is inside."""
+
+
+class BatchOrder(enum.Enum):
+    """Which consecutive points make a store batch: the file's own (FILE), or, inside each
+    loaded batch, its whole store batches sorted by Morton code first (MORTON): compacter
+    boxes where the file's order wanders (bench/results/llvmpipe/compactness.md), for 4
+    bytes a point of host memory that map the store's order back to the file's."""
+
+    FILE = "file"
+    MORTON = "morton"
+
+
+MORTON_BITS = 21
+"""Bits per axis of a Morton code: 63 of a uint64."""
+
+
+def spread3(v: np.ndarray) -> np.ndarray:
+    """The low MORTON_BITS bits of each uint64 spread to every third bit (the usual magic
+    masks): a Morton code in 5 shifts an axis where a bit loop takes 63."""
+    v = v & np.uint64((1 << MORTON_BITS) - 1)
+    for shift, mask in ((32, 0x1F00000000FFFF), (16, 0x1F0000FF0000FF), (8, 0x100F00F00F00F00F),
+                        (4, 0x10C30C30C30C30C3), (2, 0x1249249249249249)):
+        v = (v | (v << np.uint64(shift))) & np.uint64(mask)
+    return v
+
+
+def morton_order(positions: np.ndarray) -> np.ndarray:
+    """Indices sorting points by their 3D Morton code on a grid of cubes over their box
+    (one scale, the largest extent); stable, so equal codes keep file order; rows with a
+    coordinate not finite last."""
+    xyz = np.asarray(positions, dtype=np.float64)
+    finite = np.isfinite(xyz).all(axis=1)
+    codes = np.full(xyz.shape[0], np.iinfo(np.uint64).max, dtype=np.uint64)
+    if finite.any():
+        shown = xyz[finite]
+        lo = shown.min(axis=0)
+        extent = max(float((shown.max(axis=0) - lo).max()), np.finfo(np.float64).tiny)
+        q = ((shown - lo) / extent * ((1 << MORTON_BITS) - 1)).astype(np.uint64)
+        codes[finite] = spread3(q[:, 0]) | spread3(q[:, 1]) << np.uint64(1) | spread3(q[:, 2]) << np.uint64(2)
+    return np.argsort(codes, kind="stable")
 
 
 def glsl_defines() -> str:

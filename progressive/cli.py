@@ -406,7 +406,7 @@ def session_options(args):
                           colormap=args.colormap, background=args.background, partial=args.partial,
                           gpu_memory_limit=args.gpu_memory_limit, value_range=args.value_range,
                           class_filter=filters(args), palette=palette_from(args), reproject=args.reproject, http=http_from(args),
-                          precision=args.precision)
+                          precision=args.precision, batch_order=args.batch_order)
 
 
 def cmd_render(args) -> int:
@@ -522,6 +522,7 @@ def _stats(session, camera, frames: int, converged_at: int | None, clip) -> dict
         "attribute": session.attribute.name,
         "color_range": session.color_range(),
         "precision": session.options.precision.value,
+        "batch_order": session.options.batch_order.value,
         "batches": session.batch_counts(camera, clip),
         "clip": {"min": [v if np.isfinite(v) else None for v in clip.lo],
                  "max": [v if np.isfinite(v) else None for v in clip.hi],
@@ -678,6 +679,7 @@ def _convert_copc(args) -> int:
 
 
 def build_parser() -> Parser:
+    from progressive.batches import BatchOrder
     from progressive.colors import Colormap
     from progressive.encoding import Precision
     from progressive.renderer import Raster
@@ -706,6 +708,10 @@ def build_parser() -> Parser:
                         help="exact (every point's full 30-bit position: the render contract) or adaptive (with "
                              "--method brute: a distant batch's points from fewer bits, each within half a pixel of "
                              "where it projects)")
+    render.add_argument("--batch-order", type=enum_arg(BatchOrder), default=BatchOrder.FILE,
+                        help="file (store batches of consecutive points in file order) or morton (each loaded "
+                             "batch's whole store batches sorted by Morton code first: compacter batches where the "
+                             "file's order wanders)")
     add_look_args(render)
     render.add_argument("--ids", type=path_arg, help="write the (H, W) uint32 file-order index of each pixel (.npy)")
     render.add_argument("--stats", type=path_arg, help="write timings and counts (.json)")

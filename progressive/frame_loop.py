@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from progressive.batches import BatchOrder
 from progressive.budget import BudgetParams
 from progressive.camera import NO_CLIP, Camera, Clip, Returns, ViewUniforms, view_uniforms
 from progressive.colors import ColorStyle
@@ -48,6 +49,7 @@ class ProgressiveOptions:
     keep_batches: bool = False          # keep loaded attributes in host memory to switch attributes
     class_filter: bool = False          # keep classification codes on the GPU: hidden classes apply to any colouring
     tuning: ComputeTuning = DEFAULT_TUNING  # how the compute raster walks the store (benchmarks compare them)
+    batch_order: BatchOrder = BatchOrder.FILE  # which consecutive points make a store batch (progressive/batches.py)
 
 
 @dataclass(frozen=True)
@@ -113,7 +115,7 @@ class ProgressiveRenderer:
         self._own_scene = scene is None
         self.scene = scene or Scene(glc, info, attribute, chunk_points=options.chunk_points,
                                     capacity=options.capacity, keep_batches=options.keep_batches,
-                                    class_filter=options.class_filter)
+                                    class_filter=options.class_filter, batch_order=options.batch_order)
         self.store = self.scene.store
         self.vis = VisibilityBuffer(glc, options.width, options.height)
         self.raster = make_raster(glc, self.store, self.vis, options.raster, options.tuning)

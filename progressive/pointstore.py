@@ -141,6 +141,9 @@ class PointStore:
         self.box_buffer = glc.ctx.buffer(self.boxes.tobytes())
         self.box_buffer.label = "batch boxes"
         self.frames = encoding.empty_frames(max(1, self.permutation.batches))
+        self.file_order: np.ndarray | None = None
+        """Where batches were reordered (batches.BatchOrder.MORTON): the file-order index
+        of each cloud index (the permutation's input), uint32; None: the same."""
         self.least_cells = np.zeros((max(1, self.permutation.batches), 3), dtype=np.int64)
         self.cell_shifts = np.zeros((max(1, self.permutation.batches), 3), dtype=np.int64)
         self.integer = np.zeros(max(1, self.permutation.batches), dtype=bool)
@@ -229,6 +232,26 @@ class PointStore:
             self.bind_frames()
         if self.class_buffer is not None:
             self.class_buffer.bind_to_storage_buffer(Binding.CLASSES)
+
+    def reorder(self, first: int, file_indices: np.ndarray) -> None:
+        """Cloud indices first.. hold the points of these file-order indices (a loaded
+        batch's rows sorted before upload)."""
+        if self.file_order is None:
+            self.file_order = np.arange(self.count, dtype=np.uint32)
+        self.file_order[first: first + len(file_indices)] = file_indices
+
+    def file_indices(self, cloud: np.ndarray) -> np.ndarray:
+        """File-order indices of cloud indices (the permutation's inputs)."""
+        return np.asarray(cloud) if self.file_order is None else self.file_order[cloud]
+
+    def slots_of(self, file_indices: np.ndarray) -> np.ndarray:
+        """The slot of each file-order index: the GPU's tie key (tests, references)."""
+        cloud = np.asarray(file_indices, dtype=np.int64)
+        if self.file_order is not None:
+            back = np.empty(self.count, dtype=np.int64)
+            back[self.file_order] = np.arange(self.count)
+            cloud = back[cloud]
+        return self.permutation.forward(cloud)
 
     def _chunk_words(self, c: int) -> int:
         """Records held by buffer c of each plane (a word plane's buffer is padded to a

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from progressive.batches import BatchOrder
 from progressive.camera import NO_CLIP, Camera, Clip, Returns, view_uniforms
 from progressive.colors import Colormap, ColorStyle
 from progressive.context import GLContext
@@ -45,13 +46,14 @@ class Renderer:
                  raster: Raster = Raster.COMPUTE, width: int = 1280, height: int = 720,
                  chunk_points: int | None = None, capacity: int | None = None, scene: Scene | None = None,
                  keep_batches: bool = False, tuning: ComputeTuning = DEFAULT_TUNING,
-                 class_filter: bool = False, position_encoding: Encoding = Encoding.WORDS):
+                 class_filter: bool = False, position_encoding: Encoding = Encoding.WORDS,
+                 batch_order: BatchOrder = BatchOrder.FILE):
         """`scene`: a cloud already on the GPU to render (kept on release)."""
         self.glc, self.info, self.attribute = glc, info, attribute
         self._own_scene = scene is None
         self.scene = scene or Scene(glc, info, attribute, chunk_points=chunk_points, capacity=capacity,
                                     keep_batches=keep_batches, class_filter=class_filter,
-                                    position_encoding=position_encoding)
+                                    position_encoding=position_encoding, batch_order=batch_order)
         self.store = self.scene.store
         self.vis = VisibilityBuffer(glc, width, height)
         self.raster_kind = raster
@@ -138,8 +140,9 @@ def raster_path(kind: Raster, raster) -> str:
 
 
 def ids_for(store: PointStore, slots: np.ndarray) -> np.ndarray:
-    """File-order indices of shuffled slots (the inverse permutation, exact)."""
+    """File-order indices of shuffled slots (the inverse permutation, exact, then the
+    store's way back from reordered batches)."""
     ids = np.full(slots.shape, EMPTY, dtype=np.uint32)
     hit = slots != EMPTY
-    ids[hit] = store.permutation.inverse(slots[hit]).astype(np.uint32)
+    ids[hit] = store.file_indices(store.permutation.inverse(slots[hit])).astype(np.uint32)
     return ids

@@ -67,7 +67,8 @@ class Scene:
     def __init__(self, glc: GLContext, info: CloudInfo, attribute: AttributeInfo, *, chunk_points: int | None = None,
                  capacity: int | None = None, keep_batches: bool = False, order: FillOrder = LAYOUT,
                  class_filter: bool = False, records: RecordOrder = RecordOrder.BATCHES,
-                 position_encoding: encoding.Encoding = encoding.Encoding.WORDS):
+                 position_encoding: encoding.Encoding = encoding.Encoding.WORDS,
+                 batch_order: batch_boxes.BatchOrder = batch_boxes.BatchOrder.FILE):
         """capacity: points kept on the GPU (default all; see progressive/memory.py).
         keep_batches: keep the loaded attributes in host memory to switch attributes.
         order: FILE stores points in file order (the unshuffled baseline, for benchmarks).
@@ -75,13 +76,16 @@ class Scene:
         and return filters apply whatever attribute is shown (the cloud must have
         classification). records: where the batched layout's records live (the slot
         order is the benchmarks' baseline). position_encoding: how the batched layout
-        keeps positions (progressive/encoding.py; float records are the baseline)."""
+        keeps positions (progressive/encoding.py; float records are the baseline).
+        batch_order: batches of consecutive points in file order, or (MORTON, the batched
+        layout) each loaded batch's whole store batches sorted by Morton code first."""
         self.glc, self.info, self.attribute = glc, info, attribute
         if class_filter and CLASSIFICATION not in {a.name for a in info.attributes}:
             raise ProgressiveError("this cloud has no classification to filter by")
         self.store = PointStore(glc, info.points, capacity=capacity, chunk_points=chunk_points, order=order,
                                 classes=class_filter, records=records, position_encoding=position_encoding)
         self.distribute = DistributePass(glc, self.store)
+        self.batch_order = batch_order if self.store.batched else batch_boxes.BatchOrder.FILE
         self.assembler = encoding.BatchAssembler(info.points, keep=_copied_rows) if self.store.words else None
         self.reencoded = 0
         """Batches encoded again with points uploaded before (their frame grew): those
@@ -108,6 +112,7 @@ class Scene:
 
     def add_batch(self, batch: Batch) -> None:
         t0 = time.perf_counter()
+        batch = self._ordered(batch)
         if self.assembler is not None:
             for held, group in self.assembler.add(batch.start, batch.count, batch):
                 self._encode_group(group)
@@ -129,6 +134,22 @@ class Scene:
             self.held.append(self.attribute)
         self.loaded += batch.count
         self.upload_seconds += time.perf_counter() - t0
+
+    def _ordered(self, batch: Batch) -> Batch:
+        """The batch as the store takes it: with BatchOrder.MORTON its whole store
+        batches (two or more) sorted by Morton code, the store told the way back; the
+        store batches it only starts or ends stay in file order (their other rows come
+        in another loaded batch)."""
+        if self.batch_order is batch_boxes.BatchOrder.FILE:
+            return batch
+        first = -(-batch.start // BATCH_POINTS) * BATCH_POINTS
+        end = (batch.start + batch.count) // BATCH_POINTS * BATCH_POINTS
+        if end - first < 2 * BATCH_POINTS:
+            return batch
+        lo, hi = first - batch.start, end - batch.start
+        order = batch_boxes.morton_order(_positions(batch)[lo:hi])
+        self.store.reorder(first, (first + order).astype(np.uint32))
+        return batch.reordered(lo, hi, order)
 
     def _encode_group(self, group: list) -> None:
         """Frame the batches of a group of runs (encoding.BatchAssembler) by the boxes of

@@ -20,6 +20,7 @@ import numpy as np
 
 from progressive import batches, encoding, memory
 from progressive.attributes import default_choice, find_attribute
+from progressive.batches import BatchOrder
 from progressive.budget import BudgetParams
 from progressive.camera import NO_CLIP, Camera, Clip, Returns, auto_camera, view_uniforms
 from progressive.colors import DEFAULT_PALETTE, Colormap, ColorStyle, Palette
@@ -110,6 +111,10 @@ class SessionOptions:
     within encoding.ADAPTIVE_ERROR_PX of where it projects. Progressive frames read all
     (a point kept from the last frame is reprojected where its exact position lies, so
     coarse fills would leave it where it was not drawn)."""
+    batch_order: BatchOrder = BatchOrder.FILE
+    """Which consecutive points make a store batch: the file's order, or MORTON: each
+    loaded batch's whole store batches sorted by Morton code (compacter batches where the
+    file's order wanders; progressive/batches.py)."""
     http: HttpOptions = HTTP_DEFAULTS
     """How http(s):// URLs of COPC files are fetched (loaders/http.py): timeout, requests in flight."""
     reproject: str | None = None
@@ -183,12 +188,13 @@ class Session:
                 self.renderer = Renderer(self.glc, self.info, self.attribute, raster=options.raster,
                                          width=options.width, height=options.height,
                                          chunk_points=options.chunk_points, capacity=capacity,
-                                         keep_batches=options.switchable, class_filter=class_filter)
+                                         keep_batches=options.switchable, class_filter=class_filter,
+                                         batch_order=options.batch_order)
             else:
                 self.renderer = ProgressiveRenderer(self.glc, self.info, self.attribute, replace(
                     options.progressive, width=options.width, height=options.height, raster=options.raster,
                     chunk_points=options.chunk_points, capacity=capacity, keep_batches=options.switchable,
-                    class_filter=class_filter))
+                    class_filter=class_filter, batch_order=options.batch_order))
         except BaseException:
             self.loader.close()
             raise
