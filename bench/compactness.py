@@ -26,13 +26,18 @@ import numpy as np
 from bench.data import SHARED
 from bench.report import RunInfo, Table
 from bench.synthetic import SAMPLE, Order, morton_order, tiled
-from progressive.batches import MORTON_BITS, boxes_of, in_view, spread3
+from progressive.batches import MORTON_BITS as store_bits
+from progressive.batches import boxes_of, in_view
+from progressive.batches import morton_order as store_order
 from progressive.camera import Camera, Projection, ViewUniforms, view_uniforms
 from progressive.loaders.types import BATCH_POINTS as LOADER_POINTS
 from progressive.loaders.types import FIRST_BATCH_POINTS
 from progressive.permutation import BATCH_POINTS
 
 OUT = Path(__file__).resolve().parent / "results" / "llvmpipe"
+MORTON_BITS = 21
+"""Bits per axis of the measurement's Morton codes: 63 of a uint64, as bench.synthetic.morton_order
+(the store's own sort, progressive/batches.py morton_order, uses fewer: Rule.STORE)."""
 VIEW_CELLS = 10
 """A close-up view spans 1/VIEW_CELLS of the cloud's X and Y extent: at each corner, and
 VIEW_CELLS² of them tiling the cloud for the mean over every place."""
@@ -59,6 +64,8 @@ class Rule(enum.Enum):
     MORTON = "morton"        # Morton order inside each chunk (the whole cloud where chunk is 0)
     ADAPTIVE = "adaptive"    # Morton order inside a chunk only where its batches' cull cost is smaller
     SCRAMBLED = "scrambled"  # a random permutation: the worst case, a check that the metric can fail
+    STORE = "store"          # as the store sorts (batches.BatchOrder.MORTON): each chunk's whole store batches,
+                             # by progressive/batches.py morton_order; the batches a chunk only starts or ends stay
 
 
 @dataclass(frozen=True)
@@ -98,6 +105,15 @@ class Ordering:
             return Arrangement(np.random.default_rng(SCRAMBLE_SEED).permutation(n), 0, 0)
         pad = (xyz.max(axis=0) - xyz.min(axis=0)) / VIEW_CELLS
         parts, sorted_chunks, bounds = [], 0, list(self.chunks(n))
+        if self.rule is Rule.STORE:
+            for lo, hi in bounds:
+                order = np.arange(hi - lo)
+                first, end = -(-lo // BATCH_POINTS) * BATCH_POINTS, hi // BATCH_POINTS * BATCH_POINTS
+                if end - first >= 2 * BATCH_POINTS:
+                    order[first - lo: end - lo] = first - lo + store_order(xyz[first:end].astype(np.float32))
+                    sorted_chunks += 1
+                parts.append(lo + order)
+            return Arrangement(np.concatenate(parts), sorted_chunks, len(bounds))
         for lo, hi in bounds:
             order = morton_sort(xyz[lo:hi], self.grid)
             if self.rule is Rule.ADAPTIVE and cull_cost(xyz[lo:hi], pad) <= cull_cost(xyz[lo:hi][order], pad):
@@ -118,7 +134,7 @@ class Ordering:
 
     @property
     def chunk_label(self) -> str:
-        if self.rule not in (Rule.MORTON, Rule.ADAPTIVE):
+        if self.rule not in (Rule.MORTON, Rule.ADAPTIVE, Rule.STORE):
             return ""
         if not self.chunk:
             return "whole cloud"
@@ -152,9 +168,20 @@ ORDERINGS = (
     *(Ordering("Morton", Rule.MORTON, whole_batches(first), whole_batches(chunk)) for first, chunk in CHUNKS),
     Ordering("Morton, per-axis grid", Rule.MORTON, ALIGNED_FIRST, ALIGNED_CHUNK, Grid.AXES),
     Ordering("Morton where it culls better", Rule.ADAPTIVE, ALIGNED_FIRST, ALIGNED_CHUNK),
+    Ordering("Morton as the store sorts (BatchOrder.MORTON)", Rule.STORE, FIRST_BATCH_POINTS, LOADER_POINTS),
     Ordering("Morton, whole cloud (reference)", Rule.MORTON),
     Ordering("scrambled (reference)", Rule.SCRAMBLED),
 )
+
+
+def spread3(v: np.ndarray) -> np.ndarray:
+    """The low 21 bits of each uint64 spread to every third bit (the usual magic masks):
+    a Morton code in 5 shifts an axis where a bit loop takes 63."""
+    v = v & np.uint64(0x1FFFFF)
+    for shift, mask in ((32, 0x1F00000000FFFF), (16, 0x1F0000FF0000FF), (8, 0x100F00F00F00F00F),
+                        (4, 0x10C30C30C30C30C3), (2, 0x1249249249249249)):
+        v = (v | (v << np.uint64(shift))) & np.uint64(mask)
+    return v
 
 
 def morton_codes(xyz: np.ndarray, grid: Grid = Grid.CUBE) -> np.ndarray:
@@ -286,6 +313,7 @@ def sort_cost(xyz: np.ndarray, repeats: int) -> dict[str, float]:
             "codes_s": best_of(repeats, lambda: morton_codes(xyz)),
             "sort_s": best_of(repeats, lambda: morton_sort(xyz)),
             "bit_loop_sort_s": best_of(repeats, lambda: morton_order(xyz, MORTON_BITS)),
+            "store_sort_s": best_of(repeats, lambda: store_order(xyz.astype(np.float32))),
             "permute_records_s": best_of(repeats, lambda: records[perm])}
 
 
@@ -381,7 +409,9 @@ def notes(cost: dict | None, skipped: tuple[str, ...]) -> list[str]:
             f"Cost (best of {cost['repeats']}, numpy {np.__version__}, one thread, {os.cpu_count()} cores shared "
             f"with other work, load average {cost['load']:.1f} before; on {cost['data']}'s first "
             f"{cost['points']:,} points): Morton codes {cost['codes_s']:.3f} s, codes and stable argsort "
-            f"{cost['sort_s']:.3f} s, bench.synthetic.morton_order's bit loop (per-axis grid) {cost['bit_loop_sort_s']:.3f} s; "
+            f"{cost['sort_s']:.3f} s, bench.synthetic.morton_order's bit loop (per-axis grid) {cost['bit_loop_sort_s']:.3f} s, "
+            f"the store's own order (progressive.batches.morton_order, {store_bits} bits an axis) "
+            f"{cost['store_sort_s']:.3f} s; "
             f"applying the permutation to the chunk's 16-byte records {cost['permute_records_s']:.3f} s.")
     lines += [f"Skipped: {s}." for s in skipped]
     lines.append(f"Per data set, from the rows below: batches kept by a close-up (the mean over the "

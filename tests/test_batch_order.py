@@ -29,7 +29,8 @@ W, H = 200, 150
 def naive_codes(xyz: np.ndarray) -> np.ndarray:
     """Morton codes bit by bit (x in bit 0 of each triple) on the cube grid over the box."""
     lo = xyz.min(axis=0)
-    q = ((xyz - lo) / (xyz.max(axis=0) - lo).max() * ((1 << batches.MORTON_BITS) - 1)).astype(np.uint64)
+    cells = 1 << batches.MORTON_BITS
+    q = np.minimum((xyz - lo) * (cells / (xyz.max(axis=0) - lo).max()), cells - 1).astype(np.uint64)
     codes = np.zeros(len(xyz), dtype=np.uint64)
     for bit in range(batches.MORTON_BITS):
         for axis in range(3):
