@@ -153,7 +153,7 @@ def test_section_ids_equal_the_float64_reference(gl, sample, las_xyz, raster, na
     cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
     with loaded(gl, info, parts, raster) as r:
         ids = r.render(cam, W, H, r.style(), clip=clip).ids
-        slots = r.store.permutation.forward(np.arange(positions.shape[0])).astype(np.int64)
+        slots = r.store.slots_of(np.arange(positions.shape[0])).astype(np.int64)
         expected = clipped_reference_ids(las_xyz, clip, cam, W, H, slots)
         assert np.mean(ids == expected) >= 0.999
         shown = ids[ids != EMPTY]
@@ -184,7 +184,7 @@ def test_section_on_a_utm_file_equals_the_float64_reference(gl):
     try:
         for b in parts:
             scene.add_batch(b)
-        slots = scene.store.permutation.forward(np.arange(info.points)).astype(np.int64)
+        slots = scene.store.slots_of(np.arange(info.points)).astype(np.int64)
         expected = clipped_reference_ids(xyz, clip, cam, W, H, slots)
         assert np.count_nonzero(expected != EMPTY) > 100
         brute = {}

@@ -92,7 +92,7 @@ def test_frames_wider_than_2048(gl):
             r.add_batch(b)
     las = laspy.read(SAMPLE)
     xyz = np.stack([las.x, las.y, las.z], axis=1)
-    slots = r.store.permutation.forward(np.arange(info.points)).astype(np.int64)
+    slots = r.store.slots_of(np.arange(info.points)).astype(np.int64)
     for w, h in ((2300, 2300), (64, 48), (2600, 1400)):
         cam = auto_camera(info.bounds_min, info.bounds_max, w / h)
         ids = r.render(cam, w, h, r.style()).ids

@@ -88,7 +88,7 @@ def test_camera_one_kilometre_from_a_millimetre_patch(gl):
                  (0.0, 1.0, 0.0), fov, 900.0, 1100.0)
     r = synthetic(gl, xyz)
     got = r.render(cam, W, H, r.style()).ids
-    ref = reference_ids(xyz, cam, W, H, tie_key=r.store.permutation.forward(np.arange(len(xyz))).astype(np.int64))
+    ref = reference_ids(xyz, cam, W, H, tie_key=r.store.slots_of(np.arange(len(xyz))).astype(np.int64))
     assert (ref != EMPTY).sum() > 5000
     assert np.mean(got == ref) >= 0.999
     r.release()

@@ -59,7 +59,7 @@ def test_orthographic_ids_equal_the_float64_reference(gl, raster, name):
     r, info = loaded(gl, path, raster)
     try:
         xyz = xyz_of(path)
-        slots = r.store.permutation.forward(np.arange(info.points)).astype(np.int64)
+        slots = r.store.slots_of(np.arange(info.points)).astype(np.int64)
         for cam in ortho_cameras(info).values():
             ids = r.render(cam, W, H, r.style()).ids
             ref = reference_ids(xyz, cam, W, H, tie_key=slots)

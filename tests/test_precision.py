@@ -270,7 +270,7 @@ def test_files_of_two_grids_frame_the_batch_they_share_by_its_box(gl, tmp_path):
         assert not integer[shared] and integer[:shared].all() and integer[shared + 1:].all()
         xyz = np.concatenate([file_xyz(SAMPLE), file_xyz(copy)])
         cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
-        slots = r.store.permutation.forward(np.arange(info.points)).astype(np.int64)
+        slots = r.store.slots_of(np.arange(info.points)).astype(np.int64)
         frame = r.render(cam, W, H, r.style())
         from progressive.reference import reference_ids
         assert np.mean(frame.ids == reference_ids(xyz, cam, W, H, tie_key=slots)) >= 0.999

@@ -54,7 +54,7 @@ def test_compute_matches_float64_reference(gl, name):
     path = real_path(name)
     r, info = load(gl, path)
     xyz = file_xyz(path)
-    slots = r.store.permutation.forward(np.arange(info.points)).astype(np.int64)
+    slots = r.store.slots_of(np.arange(info.points)).astype(np.int64)
     for cam in cameras(info):
         frame = r.render(cam, W, H, r.style())
         gl.check()
@@ -94,7 +94,7 @@ def sample_parts():
 def held_slots(r, info):
     """Each file point's words as the GPU holds them, its batch, and the padding's."""
     held = r.store.read_words()
-    slots = r.store.permutation.forward(np.arange(info.points)).astype(np.int64)
+    slots = r.store.slots_of(np.arange(info.points)).astype(np.int64)
     empty = np.ones(r.store.capacity, dtype=bool)
     empty[slots] = False
     return held[slots], np.arange(info.points) // BATCH_POINTS, held[empty]
@@ -120,7 +120,7 @@ def test_las_positions_on_the_gpu_are_the_files_integers(gl):
     assert (padding == EMPTY_WORD).all()     # the layout's padding stays empty
     xyz = (file_xyz(SAMPLE) - info.origin).astype(np.float32)
     frames = r.store.frames[batch]
-    decoded = r.store.read_records()[r.store.permutation.forward(np.arange(info.points)).astype(np.int64), :3]
+    decoded = r.store.read_records()[r.store.slots_of(np.arange(info.points)).astype(np.int64), :3]
     # float32 decoding (base + q·step): float(q), the product and the sum each round once
     assert (np.abs(decoded.view(np.float32) - xyz) <= 2 * np.spacing(np.abs(frames[:, 0:3]) + np.abs(xyz))).all()
     assert r.store.buffers[0].label == "words0[0]"
@@ -159,7 +159,7 @@ def test_float_records_hold_permuted_records(gl):
             r.add_batch(b)
     records = np.concatenate([pack_records(b, r.attribute, float(info.origin[2])) for b in batches])
     expected = np.full((r.store.capacity, 4), EMPTY_WORD, dtype=np.uint32)     # the layout's padding stays empty
-    expected[r.store.permutation.forward(np.arange(info.points))] = records
+    expected[r.store.slots_of(np.arange(info.points))] = records
     assert np.array_equal(r.store.read_records(), expected)
     assert r.store.buffers[0].label == "points[0]"
     r.release()
@@ -173,7 +173,7 @@ def test_unloaded_slots_never_render(gl):
     shown = frame.ids[frame.ids != EMPTY]
     assert shown.size > 100 and shown.max() < 40_000
     xyz = file_xyz(SAMPLE)[:40_000]
-    slots = r.store.permutation.forward(np.arange(40_000)).astype(np.int64)
+    slots = r.store.slots_of(np.arange(40_000)).astype(np.int64)
     assert np.mean(frame.ids == reference_ids(xyz, cam, W, H, tie_key=slots)) >= 0.999
     r.release()
 

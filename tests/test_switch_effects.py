@@ -73,7 +73,7 @@ def test_switched_words_equal_the_permuted_numpy_values(gl, cloud):
         frames += 1
     gl.check()
     expected = np.concatenate([attribute_word(b, intensity, float(info.origin[2])) for b in batches])
-    slots = pr.store.permutation.forward(np.arange(info.points))
+    slots = pr.store.slots_of(np.arange(info.points))
     words = pr.store.read_records()[:, 3]
     np.testing.assert_array_equal(words[slots], expected)
     assert pr.scene.switch.streamed == info.points and pr.scene.switch.rate > 0

@@ -51,7 +51,7 @@ def expected_words(scene: Scene, batches: list[Batch], attribute: AttributeInfo)
     """The attribute plane in slot order as numpy places the reference's words."""
     out = np.full(scene.store.capacity, EMPTY_WORD, dtype=np.uint32)     # slots no point maps to stay empty
     for b in batches:
-        slots = scene.store.permutation.forward(np.arange(b.start, b.start + b.count)).astype(np.int64)
+        slots = scene.store.slots_of(np.arange(b.start, b.start + b.count)).astype(np.int64)
         keep = slots < scene.store.capacity
         out[slots[keep]] = attribute_word(b, attribute, float(scene.info.origin[2]))[keep]
     return out

@@ -30,7 +30,7 @@ def expected_store(scene: Scene, batches: list[Batch]) -> np.ndarray:
     for b in batches:
         rec = pack_records(dataclasses.replace(b, records=None if b.records is None else b.records.copy()),
                            scene.attribute, float(scene.info.origin[2]))
-        slots = scene.store.permutation.forward(np.arange(b.start, b.start + b.count))
+        slots = scene.store.slots_of(np.arange(b.start, b.start + b.count))
         keep = slots < scene.store.capacity
         out[slots[keep]] = rec[keep]
     return out
@@ -39,7 +39,7 @@ def expected_store(scene: Scene, batches: list[Batch]) -> np.ndarray:
 def expected_flags(scene: Scene, batches: list[Batch]) -> np.ndarray:
     out = np.zeros(scene.store.capacity, dtype=np.uint16)
     for b in batches:
-        slots = scene.store.permutation.forward(np.arange(b.start, b.start + b.count))
+        slots = scene.store.slots_of(np.arange(b.start, b.start + b.count))
         keep = slots < scene.store.capacity
         out[slots[keep]] = point_flags(b)[keep]
     return out
@@ -271,7 +271,7 @@ def test_negative_file_integers_are_staged_exactly(gl, sample_batches):
     assert store.integer[batch].all() and (store.least_cells[batch] < -1_000_000_000).all()
     integers = np.concatenate([b.grid.cells for b in moved]).astype(np.int64)
     cells = (integers - store.least_cells[batch]) << store.cell_shifts[batch]
-    held = store.read_words()[store.permutation.forward(ids).astype(np.int64)]
+    held = store.read_words()[store.slots_of(ids).astype(np.int64)]
     assert np.array_equal(held[:, :3], pack_words(cells))
     assert store.cell_shifts[batch].max() > 0
     scene.release()

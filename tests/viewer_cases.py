@@ -140,7 +140,7 @@ def test_switching_attribute_changes_the_image_and_streams_the_words(viewer):
 
     expected = np.concatenate([attribute_word(b, s.attribute, float(s.info.origin[2]))
                                for b in sorted(s.renderer.scene.batches, key=lambda b: b.start)])
-    slots = s.renderer.store.permutation.forward(np.arange(s.info.points))
+    slots = s.renderer.store.slots_of(np.arange(s.info.points))
     np.testing.assert_array_equal(words[slots], expected)
     no_gl_error(viewer)
 
@@ -583,7 +583,7 @@ def clipped_reference(viewer, clip) -> np.ndarray:
 
     las = laspy.read(SAMPLE)
     xyz = np.stack([las.x, las.y, las.z], axis=1).astype(np.float64)
-    slots = viewer.session.renderer.store.permutation.forward(np.arange(len(xyz))).astype(np.int64)
+    slots = viewer.session.renderer.store.slots_of(np.arange(len(xyz))).astype(np.int64)
     return clipped_reference_ids(xyz, clip, viewer.camera, *viewer.session.size, slots)
 
 
