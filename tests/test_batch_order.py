@@ -182,3 +182,54 @@ def test_progressive_frames_converge_to_the_brute_force_render_of_the_same_order
         ids[method] = np.load(out)
     assert (ids["brute"] != EMPTY).sum() > 500
     np.testing.assert_array_equal(ids["progressive"], ids["brute"])
+
+
+def test_a_switch_streams_the_words_of_the_points_the_store_placed(gl):
+    """Kept batches are kept as sorted: after a switch each slot's attribute word is the
+    new attribute's of the point the store placed there, and the image is the reference's."""
+    from progressive.loaders.records import attribute_word
+
+    info, parts = loaded(SAMPLE, 4 * BATCH_POINTS + 77)
+    scene = Scene(gl, info, default_attribute(info), keep_batches=True, batch_order=BatchOrder.MORTON)
+    for b in parts:
+        scene.add_batch(b)
+    intensity = info.attribute("intensity")
+    scene.begin_switch(intensity)
+    while not scene.stream(seconds=float("inf")):
+        pass
+    cloud = np.arange(info.points)
+    words = scene.store.read_words()[scene.store.permutation.forward(cloud).astype(np.int64), 3]
+    kept = sorted(scene.batches, key=lambda b: b.start)
+    expected = np.concatenate([attribute_word(b, intensity, float(info.origin[2])) for b in kept])
+    np.testing.assert_array_equal(words, expected)
+    files = scene.store.file_indices(cloud)
+    raw = np.concatenate([p.attributes["intensity"] for p in parts])
+    np.testing.assert_array_equal(np.concatenate([b.attributes["intensity"] for b in kept]), raw[files])
+    gl.check()
+    scene.release()
+
+
+def test_a_memory_limit_keeps_the_same_share_of_every_sorted_batch(gl):
+    """Under a memory limit the store keeps a slot prefix: the same share of every batch
+    as the store ordered it (one slice at most apart), and the render is the
+    reference's over the points kept, ties to their slots."""
+    from progressive import memory
+    from progressive.loaders.records import RECORD_BYTES
+    from progressive.reference import subset_reference_ids
+    from progressive.session import Method, Session, SessionOptions
+
+    budget = W * H * memory.PIXEL_BYTES + memory.BATCH_POINTS * RECORD_BYTES + 40_000 * RECORD_BYTES
+    options = SessionOptions(width=W, height=H, method=Method.BRUTE, batch_order=BatchOrder.MORTON,
+                             gpu_memory_limit=budget)
+    with Session([str(SAMPLE)], options) as s:
+        cam = s.auto_camera()
+        s.frame(cam)
+        store, n = s.renderer.store, s.info.points
+        assert store.file_order is not None and store.capacity < n
+        cloud = np.arange(n)
+        kept_cloud = cloud[store.permutation.forward(cloud) < store.capacity]
+        per_batch = np.bincount(kept_cloud // BATCH_POINTS)
+        assert per_batch.max() - per_batch[:-1].min() <= 256
+        kept = np.sort(store.file_indices(kept_cloud))
+        ref = subset_reference_ids(file_xyz(SAMPLE), kept, cam, W, H, store.slots_of(cloud))
+        assert (ref != EMPTY).sum() > 200 and np.mean(s.ids() == ref) >= 0.999

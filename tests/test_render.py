@@ -11,6 +11,7 @@ import pytest
 from conftest import SAMPLE, file_xyz, shared_file
 from progressive import encoding
 from progressive.attributes import default_attribute
+from progressive.batches import BatchOrder
 from progressive.camera import Camera, auto_camera
 from progressive.loaders import CloudLoader
 from progressive.loaders.records import pack_records
@@ -77,8 +78,9 @@ def test_chunked_store_renders_the_same(gl):
     chunked.release()
 
 
-def load_batches(gl, batches, info, *, chunk_points=None) -> Renderer:
-    r = Renderer(gl, info, default_attribute(info), width=W, height=H, chunk_points=chunk_points)
+def load_batches(gl, batches, info, *, chunk_points=None, batch_order=BatchOrder.FILE) -> Renderer:
+    r = Renderer(gl, info, default_attribute(info), width=W, height=H, chunk_points=chunk_points,
+                 batch_order=batch_order)
     for batch in batches:
         r.add_batch(batch)
     gl.check()
@@ -92,49 +94,56 @@ def sample_parts():
 
 
 def held_slots(r, info):
-    """Each file point's words as the GPU holds them, its batch, and the padding's."""
+    """In the store's order (cloud indices): each point's words as the GPU holds them,
+    its batch, the file-order index of the point there, and the padding's words."""
     held = r.store.read_words()
-    slots = r.store.slots_of(np.arange(info.points)).astype(np.int64)
+    cloud = np.arange(info.points)
+    slots = r.store.permutation.forward(cloud).astype(np.int64)
     empty = np.ones(r.store.capacity, dtype=bool)
     empty[slots] = False
-    return held[slots], np.arange(info.points) // BATCH_POINTS, held[empty]
+    return held[slots], cloud // BATCH_POINTS, r.store.file_indices(cloud).astype(np.int64), held[empty]
 
 
-def test_las_positions_on_the_gpu_are_the_files_integers(gl):
+@pytest.mark.parametrize("order", list(BatchOrder), ids=lambda o: o.value)
+def test_las_positions_on_the_gpu_are_the_files_integers(gl, order):
     """A LAS file's batches are kept as its own integers: each point's three words, read
     back from the GPU, are laspy's X, Y, Z less its batch's least, moved up the batch's
-    shift (lossless); decoded, every position is within float32 rounding of the file's."""
+    shift (lossless); decoded, every position is within float32 rounding of the file's.
+    With batches sorted by Morton code, of the point the store placed there."""
     info, batches = sample_parts()
-    r = load_batches(gl, batches, info, chunk_points=60_000)
+    r = load_batches(gl, batches, info, chunk_points=60_000, batch_order=order)
     las = laspy.read(SAMPLE)
-    integers = np.stack([las.X, las.Y, las.Z], axis=1).astype(np.int64)
-    words, batch, padding = held_slots(r, info)
+    words, batch, files, padding = held_slots(r, info)
+    assert (r.store.file_order is not None) == (order is BatchOrder.MORTON)
+    integers = np.stack([las.X, las.Y, las.Z], axis=1).astype(np.int64)[files]
     assert r.store.words and r.store.integer[: batch[-1] + 1].all()
     starts = np.flatnonzero(np.r_[True, np.diff(batch) > 0])
     assert np.array_equal(r.store.least_cells[: batch[-1] + 1], np.minimum.reduceat(integers, starts, axis=0))
     cells, shift = encoding.unpack_cells(words), r.store.cell_shifts[batch]
     assert np.array_equal(cells >> shift, integers - r.store.least_cells[batch])
     assert not (cells & ((1 << shift) - 1)).any()
-    records = np.concatenate([pack_records(b, r.attribute, float(info.origin[2])) for b in batches])
+    records = np.concatenate([pack_records(b, r.attribute, float(info.origin[2])) for b in batches])[files]
     assert np.array_equal(words[:, 3], records[:, 3])
     assert (padding == EMPTY_WORD).all()     # the layout's padding stays empty
-    xyz = (file_xyz(SAMPLE) - info.origin).astype(np.float32)
+    xyz = (file_xyz(SAMPLE) - info.origin).astype(np.float32)[files]
     frames = r.store.frames[batch]
-    decoded = r.store.read_records()[r.store.slots_of(np.arange(info.points)).astype(np.int64), :3]
+    decoded = r.store.read_records()[r.store.permutation.forward(np.arange(info.points)).astype(np.int64), :3]
     # float32 decoding (base + q·step): float(q), the product and the sum each round once
     assert (np.abs(decoded.view(np.float32) - xyz) <= 2 * np.spacing(np.abs(frames[:, 0:3]) + np.abs(xyz))).all()
     assert r.store.buffers[0].label == "words0[0]"
     r.release()
 
 
-def test_float_positions_quantize_to_their_batch_box(gl):
+@pytest.mark.parametrize("order", list(BatchOrder), ids=lambda o: o.value)
+def test_float_positions_quantize_to_their_batch_box(gl, order):
     """Positions without a file's integers (here the sample's, dropped) are 30-bit cells
     of their float32 position in the frame of their batch's box (numpy over laspy's
-    coordinates), within half a cell."""
+    coordinates), within half a cell; sorted by Morton code, the box of the points the
+    store placed in the batch."""
     info, batches = sample_parts()
-    r = load_batches(gl, [dataclasses.replace(b, grid=None) for b in batches], info)
-    xyz = (file_xyz(SAMPLE) - info.origin).astype(np.float32)
-    words, batch, padding = held_slots(r, info)
+    r = load_batches(gl, [dataclasses.replace(b, grid=None) for b in batches], info, batch_order=order)
+    words, batch, files, padding = held_slots(r, info)
+    xyz = (file_xyz(SAMPLE) - info.origin).astype(np.float32)[files]
     assert not r.store.integer.any()
     starts = np.flatnonzero(np.r_[True, np.diff(batch) > 0])
     lo, hi = np.minimum.reduceat(xyz, starts, axis=0), np.maximum.reduceat(xyz, starts, axis=0)
