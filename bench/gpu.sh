@@ -14,7 +14,7 @@
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
-CHUNKS=(files-100M load-100M kernel-100M raster-100M raster-1B progressive-100M progressive-1B accuracy attributes)
+CHUNKS=(files-100M load-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B accuracy attributes)
 chunk="${1:-list}"
 if [ "$chunk" = list ]; then
     printf '%s\n' "${CHUNKS[@]}"
@@ -34,6 +34,13 @@ case "$chunk" in
     # to first image and to every point on the GPU (issue 11's targets)
     load-100M)        "${bench[@]}" --sections load --max-points 100000000 "${@:2}" ;;
     kernel-100M)      "${PYTHON:-python3}" -m bench.kernel --points 100000000 --out-root "$OUT" "${@:2}" ;;
+    # the batched layouts side by side at 100M (word store, float records, scan order, scan order with batches
+    # sorted by Morton code), 1920x1080 only: the four-word walk, --batch-order morton's culling and the
+    # wall-clock column in one table
+    layouts-100M)     "${PYTHON:-python3}" -m bench.raster --points 100000000 --size 1920x1080 --repeats 5 --copy-mib 2048 \
+                          --layouts batched "batched, float records" "batched, scan order" \
+                          "batched, scan order, Morton in loaded batches" --out "$OUT/$(
+                          "${PYTHON:-python3}" -c 'from bench.report import machine_name; from progressive.context import create_context; print(machine_name(create_context().caps))')" "${@:2}" ;;
     raster-100M)      "${bench[@]}" --sections raster --raster-points 100000000 "${@:2}" ;;
     raster-1B)        "${bench[@]}" --sections raster --raster-points 1000000000 "${@:2}" ;;
     progressive-100M) "${bench[@]}" --sections progressive --progressive-points 100000000 "${@:2}" ;;
