@@ -193,6 +193,8 @@ def effects_from(args):
 
 def add_cloud_args(parser) -> None:
     """Options shared by render and view: the files, the frame size, loading, colouring."""
+    from progressive.batches import BatchOrder
+
     parser.add_argument("files", nargs="*", type=path_arg, help="LAS/LAZ/fast-format files, one cloud (default: the bundled sample)")
     parser.add_argument("--width", type=size_arg, default=1280)
     parser.add_argument("--height", type=size_arg, default=720)
@@ -203,6 +205,10 @@ def add_cloud_args(parser) -> None:
     parser.add_argument("--gpu-memory-limit", type=bytes_arg, help="GPU memory to use, e.g. 4G; a larger cloud shows "
                         "whole levels of its COPC files, else a uniform random subset (the free memory the driver "
                         "reports also counts)")
+    parser.add_argument("--batch-order", type=enum_arg(BatchOrder), default=BatchOrder.FILE,
+                        help="file (store batches of consecutive points in file order) or morton (each loaded "
+                             "batch's whole store batches sorted by Morton code first: compacter batches where the "
+                             "file's order wanders)")
     add_reproject_arg(parser)
     add_http_arg(parser)
     parser.add_argument("--palette", type=path_arg, metavar="FILE.json",
@@ -598,7 +604,8 @@ def view_session_options(args):
 
     return SessionOptions(width=args.width, height=args.height, color_by=args.color_by, partial=args.partial,
                           gpu_memory_limit=args.gpu_memory_limit, value_range=args.value_range,
-                          class_filter=filters(args), palette=palette_from(args), reproject=args.reproject, http=http_from(args))
+                          class_filter=filters(args), palette=palette_from(args), reproject=args.reproject, http=http_from(args),
+                          batch_order=args.batch_order)
 
 
 def _view_headless(paths: list[str], effects, clip, args, options) -> int:
@@ -679,7 +686,6 @@ def _convert_copc(args) -> int:
 
 
 def build_parser() -> Parser:
-    from progressive.batches import BatchOrder
     from progressive.colors import Colormap
     from progressive.encoding import Precision
     from progressive.renderer import Raster
@@ -708,10 +714,6 @@ def build_parser() -> Parser:
                         help="exact (every point's full 30-bit position: the render contract) or adaptive (with "
                              "--method brute: a distant batch's points from fewer bits, each within half a pixel of "
                              "where it projects)")
-    render.add_argument("--batch-order", type=enum_arg(BatchOrder), default=BatchOrder.FILE,
-                        help="file (store batches of consecutive points in file order) or morton (each loaded "
-                             "batch's whole store batches sorted by Morton code first: compacter batches where the "
-                             "file's order wanders)")
     add_look_args(render)
     render.add_argument("--ids", type=path_arg, help="write the (H, W) uint32 file-order index of each pixel (.npy)")
     render.add_argument("--stats", type=path_arg, help="write timings and counts (.json)")

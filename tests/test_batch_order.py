@@ -233,3 +233,22 @@ def test_a_memory_limit_keeps_the_same_share_of_every_sorted_batch(gl):
         kept = np.sort(store.file_indices(kept_cloud))
         ref = subset_reference_ids(file_xyz(SAMPLE), kept, cam, W, H, store.slots_of(cloud))
         assert (ref != EMPTY).sum() > 200 and np.mean(s.ids() == ref) >= 0.999
+
+
+def test_view_takes_the_batch_order_too(tmp_path, monkeypatch, capsys):
+    """`view --batch-order morton` without a display writes its PNG, the same image as the
+    file order's but for ties between points at one depth."""
+    from PIL import Image
+
+    from progressive.cli import main
+
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    images = {}
+    for order in ("file", "morton"):
+        out = tmp_path / f"{order}.png"
+        assert main(["view", "--width", str(W), "--height", str(H), "--batch-order", order, "--out", str(out)]) == 0
+        images[order] = np.asarray(Image.open(out))
+    capsys.readouterr()
+    same = np.all(images["file"] == images["morton"], axis=-1)
+    assert (images["file"][..., :3] > 0).any(axis=-1).sum() > 500 and same.mean() >= 0.99
