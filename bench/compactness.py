@@ -27,7 +27,7 @@ from bench.data import SHARED
 from bench.report import RunInfo, Table
 from bench.synthetic import SAMPLE, Order, morton_order, tiled
 from progressive.batches import MORTON_BITS as store_bits
-from progressive.batches import boxes_of, in_view
+from progressive.batches import boxes_of, in_view, sorted_rows
 from progressive.batches import morton_order as store_order
 from progressive.camera import Camera, Projection, ViewUniforms, view_uniforms
 from progressive.loaders.types import BATCH_POINTS as LOADER_POINTS
@@ -108,9 +108,10 @@ class Ordering:
         if self.rule is Rule.STORE:
             for lo, hi in bounds:
                 order = np.arange(hi - lo)
-                first, end = -(-lo // BATCH_POINTS) * BATCH_POINTS, hi // BATCH_POINTS * BATCH_POINTS
-                if end - first >= 2 * BATCH_POINTS:
-                    order[first - lo: end - lo] = first - lo + store_order(xyz[first:end].astype(np.float32))
+                rows = sorted_rows(lo, xyz[lo:hi].astype(np.float32))
+                if rows is not None:
+                    at, inner = rows
+                    order[at: at + inner.shape[0]] = at + inner
                     sorted_chunks += 1
                 parts.append(lo + order)
             return Arrangement(np.concatenate(parts), sorted_chunks, len(bounds))

@@ -60,6 +60,20 @@ def morton_order(positions: np.ndarray) -> np.ndarray:
     return np.argsort(codes, kind="stable")
 
 
+def sorted_rows(start: int, positions: np.ndarray) -> tuple[int, np.ndarray] | None:
+    """What BatchOrder.MORTON sorts of a loaded batch whose first point has file index
+    `start`: (lo, order), its rows lo.. lo + len(order) being the whole store batches it
+    holds (two or more) and `order` theirs by morton_order; None where it holds fewer.
+    The store batches it only starts or ends stay in file order: their other rows come in
+    another loaded batch."""
+    first = -(-start // BATCH_POINTS) * BATCH_POINTS
+    end = (start + positions.shape[0]) // BATCH_POINTS * BATCH_POINTS
+    if end - first < 2 * BATCH_POINTS:
+        return None
+    lo = first - start
+    return lo, morton_order(positions[lo: lo + end - first])
+
+
 def glsl_defines() -> str:
     """The box test's constant for every shader (shaders/batches.glsl)."""
     return f"#define BOX_MARGIN {BOX_MARGIN!r}\n"

@@ -136,20 +136,16 @@ class Scene:
         self.upload_seconds += time.perf_counter() - t0
 
     def _ordered(self, batch: Batch) -> Batch:
-        """The batch as the store takes it: with BatchOrder.MORTON its whole store
-        batches (two or more) sorted by Morton code, the store told the way back; the
-        store batches it only starts or ends stay in file order (their other rows come
-        in another loaded batch)."""
+        """The batch as the store takes it: with BatchOrder.MORTON the rows
+        batches.sorted_rows says sorted, the store told the way back."""
         if self.batch_order is batch_boxes.BatchOrder.FILE:
             return batch
-        first = -(-batch.start // BATCH_POINTS) * BATCH_POINTS
-        end = (batch.start + batch.count) // BATCH_POINTS * BATCH_POINTS
-        if end - first < 2 * BATCH_POINTS:
+        rows = batch_boxes.sorted_rows(batch.start, _positions(batch))
+        if rows is None:
             return batch
-        lo, hi = first - batch.start, end - batch.start
-        order = batch_boxes.morton_order(_positions(batch)[lo:hi])
-        self.store.reorder(first, (first + order).astype(np.uint32))
-        return batch.reordered(lo, hi, order)
+        lo, order = rows
+        self.store.reorder(batch.start + lo, (batch.start + lo + order).astype(np.uint32))
+        return batch.reordered(lo, lo + order.shape[0], order)
 
     def _encode_group(self, group: list) -> None:
         """Frame the batches of a group of runs (encoding.BatchAssembler) by the boxes of

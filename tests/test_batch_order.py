@@ -252,3 +252,16 @@ def test_view_takes_the_batch_order_too(tmp_path, monkeypatch, capsys):
     capsys.readouterr()
     same = np.all(images["file"] == images["morton"], axis=-1)
     assert (images["file"][..., :3] > 0).any(axis=-1).sum() > 500 and same.mean() >= 0.99
+
+
+def test_sorted_rows_are_the_whole_store_batches_of_a_loaded_batch():
+    """A loaded batch that starts and ends inside store batches sorts only the whole
+    ones between (two or more), each row once."""
+    rng = np.random.default_rng(2)
+    start = 3 * BATCH_POINTS + 5
+    xyz = rng.uniform(0, 10, (5 * BATCH_POINTS, 3)).astype(np.float32)
+    lo, order = batches.sorted_rows(start, xyz)
+    assert lo == BATCH_POINTS - 5 and order.shape[0] == 4 * BATCH_POINTS
+    assert (start + lo) % BATCH_POINTS == 0 and np.array_equal(np.sort(order), np.arange(4 * BATCH_POINTS))
+    np.testing.assert_array_equal(order, batches.morton_order(xyz[lo: lo + 4 * BATCH_POINTS]))
+    assert batches.sorted_rows(start, xyz[: 3 * BATCH_POINTS - 10]) is None      # one whole batch only
