@@ -10,7 +10,7 @@ filters and the projection, "+ read" the read-before-atomicMin, "atomic, no read
 every atomic without the read before it, "full" the whole one-word walk. On the word
 store each stage runs at exact and adaptive precision, beside "load, no decode" (the
 words loaded, not decoded) and the full walk with 1, 2 or 8 records prefetched instead of
-PREFETCH, with the subgroup reduction, with the decode not `precise`, and with four-word loads (ComputeTuning.vector_loads;
+ComputeTuning.prefetch's default, with the subgroup reduction, with the decode not `precise`, and with four-word loads (ComputeTuning.vector_loads;
 its load and projection stages too). 64-bit only
 (llvmpipe lacks the atomics: the section says so and times the reads alone).
 """
@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import statistics
+from dataclasses import replace
 from pathlib import Path
 
 from bench.raster import median_gpu_ms
@@ -29,7 +30,6 @@ from progressive.camera import auto_camera
 from progressive.context import GLContext, create_context
 from progressive.encoding import Encoding, Precision
 from progressive.loaders.records import RECORD_BYTES
-from progressive.passes import raster_compute
 from progressive.passes.cull import CullPass
 from progressive.passes.raster_compute import ComputeRaster, ComputeTuning
 from progressive.permutation import BATCH_SLOTS, SLICE_POINTS, FillOrder
@@ -77,23 +77,20 @@ FUSED = ("    precise vec3 offset = vec3(point_cells(words, levels)) * step;\n  
          "    vec3 p = base + vec3(point_cells(words, levels)) * step;\n")
 """position_bits without `precise` (the compiler may fuse the decode; its twin would differ): what exactness costs."""
 ONE_WORD = ComputeTuning(vector_loads=False)
-"""The stages' walk: one word a load, PREFETCH records a slice apart (the four-word
+"""The stages' walk: one word a load, `prefetch` records a slice apart (the four-word
 walk, the renderer's 64-bit default, is a variant beside it)."""
 VARIANTS = {
-    "load, no decode": (raster_compute.PREFETCH, ONE_WORD,
-                        {"raster_compute.comp": STAGES["load"], "points.glsl": NO_DECODE}),
-    "full, prefetch 1": (1, ONE_WORD, {}),
-    "full, prefetch 2": (2, ONE_WORD, {}),
-    "full, prefetch 8": (8, ONE_WORD, {}),
-    "full, subgroup reduction": (raster_compute.PREFETCH, ComputeTuning(subgroup_reduction=True, vector_loads=False), {}),
-    "full, four-word loads": (raster_compute.PREFETCH, ComputeTuning(vector_loads=True), {}),
-    "full, decode fused": (raster_compute.PREFETCH, ONE_WORD, {"points.glsl": FUSED}),
-    "load, four-word loads": (raster_compute.PREFETCH, ComputeTuning(vector_loads=True),
-                              {"raster_compute.comp": STAGES["load"]}),
-    "+ project, four-word loads": (raster_compute.PREFETCH, ComputeTuning(vector_loads=True),
-                                   {"raster_compute.comp": STAGES["+ project"]}),
+    "load, no decode": (ONE_WORD, {"raster_compute.comp": STAGES["load"], "points.glsl": NO_DECODE}),
+    "full, prefetch 1": (replace(ONE_WORD, prefetch=1), {}),
+    "full, prefetch 2": (replace(ONE_WORD, prefetch=2), {}),
+    "full, prefetch 8": (replace(ONE_WORD, prefetch=8), {}),
+    "full, subgroup reduction": (replace(ONE_WORD, subgroup_reduction=True), {}),
+    "full, four-word loads": (ComputeTuning(vector_loads=True), {}),
+    "full, decode fused": (ONE_WORD, {"points.glsl": FUSED}),
+    "load, four-word loads": (ComputeTuning(vector_loads=True), {"raster_compute.comp": STAGES["load"]}),
+    "+ project, four-word loads": (ComputeTuning(vector_loads=True), {"raster_compute.comp": STAGES["+ project"]}),
 }
-"""Walks beside the stages, on the word store: name -> (records prefetched, tuning, patches)."""
+"""Walks beside the stages, on the word store: name -> (tuning, patches)."""
 
 
 def reads(glc: GLContext, points: int, repeats: int) -> list[tuple]:
@@ -126,10 +123,9 @@ STORES = ((RecordOrder.BATCHES, Encoding.WORDS), (RecordOrder.BATCHES, Encoding.
 store's "load" stage includes decoding its words)."""
 
 
-def _raster(glc: GLContext, store, vis, patches: dict[str, tuple[str, str]], prefetch: int,
-            tuning: ComputeTuning) -> ComputeRaster:
+def _raster(glc: GLContext, store, vis, patches: dict[str, tuple[str, str]], tuning: ComputeTuning) -> ComputeRaster:
     """A 64-bit raster compiled from the shader texts with `patches` (file -> (old, new))."""
-    original, default_prefetch = shaderlib.shader_text, raster_compute.PREFETCH
+    original = shaderlib.shader_text
 
     def text(name):
         source = original(name)
@@ -139,11 +135,11 @@ def _raster(glc: GLContext, store, vis, patches: dict[str, tuple[str, str]], pre
                 raise ValueError(f"bench.kernel: the patch of {name} no longer matches its text")
             source = source.replace(old, new, 1)
         return source
-    shaderlib.shader_text, raster_compute.PREFETCH = text, prefetch
+    shaderlib.shader_text = text
     try:
         return ComputeRaster(glc, store, vis, atomic64=True, culling=CullPass(glc, store), tuning=tuning)
     finally:
-        shaderlib.shader_text, raster_compute.PREFETCH = original, default_prefetch
+        shaderlib.shader_text = original
 
 
 def stages(glc: GLContext, points: int, size: tuple[int, int], repeats: int) -> list[tuple]:
@@ -156,14 +152,14 @@ def stages(glc: GLContext, points: int, size: tuple[int, int], repeats: int) -> 
         scene, _ = load(glc, cloud, fill=FillOrder.BATCHED, records=records, position_encoding=encoding)
         r = Renderer(glc, cloud.info, cloud.attribute, width=width, height=height, scene=scene)
         style = r.style()
-        runs = [(stage, {} if patch is None else {"raster_compute.comp": patch}, raster_compute.PREFETCH,
-                 ONE_WORD) for stage, patch in STAGES.items()]
+        runs = [(stage, {} if patch is None else {"raster_compute.comp": patch}, ONE_WORD)
+                for stage, patch in STAGES.items()]
         if scene.store.words:
-            runs += [(name, patches, prefetch, tuning) for name, (prefetch, tuning, patches) in VARIANTS.items()]
+            runs += [(name, patches, tuning) for name, (tuning, patches) in VARIANTS.items()]
         precisions = (Precision.EXACT, Precision.ADAPTIVE) if scene.store.words else (Precision.EXACT,)
-        for stage, patches, prefetch, tuning in runs:
+        for stage, patches, tuning in runs:
             r.raster.release()
-            r.raster = _raster(glc, scene.store, r.vis, patches, prefetch, tuning)
+            r.raster = _raster(glc, scene.store, r.vis, patches, tuning)
             for precision in precisions:
                 ms = statistics.median([r.render(cam, width, height, style, precision=precision).gpu_ms["raster"]
                                         for _ in range(repeats + 1)][1:])

@@ -157,8 +157,9 @@ def test_stats_report_batches_culled(tmp_path, sample):
     assert counts["outside"] == {"total": total, "drawn": 0, "culled": total, "bits": dict(exact, **{"30": 0})}
 
 
-TUNINGS = [ComputeTuning(batch_groups=g, vector_loads=v, subgroup_reduction=s)
-           for g, v in ((True, True), (True, False), (False, False)) for s in (True, False)]
+TUNINGS = [ComputeTuning(vector_loads=False, prefetch=k) for k in (1, 3)] + [
+    ComputeTuning(batch_groups=g, vector_loads=v, subgroup_reduction=s)
+    for g, v in ((True, True), (True, False), (False, False)) for s in (True, False)]
 """Every way the compute raster walks the store; the last (one invocation a slot, an
 atomic a point) is the plain reference the others must equal."""
 

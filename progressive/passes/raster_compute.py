@@ -40,13 +40,15 @@ class ComputeTuning:
     subgroup that hit one pixel are reduced to one atomic (the least key).
     vector_loads: a batch walk on the word store gives each invocation four consecutive
     records and reads each word plane's four words as one 16-byte load (where the
-    batch's records are aligned), instead of PREFETCH records a slice apart. None: on
+    batch's records are aligned), instead of `prefetch` records a slice apart. None: on
     the 64-bit path only; the 32-bit two-pass path measured slower with it on the H200
-    (bench/results/nvidia-h200/raster_100000000.md), where the 64-bit walk gained."""
+    (bench/results/nvidia-h200/raster_100000000.md), where the 64-bit walk gained.
+    prefetch: records each invocation of a one-word walk loads before it draws them."""
 
     batch_groups: bool = True
     subgroup_reduction: bool = False
     vector_loads: bool | None = None
+    prefetch: int = PREFETCH
 
 
 DEFAULT_TUNING = ComputeTuning()
@@ -72,6 +74,9 @@ class ComputeRaster:
         self.batch_groups = tuning.batch_groups and store.batched
         vector = atomic64 if tuning.vector_loads is None else tuning.vector_loads
         self.vector_loads = vector and self.batch_groups and store.words
+        if tuning.prefetch < 1:
+            raise ValueError(f"a walk prefetches at least one record, not {tuning.prefetch}")
+        self.prefetch = tuning.prefetch
         self.culling = culling if store.batched else None
         self.passes = 1 if atomic64 else 2
         self.precision = precision
@@ -86,7 +91,7 @@ class ComputeRaster:
         if key not in self._programs:
             defines = dict(self.store.defines, **Source.defines(source), **StateWord.defines(), **Meta.defines(),
                            CULL=int(self._culls(source)), BATCH_GROUPS=int(self._walks_batches(source)),
-                           PREFETCH=PREFETCH)
+                           PREFETCH=self.prefetch)
             if self.atomic64:
                 defines["ATOMIC64"] = 1
                 ext = ("GL_ARB_gpu_shader_int64", "GL_NV_shader_atomic_int64")
