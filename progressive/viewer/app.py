@@ -651,10 +651,11 @@ class Viewer:
             return False
         except (OSError, ValueError, ProgressiveError) as exc:
             self._reading = None
-            self.fail(f"reading the picked point: {exc}")
+            if session is self.session:
+                self.fail(f"reading the picked point: {exc}")
             return True
         self._reading = None
-        if session is self.session:       # not a cloud dropped in since
+        if session is self.session:       # not a cloud dropped in since: its result, or its error
             done(result)
         return True
 
