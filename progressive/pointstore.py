@@ -115,7 +115,9 @@ class PointStore:
         slots = self.permutation.slots
         words = position_encoding is encoding.Encoding.WORDS and self.permutation.batches > 0
         self.encoding = encoding.Encoding.WORDS if words else encoding.Encoding.FLOAT
-        limit = chunk_capacity(glc.caps.max_ssbo_bytes, 4 if words else RECORD_BYTES)
+        self.item_bytes = 4 if words else RECORD_BYTES
+        """Bytes of one point in one buffer: a word of a plane, or a whole float record."""
+        limit = chunk_capacity(glc.caps.max_ssbo_bytes, self.item_bytes)
         limit -= limit % QUAD_WORDS if words else 0
         self.chunk_points = min(chunk_points or limit, limit)
         # A capacity that holds the cloud holds the layout's padding too (under one batch).
@@ -156,7 +158,7 @@ class PointStore:
         self.layout_buffer.label = "store layout"
         self.buffers = []
         planes = [f"words{p}" for p in range(encoding.POSITION_WORDS)] + ["attributes"] if words else ["points"]
-        item = 4 if words else RECORD_BYTES
+        item = self.item_bytes
         for plane in planes:
             for c in range(chunks):
                 n = self._chunk_words(c)
@@ -262,9 +264,8 @@ class PointStore:
         """Every record as (capacity, 4) uint32 in record order (StoreLayout): the float
         record, or the word store's three position words and attribute word (tests and
         debugging only)."""
-        item = 4 if self.words else RECORD_BYTES
-        planes = [np.concatenate([np.frombuffer(b.read(size=self._chunk_words(c) * item), dtype=np.uint32) for c, b in
-                                  enumerate(self.buffers[p * self.chunks: (p + 1) * self.chunks])])
+        planes = [np.concatenate([np.frombuffer(b.read(size=self._chunk_words(c) * self.item_bytes), dtype=np.uint32)
+                                  for c, b in enumerate(self.buffers[p * self.chunks: (p + 1) * self.chunks])])
                   for p in range(len(self.buffers) // self.chunks)]
         return np.stack(planes, axis=1) if self.words else planes[0].reshape(-1, 4)
 
