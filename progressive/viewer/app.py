@@ -709,11 +709,13 @@ class Viewer:
         x, y = glfw.get_cursor_pos(self.window)
         self.mouse_button(button, action == glfw.PRESS, x, y, bool(mods & glfw.MOD_SHIFT))
 
-    def mouse_button(self, button: int, pressed: bool, x: float, y: float, shift: bool = False) -> None:
+    def mouse_button(self, button: int, pressed: bool, x: float, y: float, shift: bool = False,
+                     at: float | None = None) -> None:
         """A press starts a drag (orbit, pan, or look in fly mode; on the panel's right
         edge, its width); a release where it was pressed picks the point there (the panel
         shows all of it; with Shift it is also the next point of the measurement); two
-        quick presses focus."""
+        quick presses focus. `at`: when it happened (perf_counter seconds; GLFW's callbacks
+        give no time, so None is now)."""
         if not pressed:
             d, self._drag = self._drag, None
             if (d is not None and button == glfw.MOUSE_BUTTON_LEFT and abs(x - d.x) + abs(y - d.y) < DOUBLE_CLICK_PIXELS
@@ -729,7 +731,7 @@ class Viewer:
             return
         if button == glfw.MOUSE_BUTTON_LEFT:
             t, lx, ly = self._last_click
-            now = time.perf_counter()
+            now = time.perf_counter() if at is None else at
             if now - t < DOUBLE_CLICK_SECONDS and abs(x - lx) + abs(y - ly) < DOUBLE_CLICK_PIXELS:
                 self._last_click = (0.0, -1e9, -1e9)
                 self.focus(x, y)
