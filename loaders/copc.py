@@ -74,6 +74,11 @@ NAMED_NODES = 5
 """Damaged nodes a warning names; it counts the others."""
 
 
+COPC_SUFFIX = ".copc.laz"
+"""The name COPC files are given (the specification's convention): convert writes COPC
+to it, and streaming takes a URL of that name for a COPC file."""
+
+
 def is_copc(path: str | os.PathLike) -> bool:
     """A LAS 1.4 file whose first VLR is the COPC info VLR (as the specification requires)."""
     try:
@@ -366,6 +371,15 @@ class CopcSource(LasSource):
         """Stop the fetches in flight (a loader that stops)."""
         if self.remote is not None:
             self.remote.close()
+
+    def node_batch(self, k: int, start: int, origin: np.ndarray, names: tuple[str, ...]) -> Batch:
+        """Node k (an index into hierarchy.nodes) read on its own, its points numbered from
+        `start`: for a streaming reader's threads (each read opens the file, or fetches the
+        node's range, for itself). InputError where the node cannot be read or decoded."""
+        node = self.hierarchy.nodes[k:k + 1]
+        pieces = list(self._node_chunks(np.array([k]), max(1, int(node["point_count"][0])), selection(names),
+                                        salvage=False))
+        return self.parse(pieces[0] if len(pieces) == 1 else np.concatenate(pieces), start, origin, names)
 
     def kept_nodes(self) -> np.ndarray:
         """Indices (into hierarchy.nodes, so in file order) of the nodes read."""

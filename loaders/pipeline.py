@@ -291,6 +291,11 @@ class CloudLoader(BatchQueue):
         return self.info.points
 
     @property
+    def sources(self) -> tuple:
+        """The opened files, in cloud order (a streaming reader reads their nodes itself)."""
+        return self._sources
+
+    @property
     def done(self) -> bool:
         """Every batch has been handed to the consumer."""
         return self._finished == self.parser_threads

@@ -209,6 +209,10 @@ def add_cloud_args(parser) -> None:
                         help="file (store batches of consecutive points in file order) or morton (each loaded "
                              "batch's whole store batches sorted by Morton code first: compacter batches where the "
                              "file's order wanders)")
+    parser.add_argument("--stream", action=argparse.BooleanOptionalAction, default=None,
+                        help="COPC files: keep on the GPU the octree nodes each view needs, read in the background "
+                             "as the camera moves, within the GPU memory (progressive frames; view streams COPC "
+                             "files unless told --no-stream)")
     add_reproject_arg(parser)
     add_http_arg(parser)
     parser.add_argument("--palette", type=path_arg, metavar="FILE.json",
@@ -403,7 +407,7 @@ def load_camera_path(path: str):
 def session_options(args):
     from progressive.budget import BudgetParams
     from progressive.frame_loop import ProgressiveOptions
-    from progressive.session import SessionOptions
+    from progressive.session import SessionOptions, Streaming
 
     budget = BudgetParams(target_ns=int(args.target_ms * 1e6), fixed=args.budget)
     progressive = ProgressiveOptions(budget=budget, reference=args.reference or args.converge)
@@ -412,7 +416,8 @@ def session_options(args):
                           colormap=args.colormap, background=args.background, partial=args.partial,
                           gpu_memory_limit=args.gpu_memory_limit, value_range=args.value_range,
                           class_filter=filters(args), palette=palette_from(args), reproject=args.reproject, http=http_from(args),
-                          precision=args.precision, batch_order=args.batch_order)
+                          precision=args.precision, batch_order=args.batch_order,
+                          stream=streaming(args.stream, Streaming.OFF))
 
 
 def cmd_render(args) -> int:
@@ -504,7 +509,7 @@ def _first_equal(history, after: int) -> int | None:
 
 def _stats(session, camera, frames: int, converged_at: int | None, clip) -> dict:
     """What --stats writes; "copc": per file, its levels, nodes and points kept and read
-    (null for files other than COPC)."""
+    (null for files other than COPC); "stream": a streamed cloud's nodes (else null)."""
     import dataclasses
 
     from progressive import memory
@@ -538,6 +543,7 @@ def _stats(session, camera, frames: int, converged_at: int | None, clip) -> dict
         "camera": camera.to_dict(),
         "frames_rendered": frames,
         "copc": [None if c is None else dataclasses.asdict(c) for c in status.copc],
+        "stream": None if status.stream is None else status.stream.as_dict(),
     }
     if session.progressive:
         history = session.stats()
@@ -600,12 +606,19 @@ def check_cloud(paths: list[str], args) -> None:
 
 def view_session_options(args):
     """What `view` asks of its session, in a window or headless."""
-    from progressive.session import SessionOptions
+    from progressive.session import SessionOptions, Streaming
 
     return SessionOptions(width=args.width, height=args.height, color_by=args.color_by, partial=args.partial,
                           gpu_memory_limit=args.gpu_memory_limit, value_range=args.value_range,
                           class_filter=filters(args), palette=palette_from(args), reproject=args.reproject, http=http_from(args),
-                          batch_order=args.batch_order)
+                          batch_order=args.batch_order, stream=streaming(args.stream, Streaming.AUTO))
+
+
+def streaming(flag: bool | None, default):
+    """--stream: required; --no-stream: off; neither: the command's default."""
+    from progressive.session import Streaming
+
+    return default if flag is None else Streaming.ON if flag else Streaming.OFF
 
 
 def _view_headless(paths: list[str], effects, clip, args, options) -> int:
@@ -625,7 +638,9 @@ def _view_headless(paths: list[str], effects, clip, args, options) -> int:
             warn(w)
         outputs.write(args.out, png_writer(session.image()))
         state = "exact" if session.converged else "not converged"
-        commit_saying(outputs, f"wrote {Path(args.out).resolve()} ({session.info.points:,} points, {state} after "
+        status = session.status()
+        shown = f"{status.on_gpu:,} of {status.points:,}" if status.stream is not None else f"{status.points:,}"
+        commit_saying(outputs, f"wrote {Path(args.out).resolve()} ({shown} points, {state} after "
                                f"{frames} frames, first image {session.first_image_seconds:.2f} s after opening)")
     return 0
 
@@ -646,12 +661,10 @@ def commit_saying(outputs, message: str) -> None:
     outputs.commit()
 
 
-COPC_SUFFIX = ".copc.laz"
-
-
 def cmd_convert(args) -> int:
     from progressive.attributes import default_attribute, find_attribute
     from progressive.loaders import write_fast_stream
+    from progressive.loaders.copc import COPC_SUFFIX
     from progressive.output import Outputs, check_outputs
     from progressive.reproject import open_loader
 
@@ -670,6 +683,7 @@ def cmd_convert(args) -> int:
 
 def _convert_copc(args) -> int:
     """OUT.copc.laz: the inputs as one COPC file (loaders/copc_write.py)."""
+    from progressive.loaders.copc import COPC_SUFFIX
     from progressive.loaders.copc_write import write_copc
     from progressive.output import Outputs
 
@@ -688,6 +702,7 @@ def _convert_copc(args) -> int:
 def build_parser() -> Parser:
     from progressive.colors import Colormap
     from progressive.encoding import Precision
+    from progressive.loaders.copc import COPC_SUFFIX
     from progressive.renderer import Raster
     from progressive.session import Method
 

@@ -62,6 +62,7 @@ class FrameTag:
     points_loaded: int
     pixels: int
     reference: bool
+    complete: bool          # every point there will be was on the GPU (Scene.complete)
 
 
 @dataclass(frozen=True)
@@ -133,6 +134,7 @@ class ProgressiveRenderer:
         self._look: tuple[ColorStyle, Effects] | None = None
         self._regather = False
         self._has_visible = False
+        self._nodes_changed = False
         self._in_flight: deque[int] = deque()
         self.pacing_waits = 0
 
@@ -155,6 +157,12 @@ class ProgressiveRenderer:
         leaves the rest in the loader's bounded queues, so host memory stays bounded
         when loading outruns the frames."""
         return max(0, self.options.batches_per_frame - len(self.pending))
+
+    def nodes_changed(self) -> None:
+        """A streamed cloud's batches were written or emptied (progressive/streaming.py):
+        the next frame fills again, and its prepare reads every visible record anew (the
+        copies of an emptied batch's points are gone from the store)."""
+        self._nodes_changed = True
 
     def resize(self, width: int, height: int) -> None:
         if (width, height) != (self.vis.width, self.vis.height):
@@ -187,6 +195,9 @@ class ProgressiveRenderer:
         for _ in range(min(self.options.batches_per_frame, len(self.pending))):
             self.scene.add_batch(self.pending.popleft())
             passes.append("distribute")
+        if self._nodes_changed:
+            self._nodes_changed, self._regather = False, True
+            passes.append("nodes")
         if self.scene.reencoded != reencoded:
             self._regather = True       # this frame's prepare reads every visible record anew: copies moved
         style = self.scene.resolved(style)
@@ -264,7 +275,8 @@ class ProgressiveRenderer:
         if reference:
             self.compare.run(view)
             passes.append("reference")
-        tag = FrameTag(self.frame_index, self.change, tuple(passes), self.scene.loaded, self.vis.pixels, reference)
+        tag = FrameTag(self.frame_index, self.change, tuple(passes), self.scene.loaded, self.vis.pixels, reference,
+                       self.scene.complete)
         self.stats_ring.record(tag, b.state, b.stamps, b.parity * TIMESTAMP_SLOTS * 8, self.prepare.previous.meta,
                                self.compare.counter if reference else None)
         b.end_frame(complete=True)
@@ -293,7 +305,7 @@ class ProgressiveRenderer:
         for r in records:
             tag: FrameTag = r.tag
             filled = int(r.state[StateWord.FILLED])
-            if tag.change == self.change and tag.points_loaded == self.info.points and filled >= self.store.capacity:
+            if tag.change == self.change and tag.complete and filled >= self.store.capacity:
                 self.converged_change = tag.change
             t = r.stamps.astype(np.int64)
             gpu_ms = {name: (t[b] - t[a]) / 1e6 for name, (a, b) in PASS_TIMES.items()}

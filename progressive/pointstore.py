@@ -17,7 +17,7 @@ from progressive.bindings import MAX_POINT_CHUNKS, Binding, UniformBinding
 from progressive.context import GLContext
 from progressive.errors import ProgressiveError
 from progressive.loaders.records import RECORD_BYTES
-from progressive.permutation import LAYOUT, SLICE_POINTS, FillOrder, Permutation
+from progressive.permutation import BATCH_SLOTS, LAYOUT, SLICE_POINTS, FillOrder, Permutation
 
 EMPTY_WORD = 0xFFFFFFFF
 """Every slot starts as NaN coordinates, which no pass draws: unloaded slots stay dark."""
@@ -195,6 +195,35 @@ class PointStore:
         part = self.boxes[first: first + k]
         self.box_buffer.write(part.tobytes(), offset=first * part.itemsize * batches.BOX_FLOATS)
 
+    def clear_batches(self, batches_cleared) -> None:
+        """Empty whole batches of a store that holds every slot (a streamed cloud's
+        evicted nodes): their records EMPTY_WORD, their boxes empty (culled), their frames
+        unset, so points written there later start from nothing."""
+        if not self.batched or self.capacity < self.permutation.slots:
+            raise ProgressiveError("only whole batches of a store that keeps every slot can be emptied")
+        b = np.asarray(sorted(batches_cleared), dtype=np.int64)
+        if b.size == 0:
+            return
+        records = self.layout.batch_record(b)
+        for plane in range(len(self.buffers) // self.chunks):
+            for r in records.tolist():
+                at, end = r, r + BATCH_SLOTS
+                while at < end:          # a batch may straddle two of a plane's buffers
+                    c, within = divmod(at, self.chunk_points)
+                    n = min(end - at, self.chunk_points - within)
+                    buf = self.buffers[plane * self.chunks + c]
+                    self._glc.gl.clear_u32(buf.glo, EMPTY_WORD, within * self.item_bytes, n * self.item_bytes,
+                                           total=buf.size)
+                    at += n
+        self.boxes[b] = batches.empty_boxes(b.size)
+        self.frames[b] = encoding.empty_frames(b.size)
+        self.integer[b] = False
+        for lo, hi in _runs_of(b):
+            self.box_buffer.write(self.boxes[lo:hi].tobytes(), offset=lo * self.boxes.itemsize * batches.BOX_FLOATS)
+            if self.frame_buffer is not None:
+                self.frame_buffer.write(self.frames[lo:hi].tobytes(),
+                                        offset=lo * self.frames.itemsize * encoding.FRAME_FLOATS)
+
     def add_boxes(self, positions, start: int) -> None:
         """Grow the boxes of the batches that file indices [start, start+n) belong to
         (batched layout; the rasterizer culls batches outside the view with them)."""
@@ -299,3 +328,9 @@ class PointStore:
         if self.class_buffer is not None:
             self.class_buffer.release()
             self.class_buffer = None
+
+
+def _runs_of(sorted_batches: np.ndarray) -> list[tuple[int, int]]:
+    """[lo, hi) runs of consecutive numbers in a sorted array."""
+    cuts = np.flatnonzero(np.diff(sorted_batches) != 1) + 1
+    return [(int(run[0]), int(run[-1]) + 1) for run in np.split(sorted_batches, cuts)]

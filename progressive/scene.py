@@ -68,7 +68,7 @@ class Scene:
                  capacity: int | None = None, keep_batches: bool = False, order: FillOrder = LAYOUT,
                  class_filter: bool = False, records: RecordOrder = RecordOrder.BATCHES,
                  position_encoding: encoding.Encoding = encoding.Encoding.WORDS,
-                 batch_order: batch_boxes.BatchOrder = batch_boxes.BatchOrder.FILE):
+                 batch_order: batch_boxes.BatchOrder = batch_boxes.BatchOrder.FILE, streamed: bool = False):
         """capacity: points kept on the GPU (default all; see progressive/memory.py).
         keep_batches: keep the loaded attributes in host memory to switch attributes.
         order: FILE stores points in file order (the unshuffled baseline, for benchmarks).
@@ -78,14 +78,26 @@ class Scene:
         order is the benchmarks' baseline). position_encoding: how the batched layout
         keeps positions (progressive/encoding.py; float records are the baseline).
         batch_order: batches of consecutive points in file order, or (MORTON, the batched
-        layout) each loaded batch's whole store batches sorted by Morton code first."""
+        layout) each loaded batch's whole store batches sorted by Morton code first.
+        streamed: the store's batches are written and emptied one by one
+        (write_store_batch, clear_store_batches: progressive/streaming.py), not loaded
+        in order; `info.points` is then what its batches hold."""
         self.glc, self.info, self.attribute = glc, info, attribute
+        if streamed and (keep_batches or capacity is not None or order is not FillOrder.BATCHED):
+            raise ProgressiveError("a streamed cloud keeps whole batches of the batched layout, no attributes on the host")
+        self.streamed = streamed
+        self.settled = False
+        """Streamed: nothing more to read or write for the view (set by the Streamer)."""
+        self.writes = 0             # streamed: store batches written or emptied so far
+        self._written: dict[int, tuple[int, int]] = {}      # streamed: (points, never drawn) of each written batch
+        self._codes = np.zeros(256, dtype=bool)     # streamed: category codes written so far (no batches are kept)
+        self._range_writes = -1
         if class_filter and CLASSIFICATION not in {a.name for a in info.attributes}:
             raise ProgressiveError("this cloud has no classification to filter by")
         self.store = PointStore(glc, info.points, capacity=capacity, chunk_points=chunk_points, order=order,
                                 classes=class_filter, records=records, position_encoding=position_encoding)
         self.distribute = DistributePass(glc, self.store)
-        self.batch_order = batch_order if self.store.batched else batch_boxes.BatchOrder.FILE
+        self.batch_order = batch_order if self.store.batched and not streamed else batch_boxes.BatchOrder.FILE
         self.assembler = encoding.BatchAssembler(info.points, keep=_copied_rows) if self.store.words else None
         self.reencoded = 0
         """Batches encoded again with points uploaded before (their frame grew): those
@@ -108,7 +120,38 @@ class Scene:
 
     @property
     def complete(self) -> bool:
-        return self.loaded >= self.info.points
+        """Every point there will be is on the GPU (streamed: for the view, `settled`)."""
+        return self.settled if self.streamed else self.loaded >= self.info.points
+
+    def write_store_batch(self, part: Batch, b: int) -> None:
+        """Streamed: store batch b, empty, holds `part` from now on (at most BATCH_POINTS
+        points, numbered from `part.start` by their cloud indices, which ids report)."""
+        at = b * BATCH_POINTS
+        self.store.reorder(at, np.arange(part.start, part.start + part.count, dtype=np.uint32))
+        placed = replace(part, start=at)
+        if self.assembler is not None:
+            self._encode_group([(at, part.count, [(placed, 0, part.count)])])
+            hidden = _hidden_points(placed, self.attribute, float(self.info.origin[2]))
+        else:
+            hidden = self._upload_records(placed, self.attribute)
+            self.store.add_boxes(_positions(placed), at)
+        if self.store.has_classes:
+            self.distribute.upload_classes(point_flags(placed), at)
+        self._written[b] = (part.count, hidden)
+        if (name := self._category_name()) is not None and name in part.attributes:
+            self._codes[np.unique(np.minimum(part.attributes[name], 255))] = True
+        self.loaded += part.count
+        self.skipped += hidden
+        self.writes += 1
+
+    def clear_store_batches(self, batches) -> None:
+        """Streamed: these store batches hold nothing from now on (an evicted node's)."""
+        self.store.clear_batches(batches)
+        for b in batches:
+            count, hidden = self._written.pop(b, (0, 0))
+            self.loaded -= count
+            self.skipped -= hidden
+        self.writes += 1
 
     def add_batch(self, batch: Batch) -> None:
         t0 = time.perf_counter()
@@ -234,6 +277,14 @@ class Scene:
             if self.held[k] != self.attribute and start + self.batches[k].count > lo:
                 self.held[k] = None
 
+    def show_streamed(self, attribute: AttributeInfo) -> None:
+        """Streamed: batches written from now on carry `attribute` (the Streamer reads
+        every node again); its colour range is taken once they are."""
+        if attribute not in self.info.attributes:
+            raise ProgressiveError(f"this cloud has no attribute '{attribute.name}'")
+        self.attribute, self._range, self._range_loaded = attribute, None, 0
+        self._codes[:] = False
+
     def begin_switch(self, attribute: AttributeInfo) -> AttributeSwitch:
         """Show `attribute` from now on: batches loaded later are packed with it, and
         stream() rewrites the words of those already on the GPU."""
@@ -340,11 +391,14 @@ class Scene:
         return returns if self.store.has_classes else Returns.ALL
 
     def categories(self) -> list[int]:
-        """Codes present in the kept batches: of the classification where the classes are
-        kept, else of the shown category attribute."""
-        name = CLASSIFICATION if self.store.has_classes else self.attribute.name
-        if not self.store.has_classes and self.attribute.kind is not AttributeKind.CATEGORY:
+        """Codes present in the kept batches (streamed: in every node written so far): of
+        the classification where the classes are kept, else of the shown category
+        attribute."""
+        name = self._category_name()
+        if name is None:
             return []
+        if self.streamed:
+            return np.flatnonzero(self._codes).tolist()
         seen = np.zeros(256, dtype=bool)
         for b in self.batches:
             shown = b.records is not None and name == self.attribute.name
@@ -352,6 +406,13 @@ class Scene:
             if values is not None:
                 seen[np.unique(np.minimum(values, 255))] = True
         return np.flatnonzero(seen).tolist()
+
+    def _category_name(self) -> str | None:
+        """The attribute whose codes categories() lists: the classification where the
+        classes are kept, else the shown category attribute (None: neither)."""
+        if self.store.has_classes:
+            return CLASSIFICATION
+        return self.attribute.name if self.attribute.kind is AttributeKind.CATEGORY else None
 
     @property
     def positions_changed(self) -> bool:
@@ -368,9 +429,11 @@ class Scene:
             return None
         switching = self.switch is not None and not self.switch.done
         grown = self.loaded >= RANGE_GROWTH * self._range_loaded or self.complete or self.finished
-        if not switching and self.loaded > self._range_loaded and grown:
+        # a streamed cloud's points change without growing: taken anew when they changed
+        fresh = self.writes != self._range_writes if self.streamed else self.loaded > self._range_loaded
+        if not switching and fresh and grown and self.loaded > 0:
             self._percentile = self._percentile or PercentilePass(self.glc, self.store)
-            self._range, self._range_loaded = self._percentile.run(), self.loaded
+            self._range, self._range_loaded, self._range_writes = self._percentile.run(), self.loaded, self.writes
         return self._range
 
     def style(self, colormap: Colormap = Colormap.VIRIDIS, background=(0, 0, 0),

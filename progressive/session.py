@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import enum
 import functools
+import os
 import time
 from dataclasses import dataclass, field, replace
 
@@ -31,6 +32,7 @@ from progressive.errors import ProgressiveError
 from progressive.frame_loop import FrameStats, ProgressiveOptions, ProgressiveRenderer
 from progressive.loaders.copc import CopcStatus, copc_status
 from progressive.loaders.copc_choice import View
+from progressive.loaders.copc_stream import NodeReader, may_stream, streamable
 from progressive.loaders.crs import file_crs
 from progressive.loaders.http import DEFAULTS as HTTP_DEFAULTS
 from progressive.loaders.http import HttpOptions
@@ -39,10 +41,12 @@ from progressive.loaders.records import attribute_word
 from progressive.loaders.types import AttributeInfo, AttributeKind
 from progressive.passes.distribute import Staging
 from progressive.passes.visibility import EMPTY
+from progressive.permutation import BATCH_POINTS, BATCH_SLOTS
 from progressive.pointstore import CLASS_BYTES, GPUMemoryError
 from progressive.renderer import Frame, Raster, Renderer, ids_for
 from progressive.reproject import Geography, open_loader, target_crs
-from progressive.scene import CLASSIFICATION, AttributeSwitch
+from progressive.scene import CLASSIFICATION, AttributeSwitch, Scene
+from progressive.streaming import PLAN, Streamer, StreamStatus
 
 PICK_RADIUS = 7
 """Pixels around a picked pixel searched for the nearest point shown."""
@@ -51,6 +55,16 @@ PICK_RADIUS = 7
 class Method(enum.Enum):
     BRUTE = "brute"                # every point, every frame
     PROGRESSIVE = "progressive"    # reproject + budgeted fill + prepare
+
+
+class Streaming(enum.Enum):
+    """Whether a COPC cloud keeps on the GPU the octree nodes each view needs, read in the
+    background as the camera moves (progressive/streaming.py), or the nodes the first
+    view needs, read once."""
+
+    OFF = "off"
+    AUTO = "auto"       # where progressive frames draw files that are all COPC, not reprojected
+    ON = "on"           # or refused
 
 
 @dataclass(frozen=True)
@@ -81,6 +95,8 @@ class SessionStatus:
     copc: tuple[CopcStatus | None, ...] = ()
     """Per file (info.files' order): levels, nodes and points kept and read of a COPC
     file read by its hierarchy; None for other files."""
+    stream: StreamStatus | None = None
+    """A streamed cloud's nodes (SessionOptions.stream)."""
 
 
 @dataclass(frozen=True)
@@ -120,6 +136,9 @@ class SessionOptions:
     reproject: str | None = None
     """A CRS code (EPSG:32610): load files in any CRSs as one cloud in it (float64,
     pyproj); None: files whose EPSG codes differ are refused."""
+    stream: Streaming = Streaming.OFF
+    """COPC files: keep on the GPU the octree nodes each view needs, read in the
+    background as the camera moves, within the GPU memory (progressive frames)."""
 
 
 def node_view(camera: Camera, width: int, height: int) -> View:
@@ -139,6 +158,11 @@ class Session:
         if options.precision is not Precision.EXACT and options.method is not Method.BRUTE:
             raise ProgressiveError("adaptive precision is for brute-force renders (--method brute): progressive "
                                    "frames reproject each point at its exact position")
+        if options.stream is Streaming.ON and options.method is not Method.PROGRESSIVE:
+            raise ProgressiveError("streaming COPC nodes needs progressive frames (--method progressive): a "
+                                   "brute-force render draws the nodes its camera needs without it")
+        if options.stream is Streaming.ON and options.reproject:
+            raise ProgressiveError("streaming COPC nodes does not reproject (yet): leave out --reproject or --stream")
         self.options = options
         self.opened = time.perf_counter()
         self.target = target_crs(options.reproject) if options.reproject else None
@@ -147,8 +171,18 @@ class Session:
         width, height = options.width, options.height
         view = (node_view(options.camera, width, height) if options.camera is not None
                 else lambda lo, hi: node_view(auto_camera(lo, hi, width / height), width, height))
-        self.loader = open_loader(paths, partial=options.partial, reproject=self.target, point_budget=budget,
-                                  http=options.http, view=view)
+        stream = options.stream is Streaming.ON or (
+            options.stream is Streaming.AUTO and options.method is Method.PROGRESSIVE and not options.reproject
+            and all(may_stream(p) for p in ([paths] if isinstance(paths, (str, os.PathLike)) else paths)))
+        self.loader = open_loader(paths, partial=options.partial, reproject=self.target,
+                                  point_budget=None if stream else budget, http=options.http,
+                                  view=None if stream else view)
+        if stream and options.stream is Streaming.AUTO and not streamable(self.loader.sources):
+            self.loader.close()         # a hierarchy that cannot be used: read once, as with streaming off
+            stream = False
+            self.loader = open_loader(paths, partial=options.partial, point_budget=budget, http=options.http,
+                                      view=view)
+        self.streamer: Streamer | None = None
         self._given_range = options.value_range
         self._early: list = []
         self._notes: list[str] = []
@@ -160,7 +194,14 @@ class Session:
         try:
             self.info = self.loader.info
             self.geography = Geography(self.info, self.target)
-            if options.color_by:
+            if stream and not streamable(self.loader.sources):
+                plain = next(f.path for f, s in zip(self.info.files, self.loader.sources) if not streamable((s,)))
+                raise ProgressiveError(f"streaming reads COPC files by their octree: {plain} is not one (or its "
+                                       "hierarchy cannot be used)")
+            if stream:
+                self.attribute = find_attribute(self.info, options.color_by) if options.color_by else \
+                    default_choice(self.info)[0]
+            elif options.color_by:
                 self.attribute = find_attribute(self.info, options.color_by)
                 if not options.switchable:
                     self.loader.keep_only(self._needed(self.attribute, options.class_filter))
@@ -179,23 +220,14 @@ class Session:
             programs_before = self.glc.programs.stats.seconds
             self._program_warnings = len(self.glc.programs.warnings)    # a shared context's earlier ones are not ours
             class_filter = options.class_filter and any(a.name == CLASSIFICATION for a in self.info.attributes)
-            self.memory = memory.plan(self.info.points, self.glc.caps, options.width * options.height,
-                                      options.gpu_memory_limit, CLASS_BYTES if class_filter else 0)
-            if self.memory.capacity == 0:
-                raise GPUMemoryError(f"no points fit in the GPU memory available ({self.memory.source})")
-            capacity = self.memory.capacity
-            if options.method is Method.BRUTE:
-                self.renderer = Renderer(self.glc, self.info, self.attribute, raster=options.raster,
-                                         width=options.width, height=options.height,
-                                         chunk_points=options.chunk_points, capacity=capacity,
-                                         keep_batches=options.switchable, class_filter=class_filter,
-                                         batch_order=options.batch_order)
+            self._class_filter = class_filter
+            if stream:
+                self._open_stream(options, class_filter)
             else:
-                self.renderer = ProgressiveRenderer(self.glc, self.info, self.attribute, replace(
-                    options.progressive, width=options.width, height=options.height, raster=options.raster,
-                    chunk_points=options.chunk_points, capacity=capacity, keep_batches=options.switchable,
-                    class_filter=class_filter, batch_order=options.batch_order))
+                self._open_renderer(options, class_filter)
         except BaseException:
+            if self.streamer is not None:
+                self.streamer.close()
             self.loader.close()
             raise
         self.startup["passes"] = time.perf_counter() - t1
@@ -206,7 +238,51 @@ class Session:
         self.first_image_seconds: float | None = None
         self._last: Frame | None = None
         self.size = (options.width, options.height)
-        self.loading = True
+        self.loading = not stream
+
+    def _open_stream(self, options: SessionOptions, class_filter: bool) -> None:
+        """A store of whole node batches within the GPU memory, and the Streamer that
+        fills it as the camera moves."""
+        reader = NodeReader(self.loader.sources, self.info.origin, self._needed(self.attribute, class_filter),
+                            threads=options.http.in_flight)
+        scene = None
+        try:
+            need = int(Streamer.residency(reader, 0).cost.sum())       # every node, in whole batches
+            self.memory = memory.plan(need * BATCH_SLOTS, self.glc.caps, options.width * options.height,
+                                      options.gpu_memory_limit, CLASS_BYTES if class_filter else 0)
+            state = Streamer.residency(reader, self.memory.capacity * BATCH_POINTS // BATCH_SLOTS)
+            info = replace(self.info, points=state.capacity * BATCH_POINTS)
+            scene = Scene(self.glc, info, self.attribute, chunk_points=options.chunk_points,
+                          class_filter=class_filter, streamed=True)
+            self.renderer = ProgressiveRenderer(self.glc, info, self.attribute, replace(
+                options.progressive, width=options.width, height=options.height, raster=options.raster,
+                chunk_points=options.chunk_points, class_filter=class_filter), scene=scene)
+        except BaseException:
+            reader.close()
+            if scene is not None:
+                scene.release()
+            raise
+        self.streamer = Streamer(scene, reader, state, replace(PLAN, max_in_flight=options.http.in_flight))
+
+    def _open_renderer(self, options: SessionOptions, class_filter: bool) -> None:
+        """The renderer of a cloud loaded in order (a uniform random subset where it does
+        not fit the GPU memory)."""
+        self.memory = memory.plan(self.info.points, self.glc.caps, options.width * options.height,
+                                  options.gpu_memory_limit, CLASS_BYTES if class_filter else 0)
+        if self.memory.capacity == 0:
+            raise GPUMemoryError(f"no points fit in the GPU memory available ({self.memory.source})")
+        capacity = self.memory.capacity
+        if options.method is Method.BRUTE:
+            self.renderer = Renderer(self.glc, self.info, self.attribute, raster=options.raster,
+                                     width=options.width, height=options.height,
+                                     chunk_points=options.chunk_points, capacity=capacity,
+                                     keep_batches=options.switchable, class_filter=class_filter,
+                                     batch_order=options.batch_order)
+        else:
+            self.renderer = ProgressiveRenderer(self.glc, self.info, self.attribute, replace(
+                options.progressive, width=options.width, height=options.height, raster=options.raster,
+                chunk_points=options.chunk_points, capacity=capacity, keep_batches=options.switchable,
+                class_filter=class_filter, batch_order=options.batch_order))
 
     def __enter__(self) -> Session:
         return self
@@ -240,10 +316,19 @@ class Session:
 
     @property
     def warnings(self) -> list[str]:
-        subset = [self.memory.message(self.renderer.store.kept)] if self.memory.subset and self.renderer else []
+        if self.streamer is not None:
+            subset = [self._stream_note()] if self.memory.subset else []
+            subset += self.streamer.warnings
+        else:
+            subset = [self.memory.message(self.renderer.store.kept)] if self.memory.subset and self.renderer else []
         skipped = self.renderer.scene.skipped if self.renderer is not None else 0
         nonfinite = [f"{skipped:,} points not drawn: non-finite coordinates or {self.attribute.name} values"] if skipped else []
         return subset + self._notes + nonfinite + list(self.loader.warnings) + self.glc.programs.warnings[self._program_warnings:]
+
+    def _stream_note(self) -> str:
+        room = self.streamer.state.capacity * BATCH_POINTS
+        return (f"the cloud's points do not fit in the GPU memory ({self.memory.source}): streaming the COPC "
+                f"octree nodes each view needs, room for {room:,} of {self.info.points:,} points")
 
     def auto_camera(self) -> Camera:
         return auto_camera(self.info.bounds_min, self.info.bounds_max, self.size[0] / self.size[1])
@@ -297,11 +382,17 @@ class Session:
         crs = self.target if self.target is not None else file_crs(self.info.files[0])
         return None if crs is None or not crs.axis_info else crs.axis_info[0].unit_name
 
-    def switch_attribute(self, name: str) -> AttributeSwitch:
+    def switch_attribute(self, name: str) -> AttributeSwitch | None:
         """Colour by another attribute (needs SessionOptions.switchable). Progressive
-        frames stream it in; the brute renderer rewrites it here."""
+        frames stream it in; the brute renderer rewrites it here. A streamed cloud reads
+        its nodes again with it (None: no switch to follow)."""
         attribute = find_attribute(self.info, name)
-        self.renderer.switch_attribute(attribute)
+        if self.streamer is not None:
+            self.renderer.scene.show_streamed(attribute)
+            self.streamer.restart(self._needed(attribute, self._class_filter))
+            self.renderer.nodes_changed()
+        else:
+            self.renderer.switch_attribute(attribute)
         self.attribute = attribute
         self._given_range = None
         return self.renderer.scene.switch
@@ -412,6 +503,8 @@ class Session:
             passes = ("distribute", "raster", "resolve")
         else:
             self._pump(block=False)
+            if self.streamer is not None and self.streamer.update(node_view(camera, *self.size)):
+                self.renderer.nodes_changed()
             passes = self.renderer.frame(camera, style, effects, hidden, clip, returns)
         if self.first_image_seconds is None and self.renderer.scene.loaded > 0:
             now = time.perf_counter()
@@ -424,14 +517,16 @@ class Session:
         r = self.renderer
         scene, sw = r.scene, r.scene.switch
         pending = bool(r.pending) if self.progressive else False
+        streamed = None if self.streamer is None else self.streamer.status()
         return SessionStatus(
-            points=self.info.points, loaded=scene.loaded, complete=scene.complete, on_gpu=scene.store.kept,
+            points=self.info.points, loaded=scene.loaded, complete=scene.complete,
+            on_gpu=scene.loaded if streamed is not None else scene.store.kept,
             slots=scene.store.capacity, not_drawn=scene.skipped, raster=r.raster_path,
             staging=scene.distribute.staging,
             frames=r.frame_index if self.progressive else int(self._last is not None),
-            loading=(self.loading and not self.loader.done) or pending,
+            loading=(self.loading and not self.loader.done) or pending or (streamed is not None and not streamed.settled),
             switch=None if sw is None else SwitchStatus(sw.streamed, sw.total, sw.rate, sw.done),
-            copc=tuple(copc_status(f) for f in self.info.files))
+            copc=tuple(copc_status(f) for f in self.info.files), stream=streamed)
 
     def categories(self) -> list[int]:
         """Category codes present in the shown attribute (kept batches; for a legend)."""
@@ -484,9 +579,14 @@ class Session:
 
     def close(self) -> None:
         self.loader.close()
+        streamer = getattr(self, "streamer", None)
+        if streamer is not None:
+            streamer.close()
         renderer = getattr(self, "renderer", None)
         if renderer is not None:
             renderer.release()
+            if streamer is not None:
+                renderer.scene.release()
             self.renderer = None
         if getattr(self, "_own_context", False):
             self.glc.release()

@@ -18,6 +18,8 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
 RANGE = re.compile(r"bytes=(\d+)-(\d*)")
+HOLD_S = 60.0
+"""Longest a held answer waits (a test that fails before it lets them go ends anyway)."""
 
 
 @dataclass
@@ -36,6 +38,9 @@ class Faults:
     idle kept-alive connections does)."""
     pause: float = 0.0
     """Seconds every answer waits before it starts (a slow network)."""
+    hold: threading.Event | None = None
+    """Every answer waits until this is set (HOLD_S at most): the requests a test looks at
+    stay in flight for as long as it takes to look, however slow the machine."""
 
 
 def self_signed(folder: Path) -> tuple[Path, Path]:
@@ -126,6 +131,8 @@ class _Handler(BaseHTTPRequestHandler):
         start = int(wanted.group(1)) if wanted else 0
         if faults.delays.get(start) or faults.pause:
             time.sleep(faults.delays.get(start, 0.0) + faults.pause)
+        if faults.hold is not None:
+            faults.hold.wait(HOLD_S)
         try:
             if data is None:
                 self._answer(owner, 404, b"not found\n", {})

@@ -174,7 +174,8 @@ def test_stats_count_what_the_server_sent(server, files, tmp_path, capsys):
 def test_requests_in_flight_are_bounded(files):
     """Nodes are fetched a few at a time: with every node's answer slowed, the server (one
     of this test's own) holds exactly `in_flight` requests at once, never more, and the
-    status (and the panel's line) says so while it does."""
+    status (and the panel's line) says so while it does (the answers are held until the
+    status is read: on a slow machine the first could otherwise come back before)."""
     from progressive.viewer.status import copc_lines
 
     name = "lone-star.copc.laz" if "lone-star.copc.laz" in files else "sample.copc.laz"
@@ -184,12 +185,16 @@ def test_requests_in_flight_are_bounded(files):
     with RangeServer({name: files[name]}) as own:
         loader = CloudLoader([own.url(name)], http=HttpOptions(in_flight=in_flight))
         own.faults.delays = {int(offset): 0.2 for offset in nodes["offset"]}
+        own.faults.hold = held = threading.Event()
         with loader:
             loader.start()
-            deadline = time.monotonic() + BOUND_S
-            while own.active < in_flight and time.monotonic() < deadline:
-                time.sleep(0.005)
-            seen = loader.info.files[0].status()
+            try:
+                deadline = time.monotonic() + BOUND_S
+                while own.active < in_flight and time.monotonic() < deadline:
+                    time.sleep(0.005)
+                seen = loader.info.files[0].status()
+            finally:
+                held.set()
             count = sum(b.count for b in loader)
         assert count == loader.info.points
         assert own.most_active == in_flight and seen.requests_in_flight == in_flight
@@ -507,3 +512,32 @@ def test_session_survives_a_failed_fetch(server, files, gl):
         shown = int((s.ids() != 0xFFFFFFFF).sum())
     assert time.monotonic() - began < BOUND_S
     assert 0 < loaded <= int(nodes["point_count"][:-1].sum()) and shown > 0
+
+
+def test_streaming_a_url_draws_while_nodes_are_on_their_way(server, files):
+    """Streamed over HTTP with every node's answer 2 s late: frames keep coming while
+    the nodes are fetched (the frame loop never waits for the network), then the still
+    view is exact over the resident nodes, which were each fetched once."""
+    from test_copc_stream import assert_exact, assert_tree_cut, converge, las_xyz, resident, streamed
+
+    name = "lone-star.copc.laz" if "lone-star.copc.laz" in files else "sample.copc.laz"
+    nodes = [n for n in nodes_of(files[name]) if n.point_count > 0]
+    server.faults.delays = {n.offset: 2.0 for n in nodes}
+    _, xyz = las_xyz(files[name])
+
+    def run():
+        with streamed(server.url(name), limit_for(250_000), color_by="intensity") as s:
+            camera = s.auto_camera()
+            frames = 0
+            while s.status().stream.resident_nodes == 0:
+                s.frame(camera)
+                frames += 1
+            converge(s, camera)
+            assert_tree_cut(s)
+            assert_exact(s, camera, xyz)
+            return frames, resident(s)[0].size
+
+    (frames, kept), _ = bounded(run)
+    assert frames >= 5
+    fetched = [r for r in server.ranges if r[0] in server.faults.delays]
+    assert len(fetched) == len(set(fetched)) >= kept

@@ -10,6 +10,7 @@ import os
 import shutil
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import replace
 
@@ -439,7 +440,9 @@ def test_click_picks_the_point_and_the_panel_shows_it(viewer):
 def test_a_pick_over_a_slow_network_leaves_the_window_drawing(display, tmp_path):
     """A COPC file over HTTP whose server answers each request a second late: a click
     finds its point on the GPU at once, the window keeps drawing while the point's node
-    is fetched, and the record that then arrives is laspy's."""
+    is fetched, and the record that then arrives is laspy's. (The answers are also held
+    back until the window has drawn its frames, so that on a slow machine the node cannot
+    arrive first.)"""
     from range_server import RangeServer
 
     from progressive.cli import main
@@ -447,6 +450,7 @@ def test_a_pick_over_a_slow_network_leaves_the_window_drawing(display, tmp_path)
 
     copc = tmp_path / "sample.copc.laz"
     assert main(["convert", str(SAMPLE), str(copc)]) == 0
+    held = threading.Event()
     with RangeServer({copc.name: copc}) as server:
         v = Viewer([server.url(copc.name)], ViewerOptions(SessionOptions(width=W, height=H), **EXACT))
         try:
@@ -454,15 +458,18 @@ def test_a_pick_over_a_slow_network_leaves_the_window_drawing(display, tmp_path)
             ids = v.session.ids()
             rows, cols = np.nonzero(ids != EMPTY)
             x, y = float(cols[len(cols) // 2]) + 0.5, float(rows[len(rows) // 2]) + 0.5
-            server.faults.pause = 1.0
+            server.faults.pause, server.faults.hold = 1.0, held
             t0 = time.perf_counter()
             v.mouse_button(glfw.MOUSE_BUTTON_LEFT, True, x, y)
             v.mouse_button(glfw.MOUSE_BUTTON_LEFT, False, x, y)
-            assert v.reading and v.picked is None and time.perf_counter() - t0 < 0.5
-            frames = v.frames
-            while v.reading and time.perf_counter() - t0 < 10:
+            assert v.reading and v.picked is None       # the click did not wait for the node ...
+            assert time.perf_counter() - t0 < server.faults.pause       # ... nor as long as an answer takes
+            frames, t0 = v.frames, time.perf_counter()
+            while v.frames - frames < 5 and time.perf_counter() - t0 < 5 * server.faults.pause:
                 v.step()
-            assert not v.reading and v.frames - frames >= 5      # drawn all the while
+            assert v.reading and v.frames - frames >= 5      # drawn while the node is on its way, faster than it came
+            held.set()
+            finish_reads(v, limit=30)
             p = v.picked
             assert p is not None and p["index"] == int(ids[int(y), int(x)]) and v.error is None
             las = laspy.read(copc)
@@ -470,6 +477,7 @@ def test_a_pick_over_a_slow_network_leaves_the_window_drawing(display, tmp_path)
                 las.intensity[p["index"]])
             no_gl_error(v)
         finally:
+            held.set()
             v.close()
 
 

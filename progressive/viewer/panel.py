@@ -23,7 +23,7 @@ from progressive.loaders.types import AttributeKind
 from progressive.measure import Measurement
 from progressive.viewer import clipbox
 from progressive.viewer.controls import KEYS, MOUSE_HELP, VIEW_ACTIONS, Action, BudgetMode
-from progressive.viewer.status import copc_lines
+from progressive.viewer.status import copc_lines, stream_lines
 
 ERROR_COLOUR = imgui.ImVec4(1.0, 0.35, 0.3, 1.0)
 NOTE_COLOUR = imgui.ImVec4(0.95, 0.8, 0.4, 1.0)
@@ -134,8 +134,10 @@ class Panel:
             for f, copc in zip(s.info.files, status.copc, strict=True):
                 imgui.text(f"{Path(f.path).name}: {f.points:,} points ({f.format} {f.version})")
                 imgui.text(f"    CRS: {f.crs or 'none given'}")
-                for line in copc_lines(copc) if copc is not None else ():
+                for line in copc_lines(copc, streamed=status.stream is not None) if copc is not None else ():
                     imgui.text(line)
+            for line in stream_lines(status.stream) if status.stream is not None else ():
+                imgui.text(line)
             loaded, total = status.loaded, status.points
             imgui.progress_bar(loaded / max(1, total), imgui.ImVec2(-1, 0), f"{loaded:,} / {total:,} loaded")
 

@@ -1,0 +1,140 @@
+"""COPC clouds larger than the GPU, streamed by level of detail as the camera moves.
+
+The store holds whole batches of nodes: loaders/copc_residency.py plans which nodes a
+view needs and which batches each takes, loaders/copc_stream.py reads them on threads,
+and the Streamer, driven by the frame loop, writes what has arrived into its batches
+and empties the batches of evicted nodes. Nothing here waits: a view whose nodes are
+still on their way draws the coarser ones already resident. A node is written only once
+its whole path from the root is resident (Residency shows it then), so the resident set
+is always a tree cut: no point twice, no hole. Points keep their cloud indices (the
+store's way back, PointStore.file_order), so ids and picks mean what they mean for the
+file read whole; a still view converges to the exact render of the resident nodes.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from progressive.loaders.copc_choice import View
+from progressive.loaders.copc_residency import PlanOptions, Residency, Status, plan
+from progressive.loaders.copc_stream import NodeReader
+from progressive.loaders.types import Batch
+from progressive.permutation import BATCH_POINTS
+from progressive.scene import Scene
+
+WRITE_POINTS = 262_144
+"""Points written to the GPU a frame at most (at least one node), so arrivals never
+stall a frame for long."""
+PLAN = PlanOptions()
+"""How many nodes are read at once and how readily resident ones are evicted."""
+PLAN_SECONDS = 0.1
+"""Least time between two plans while the camera moves and nothing arrives (a plan
+walks every node)."""
+
+
+@dataclass(frozen=True)
+class StreamStatus:
+    """What the panel and --stats report of a streamed cloud."""
+
+    nodes: int                  # in the hierarchies
+    points: int
+    resident_nodes: int
+    resident_points: int
+    loading_nodes: int          # requested, not yet arrived
+    held_nodes: int             # arrived, waiting for an ancestor (or their turn to be written)
+    failed_nodes: int
+    capacity_points: int        # what the store's batches hold
+    evicted_nodes: int          # since opening
+    settled: bool               # nothing more to read or write for the current view
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+class Streamer:
+    """Keeps a Scene's batches holding the nodes a view needs (the Scene was made
+    streamed, with the state's capacity in whole batches)."""
+
+    def __init__(self, scene: Scene, reader: NodeReader, state: Residency, options: PlanOptions = PLAN):
+        self.scene, self.reader, self.state, self.options = scene, reader, state, options
+        self._arrived: dict[int, Batch] = {}
+        self._to_write: deque[int] = deque()
+        self._view: View | None = None
+        self._events = True
+        self._planned_at = -np.inf
+        self.evicted = 0
+        self.warnings: list[str] = []
+
+    @staticmethod
+    def residency(reader: NodeReader, budget_points: int) -> Residency:
+        """The plan's state for a budget of points (the store gets its capacity)."""
+        return Residency(reader.nodes, budget_points, BATCH_POINTS)
+
+    def update(self, view: View) -> bool:
+        """Take the reads that have finished, write what may be shown, plan for `view`;
+        True where the store changed (the image starts filling again)."""
+        changed = False
+        for row, got in self.reader.arrivals():
+            self._events = True
+            if isinstance(got, str):
+                failure = self.state.failed(row, got)
+                self.warnings.append(failure.warning)
+                for p in failure.dropped:
+                    self._arrived.pop(p.row, None)
+                continue
+            arrival = self.state.arrived(row)
+            if arrival.keep:
+                self._arrived[row] = got
+                self._to_write.extend(arrival.shown)
+        written = 0
+        while self._to_write and (written == 0 or written < WRITE_POINTS):
+            written += self._write(self._to_write.popleft())
+            changed = True
+        now = time.perf_counter()
+        moved = view != self._view
+        # No plan while shown nodes wait to be written: an eviction must not meet a node not yet written.
+        if not self._to_write and (self._events or (moved and now - self._planned_at >= PLAN_SECONDS)):
+            p = plan(self.state, view, self.options)
+            self._view, self._events, self._planned_at = view, False, now
+            if not p.empty:
+                self.state.begin(p)
+                for e in p.evict:
+                    self.scene.clear_store_batches(e.batches)
+                    self.evicted += 1
+                    changed = True
+                for r in p.request:
+                    self.reader.request(r.row)
+        self.scene.settled = (self._view == view and not self._events and not self._to_write
+                              and self.state.in_flight == 0)
+        return changed
+
+    def _write(self, row: int) -> int:
+        """Node `row`'s points into its batches: its i-th takes points [i·B, (i+1)·B)."""
+        batch = self._arrived.pop(row)
+        for i, b in enumerate(self.state.batches[row]):
+            self.scene.write_store_batch(batch.rows(i * BATCH_POINTS, min((i + 1) * BATCH_POINTS, batch.count)), b)
+        return batch.count
+
+    def restart(self, names: tuple[str, ...]) -> None:
+        """Read every node again with the attributes `names` (another is shown): the store
+        empties, the plan starts from the roots; reads under way are discarded."""
+        self.reader.names = names
+        self.scene.clear_store_batches([b for p in self.state.clear() for b in p.batches])
+        self._arrived.clear()
+        self._to_write.clear()
+        self._events = True
+
+    def status(self) -> StreamStatus:
+        s, points = self.state.status, self.state.nodes.points
+        resident = s == Status.RESIDENT
+        return StreamStatus(int(s.size), int(points.sum()), int(resident.sum()), int(points[resident].sum()),
+                            int(np.count_nonzero(s == Status.LOADING)), int(np.count_nonzero(s == Status.HELD)),
+                            int(np.count_nonzero(s == Status.FAILED)), self.state.capacity * BATCH_POINTS,
+                            self.evicted, bool(self.scene.settled))
+
+    def close(self) -> None:
+        self.reader.close()

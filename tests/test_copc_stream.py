@@ -1,0 +1,339 @@
+"""Streaming COPC nodes as the camera moves (progressive/streaming.py): nodes read by
+themselves equal laspy's points; a still view converges to the float64 reference over
+the points of the nodes resident, which are a tree cut from the root within the memory;
+moving the camera brings the nodes the new view needs and evicts others; colours follow
+the colour contract over the resident points; ids and picks are the file's indices;
+damaged nodes are skipped with a warning; bad requests are one line."""
+
+from __future__ import annotations
+
+import json
+
+import laspy
+import numpy as np
+import pytest
+
+from colour_reference import assert_scalar_colours, las_values, reference_range
+from conftest import SAMPLE, shared_file
+from progressive import memory
+from progressive.camera import Camera
+from progressive.cli import main
+from progressive.loaders.copc import open_copc
+from progressive.loaders.copc_residency import Status
+from progressive.loaders.copc_stream import NodeReader
+from progressive.permutation import BATCH_POINTS
+from progressive.reference import subset_reference_ids
+from progressive.session import Session, SessionOptions, Streaming
+
+W, H = 160, 120
+EMPTY = 0xFFFFFFFF
+LONE_STAR = "lone-star.copc.laz"
+FRAMES = 400
+
+
+def limit_for(points: int) -> int:
+    """A gpu_memory_limit with room for `points` points (of 16 bytes) at W x H."""
+    return W * H * memory.PIXEL_BYTES + memory.BATCH_POINTS * 16 + points * 16
+
+
+@pytest.fixture(scope="module")
+def sample_copc(tmp_path_factory):
+    out = tmp_path_factory.mktemp("copc") / "sample.copc.laz"
+    assert main(["convert", str(SAMPLE), str(out)]) == 0
+    return out
+
+
+def las_xyz(path) -> tuple[laspy.LasData, np.ndarray]:
+    las = laspy.read(path)
+    return las, np.stack([las.x, las.y, las.z], axis=1)
+
+
+def streamed(path, limit=None, **kw) -> Session:
+    return Session([str(path)], SessionOptions(width=W, height=H, stream=Streaming.ON, gpu_memory_limit=limit, **kw))
+
+
+def converge(s: Session, camera: Camera) -> int:
+    """Frames until the still view is exact (a first frame for the camera, then on)."""
+    for n in range(1, FRAMES + 1):
+        s.frame(camera)
+        if s.converged:
+            return n
+    raise AssertionError("the streamed view did not converge")
+
+
+def resident(s: Session) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rows of the resident nodes, their points' cloud indices, and each of those points'
+    slot (the GPU's tie key: batch b's i-th point is the permutation of b·B + i)."""
+    state, reader = s.streamer.state, s.streamer.reader
+    rows = np.nonzero(state.status == Status.RESIDENT)[0]
+    index, virtual = [], []
+    for r in rows.tolist():
+        first, count = reader.first_index(r), int(state.nodes.points[r])
+        for i, b in enumerate(state.batches[r]):
+            k = min(BATCH_POINTS, count - i * BATCH_POINTS)
+            index.append(first + i * BATCH_POINTS + np.arange(k))
+            virtual.append(b * BATCH_POINTS + np.arange(k))
+    index, virtual = np.concatenate(index), np.concatenate(virtual)
+    return rows, index, s.renderer.store.permutation.forward(virtual).astype(np.int64)
+
+
+def assert_exact(s: Session, camera: Camera, xyz: np.ndarray) -> np.ndarray:
+    """ids equal the float64 reference over the resident nodes' points; those ids."""
+    _, index, slots = resident(s)
+    tie = np.zeros(len(xyz), np.int64)
+    tie[index] = slots
+    ids = s.ids()
+    expected = subset_reference_ids(xyz, index, camera, W, H, tie)
+    assert np.mean(ids == expected) >= 0.999
+    assert (ids != EMPTY).sum() > 300
+    return ids
+
+
+def assert_tree_cut(s: Session) -> None:
+    """Every resident node's parent is resident, the roots are, and the nodes fit the store."""
+    state = s.streamer.state
+    rows = np.nonzero(state.status == Status.RESIDENT)[0]
+    parents = state.parent[rows]
+    assert np.all(state.status[parents[parents >= 0]] == Status.RESIDENT)
+    assert np.all(state.status[state.parent < 0] == Status.RESIDENT)
+    assert int(state.cost[rows].sum()) <= state.capacity
+
+
+def close_up(path) -> Camera:
+    header = laspy.open(path).header
+    lo, hi = np.asarray(header.mins, np.float64), np.asarray(header.maxs, np.float64)
+    target = lo + (hi - lo) * np.array([0.2, 0.2, 0.5])
+    eye = target + np.array([0.0, -0.1, 0.1]) * (hi[0] - lo[0])
+    return Camera(tuple(eye.tolist()), tuple(target.tolist()), up=(0, 0, 1), fov_y_deg=60.0)
+
+
+@pytest.mark.parametrize("name", [LONE_STAR, "lion_takanawa.copc.laz"])
+def test_nodes_read_alone_equal_laspy(name):
+    """Each node read by the streaming reader holds laspy's points of that node, numbered
+    by their index in the file."""
+    path = shared_file(name)
+    las, xyz = las_xyz(path)
+    reader = NodeReader((open_copc(path),), np.zeros(3), ("intensity",), threads=2)
+    try:
+        for row in range(reader.nodes.level.size):
+            reader.request(row)
+        got: dict = {}
+        for _ in range(2000):
+            got.update(reader.arrivals())
+            if len(got) == reader.nodes.level.size:
+                break
+            __import__("time").sleep(0.005)
+        assert len(got) == reader.nodes.level.size and reader.reading == 0
+        for row, batch in got.items():
+            first = reader.first_index(row)
+            assert batch.start == first and batch.count == reader.nodes.points[row]
+            np.testing.assert_array_equal(batch.positions, xyz[first:first + batch.count].astype(np.float32))
+            np.testing.assert_array_equal(batch.attributes["intensity"], las.intensity[first:first + batch.count])
+        assert sum(b.count for b in got.values()) == len(las)
+    finally:
+        reader.close()
+
+
+@pytest.mark.parametrize("case", [None, LONE_STAR])
+def test_no_limit_streams_every_node_exactly_with_the_colour_contract(case, sample_copc):
+    """Without a limit every node comes: the still view is the reference over every
+    point of the file, coloured over its percentiles."""
+    path = sample_copc if case is None else shared_file(case)
+    las, xyz = las_xyz(path)
+    with streamed(path, color_by="intensity") as s:
+        camera = s.auto_camera()
+        converge(s, camera)
+        status = s.status()
+        assert status.stream.settled and status.stream.resident_nodes == status.stream.nodes
+        assert status.on_gpu == status.points == len(las) and not status.loading
+        ids = assert_exact(s, camera, xyz)
+        values = las_values(las, "intensity")
+        assert s.color_range() == pytest.approx(reference_range(values))
+        assert_scalar_colours(s.image()[..., :3].astype(np.int32), ids, values, reference_range(values))
+
+
+def test_limit_keeps_a_tree_cut_renders_it_exactly_and_picks_the_files_points():
+    path = shared_file(LONE_STAR)
+    las, xyz = las_xyz(path)
+    with streamed(path, limit_for(250_000), color_by="intensity") as s:
+        camera = s.auto_camera()
+        converge(s, camera)
+        assert_tree_cut(s)
+        rows, index, _ = resident(s)
+        assert 1 < rows.size < s.streamer.state.nodes.level.size
+        assert s.status().on_gpu == index.size <= 250_000
+        assert any("streaming the COPC octree nodes each view needs" in w for w in s.warnings)
+        assert not any("uniform random subset" in w for w in s.warnings)
+        ids = assert_exact(s, camera, xyz)
+        values = las_values(las, "intensity")
+        assert_scalar_colours(s.image()[..., :3].astype(np.int32), ids, values, reference_range(values[index]))
+        shown = np.argwhere(ids != EMPTY)
+        row, col = shown[len(shown) // 3]
+        picked = s.pick(float(col), float(row), radius=0)
+        assert picked["cloud_index"] == ids[row, col] == picked["index"]
+        assert (picked["x"], picked["y"], picked["z"]) == pytest.approx(tuple(xyz[ids[row, col]]), abs=1e-6)
+
+
+def test_moving_the_camera_brings_its_nodes_and_evicts_others():
+    """A close-up after the overview: deeper nodes near the camera, others evicted to
+    make room, the new still view exact; back at the overview the hysteresis keeps what
+    is resident (nothing more is evicted) and the view is exact again."""
+    path = shared_file(LONE_STAR)
+    _, xyz = las_xyz(path)
+    with streamed(path, limit_for(250_000), color_by="intensity") as s:
+        overview = s.auto_camera()
+        converge(s, overview)
+        before = set(resident(s)[0].tolist())
+        near = close_up(path)
+        converge(s, near)
+        after = set(resident(s)[0].tolist())
+        assert after != before and s.status().stream.evicted_nodes >= 1
+        assert_tree_cut(s)
+        assert_exact(s, near, xyz)
+        evicted = s.status().stream.evicted_nodes
+        converge(s, overview)
+        assert s.status().stream.evicted_nodes == evicted
+        assert_exact(s, overview, xyz)
+
+
+def test_switching_the_attribute_reads_the_nodes_again():
+    path = shared_file(LONE_STAR)
+    las, xyz = las_xyz(path)
+    with streamed(path, limit_for(250_000), color_by="intensity") as s:
+        camera = s.auto_camera()
+        converge(s, camera)
+        assert s.switch_attribute("elevation") is None
+        converge(s, camera)
+        _, index, _ = resident(s)
+        ids = assert_exact(s, camera, xyz)
+        values = las_values(las, "elevation")
+        assert_scalar_colours(s.image()[..., :3].astype(np.int32), ids, values, reference_range(values[index]))
+
+
+def test_a_node_that_does_not_decode_is_skipped_with_a_warning(tmp_path):
+    """lone-star with one node's chunk corrupted: that node (and what is below it) is
+    left out with one warning naming it; every other node streams, exactly."""
+    path = shared_file(LONE_STAR)
+    node = sorted((n for n in laspy_nodes(path) if n.point_count > 0), key=lambda n: n.offset)[-2]
+    data = bytearray(path.read_bytes())
+    middle = node.offset + node.byte_size // 3
+    data[middle:middle + 64] = bytes(b ^ 0xFF for b in data[middle:middle + 64])
+    bad = tmp_path / "damaged.copc.laz"
+    bad.write_bytes(bytes(data))
+    _, xyz = las_xyz(path)
+    with streamed(bad, color_by="intensity") as s:
+        camera = s.auto_camera()
+        converge(s, camera)
+        status = s.status().stream
+        lost = s.streamer.state.lost         # the node and every node below it
+        assert status.failed_nodes == 1 and status.resident_nodes == status.nodes - lost.sum() < status.nodes - 1
+        (warning,) = [w for w in s.warnings if "could not be read" in w]
+        assert f"{node.key.level}-{node.key.x}-{node.key.y}-{node.key.z}" in warning
+        assert_exact(s, camera, xyz)
+
+
+def laspy_nodes(path) -> list:
+    from laspy.copc import load_octree_for_query
+
+    with laspy.CopcReader.open(path) as reader:
+        return load_octree_for_query(reader.source, reader.copc_info, reader.root_page)
+
+
+def test_render_streams_with_stats(tmp_path, capsys):
+    path = shared_file(LONE_STAR)
+    stats, ids = tmp_path / "s.json", tmp_path / "ids.npy"
+    code = main(["render", "--width", str(W), "--height", str(H), str(path), "--stream", "--method", "progressive",
+                 "--converge", "--gpu-memory-limit", str(limit_for(250_000)), "--stats", str(stats),
+                 "--ids", str(ids), "--color-by", "intensity"])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert "streaming the COPC octree nodes" in err
+    s = json.loads(stats.read_text())
+    assert s["stream"]["settled"] and s["converged_frame"] is not None
+    assert s["points_on_gpu"] == s["stream"]["resident_points"] == s["points_loaded"] <= 250_000
+    shown = np.load(ids)
+    assert ((shown != EMPTY).sum() > 300) and shown[shown != EMPTY].max() < s["points"]
+
+
+@pytest.mark.parametrize("args, phrase", [
+    (["--method", "brute"], "needs progressive frames"),
+    (["--method", "progressive", "--reproject", "EPSG:4978"], "does not reproject"),
+])
+def test_stream_refusals_are_one_line(args, phrase, tmp_path, capsys):
+    out = tmp_path / "x.png"
+    code = main(["render", str(shared_file(LONE_STAR)), "--stream", *args, "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and err.startswith("progressive: error:") and phrase in err
+    assert not out.exists()
+
+
+def test_stream_refuses_a_file_that_is_not_copc(tmp_path, capsys):
+    out = tmp_path / "x.png"
+    code = main(["render", str(SAMPLE), "--stream", "--method", "progressive", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "is not one" in err and SAMPLE.name in err
+    assert not out.exists()
+
+
+def test_classes_of_the_streamed_nodes_are_listed_and_hidden(sample_copc):
+    """The classification codes of the nodes written are listed (no batches are kept on
+    the host), and hiding one leaves the reference over the other resident points."""
+    las, xyz = las_xyz(sample_copc)
+    with streamed(sample_copc, limit_for(60_000), class_filter=True, color_by="intensity") as s:
+        camera = s.auto_camera()
+        converge(s, camera)
+        rows, index, slots = resident(s)
+        assert 1 < rows.size < s.streamer.state.nodes.level.size
+        codes = np.asarray(las.classification)
+        assert s.categories() == np.unique(codes[index]).tolist() and len(s.categories()) > 1
+        hidden = s.categories()[-1]
+        for n in range(1, FRAMES + 1):
+            s.frame(camera, hidden=frozenset({hidden}))
+            if n > 1 and s.converged:
+                break
+        tie = np.zeros(len(xyz), np.int64)
+        tie[index] = slots
+        kept = index[codes[index] != hidden]
+        assert np.mean(s.ids() == subset_reference_ids(xyz, kept, camera, W, H, tie)) >= 0.999
+
+
+@pytest.mark.parametrize("flag, streams", [([], True), (["--no-stream"], False)])
+def test_view_streams_copc_files_unless_told_not_to(flag, streams, tmp_path, capsys, monkeypatch):
+    """`view` (here headless) streams a COPC file by default; --no-stream keeps the nodes
+    its first view needs, read once; a plain LAS file is never streamed."""
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    out = tmp_path / "v.png"
+    code = main(["view", str(shared_file(LONE_STAR)), *flag, "--width", str(W), "--height", str(H),
+                 "--gpu-memory-limit", str(limit_for(250_000)), "--out", str(out)])
+    captured = capsys.readouterr()
+    assert code == 0 and out.exists(), captured.err
+    assert ("streaming the COPC octree nodes" in captured.err) == streams
+    assert ("octree nodes the view needs most" in captured.err) != streams
+    assert ("of 518,862 points" in captured.out) == streams
+    code = main(["view", str(SAMPLE), *flag, "--width", str(W), "--height", str(H), "--out", str(out)])
+    captured = capsys.readouterr()
+    assert code == 0 and "streaming" not in captured.err, captured.err
+
+
+def test_a_hierarchy_that_cannot_be_used_is_read_once_or_refused(sample_copc, tmp_path):
+    """Counts that disagree with the header: streaming where possible reads the file as
+    the plain LAZ it is (every point, the hierarchy's warning); streaming required is one
+    error naming the file."""
+    import struct
+
+    from progressive.errors import ProgressiveError
+    from progressive.loaders.copc import ENTRY
+
+    data = bytearray(sample_copc.read_bytes())
+    with laspy.CopcReader.open(sample_copc) as reader:
+        at = reader.copc_info.hierarchy_root_offset + ENTRY.fields["point_count"][1]
+    struct.pack_into("<i", data, at, struct.unpack_from("<i", data, at)[0] + 1)
+    bad = tmp_path / "bad.copc.laz"
+    bad.write_bytes(bytes(data))
+    with Session([str(bad)], SessionOptions(width=W, height=H, stream=Streaming.AUTO)) as s:
+        assert s.streamer is None and any("read as plain LAS/LAZ" in w for w in s.warnings)
+        converge(s, s.auto_camera())
+        assert s.status().loaded == laspy.open(SAMPLE).header.point_count
+    with pytest.raises(ProgressiveError, match="bad.copc.laz is not one"):
+        Session([str(bad)], SessionOptions(width=W, height=H, stream=Streaming.ON))
