@@ -12,6 +12,7 @@ import json
 import laspy
 import numpy as np
 import pytest
+from test_copc import damaged_copc
 
 from colour_reference import assert_scalar_colours, las_values, reference_range
 from conftest import SAMPLE, shared_file
@@ -23,7 +24,7 @@ from progressive.loaders.copc_residency import Status
 from progressive.loaders.copc_stream import NodeReader
 from progressive.permutation import BATCH_POINTS
 from progressive.reference import subset_reference_ids
-from progressive.session import Session, SessionOptions, Streaming
+from progressive.session import Session, SessionOptions, Streaming, node_view
 
 W, H = 160, 120
 EMPTY = 0xFFFFFFFF
@@ -175,19 +176,21 @@ def test_limit_keeps_a_tree_cut_renders_it_exactly_and_picks_the_files_points():
 
 
 def test_moving_the_camera_brings_its_nodes_and_evicts_others():
-    """A close-up after the overview: deeper nodes near the camera, others evicted to
-    make room, the new still view exact; back at the overview the hysteresis keeps what
-    is resident (nothing more is evicted) and the view is exact again."""
+    """A close-up after the overview: the nodes its choice keeps come, others are evicted
+    to make room, the new still view is exact; back at the overview the hysteresis keeps
+    what is resident (nothing more is evicted) and the view is exact again."""
     path = shared_file(LONE_STAR)
     _, xyz = las_xyz(path)
     with streamed(path, limit_for(250_000), color_by="intensity") as s:
         overview = s.auto_camera()
         converge(s, overview)
         before = set(resident(s)[0].tolist())
+        assert before == set(s.streamer.state.target(node_view(overview, W, H)).tolist())
         near = close_up(path)
         converge(s, near)
         after = set(resident(s)[0].tolist())
-        assert after != before and s.status().stream.evicted_nodes >= 1
+        assert after == set(s.streamer.state.target(node_view(near, W, H)).tolist()) != before
+        assert s.status().stream.evicted_nodes >= 1
         assert_tree_cut(s)
         assert_exact(s, near, xyz)
         evicted = s.status().stream.evicted_nodes
@@ -213,13 +216,7 @@ def test_switching_the_attribute_reads_the_nodes_again():
 def test_a_node_that_does_not_decode_is_skipped_with_a_warning(tmp_path):
     """lone-star with one node's chunk corrupted: that node (and what is below it) is
     left out with one warning naming it; every other node streams, exactly."""
-    path = shared_file(LONE_STAR)
-    node = sorted((n for n in laspy_nodes(path) if n.point_count > 0), key=lambda n: n.offset)[-2]
-    data = bytearray(path.read_bytes())
-    middle = node.offset + node.byte_size // 3
-    data[middle:middle + 64] = bytes(b ^ 0xFF for b in data[middle:middle + 64])
-    bad = tmp_path / "damaged.copc.laz"
-    bad.write_bytes(bytes(data))
+    path, bad, node = damaged_copc(tmp_path)
     _, xyz = las_xyz(path)
     with streamed(bad, color_by="intensity") as s:
         camera = s.auto_camera()
@@ -230,13 +227,6 @@ def test_a_node_that_does_not_decode_is_skipped_with_a_warning(tmp_path):
         (warning,) = [w for w in s.warnings if "could not be read" in w]
         assert f"{node.key.level}-{node.key.x}-{node.key.y}-{node.key.z}" in warning
         assert_exact(s, camera, xyz)
-
-
-def laspy_nodes(path) -> list:
-    from laspy.copc import load_octree_for_query
-
-    with laspy.CopcReader.open(path) as reader:
-        return load_octree_for_query(reader.source, reader.copc_info, reader.root_page)
 
 
 def test_render_streams_with_stats(tmp_path, capsys):
@@ -337,3 +327,17 @@ def test_a_hierarchy_that_cannot_be_used_is_read_once_or_refused(sample_copc, tm
         assert s.status().loaded == laspy.open(SAMPLE).header.point_count
     with pytest.raises(ProgressiveError, match="bad.copc.laz is not one"):
         Session([str(bad)], SessionOptions(width=W, height=H, stream=Streaming.ON))
+
+
+def test_several_files_stream_as_one_cloud(sample_copc):
+    """Two COPC files: one choice over both files' nodes, every point numbered as the
+    files read whole one after the other; without a limit the reference over both."""
+    _, xyz = las_xyz(sample_copc)
+    both = np.concatenate([xyz, xyz])
+    with Session([str(sample_copc), str(sample_copc)], SessionOptions(width=W, height=H, stream=Streaming.ON,
+                                                                      color_by="intensity")) as s:
+        camera = s.auto_camera()
+        converge(s, camera)
+        assert s.status().stream.resident_points == len(both) == s.info.points
+        ids = assert_exact(s, camera, both)
+        assert (ids[ids != EMPTY] >= len(xyz)).any() and (ids[ids != EMPTY] < len(xyz)).any()
