@@ -114,7 +114,7 @@ class SessionOptions:
     partial: bool = False
     chunk_points: int | None = None
     gpu_memory_limit: int | None = None     # bytes; the free memory the driver reports also counts
-    switchable: bool = False                # keep every attribute in host memory to switch without reloading
+    switchable: bool = False                # keep every attribute (streamed: of the resident nodes) in host memory
     value_range: tuple[float, float] | None = None   # the first attribute's values at the colormap's ends; None: percentiles
     class_filter: bool = False              # keep classification on the GPU (where the cloud has it): any colouring filters
     palette: Palette = DEFAULT_PALETTE      # colours of classification codes
@@ -243,8 +243,9 @@ class Session:
     def _open_stream(self, options: SessionOptions, class_filter: bool) -> None:
         """A store of whole node batches within the GPU memory, and the Streamer that
         fills it as the camera moves."""
-        reader = NodeReader(self.loader.sources, self.info.origin, self._needed(self.attribute, class_filter),
-                            threads=options.http.in_flight)
+        names = tuple(a.name for a in self.info.attributes) if options.switchable else \
+            self._needed(self.attribute, class_filter)
+        reader = NodeReader(self.loader.sources, self.info.origin, names, threads=options.http.in_flight)
         scene = None
         try:
             need = int(Streamer.residency(reader, 0).cost.sum())       # every node, in whole batches
@@ -262,7 +263,8 @@ class Session:
             if scene is not None:
                 scene.release()
             raise
-        self.streamer = Streamer(scene, reader, state, replace(PLAN, max_in_flight=options.http.in_flight))
+        self.streamer = Streamer(scene, reader, state, replace(PLAN, max_in_flight=options.http.in_flight),
+                                 keep=options.switchable)
 
     def _open_renderer(self, options: SessionOptions, class_filter: bool) -> None:
         """The renderer of a cloud loaded in order (a uniform random subset where it does
@@ -358,14 +360,16 @@ class Session:
         (attribute units; the last bin closed, as numpy's), over the loaded points the
         colour range is taken over: finite position and value, as stored on the GPU
         (float32 of the value less the attribute's offset). Counted on the host from
-        the kept batches (SessionOptions.switchable); None for other kinds or without
-        them."""
+        the kept batches (SessionOptions.switchable; streamed: the resident nodes');
+        None for other kinds or without them."""
         scene = self.renderer.scene
-        if self.attribute.kind is not AttributeKind.SCALAR or not scene.keep_batches:
+        kept = self.streamer.kept() if self.streamer is not None and self.streamer.keep else \
+            list(scene.batches) if scene.keep_batches else None
+        if self.attribute.kind is not AttributeKind.SCALAR or kept is None:
             return None
         lo, hi = value_range
         counts = np.zeros(bins, dtype=np.int64)
-        for batch in list(scene.batches):
+        for batch in kept:
             if batch.records is not None:
                 words, finite = batch.records[:, 3], np.isfinite(batch.records[:, :3].view(np.float32)).all(axis=1)
             else:

@@ -57,12 +57,18 @@ class StreamStatus:
 
 class Streamer:
     """Keeps a Scene's batches holding the nodes a view needs (the Scene was made
-    streamed, with the state's capacity in whole batches)."""
+    streamed, with the state's capacity in whole batches). With `keep`, the resident
+    nodes' points stay in host memory (read with every attribute), so another attribute
+    is written from them, node by node, instead of read again."""
 
-    def __init__(self, scene: Scene, reader: NodeReader, state: Residency, options: PlanOptions = PLAN):
+    def __init__(self, scene: Scene, reader: NodeReader, state: Residency, options: PlanOptions = PLAN,
+                 keep: bool = False):
         self.scene, self.reader, self.state, self.options = scene, reader, state, options
+        self.keep = keep
         self._arrived: dict[int, Batch] = {}
+        self._kept: dict[int, Batch] = {}           # keep: each resident node's points
         self._to_write: deque[int] = deque()
+        self._to_rewrite: deque[int] = deque()      # resident nodes to write again with the attribute shown
         self._view: View | None = None
         self._events = True
         self._planned_at = -np.inf
@@ -94,6 +100,9 @@ class Streamer:
         while self._to_write and (written == 0 or written < WRITE_POINTS):
             written += self._write(self._to_write.popleft())
             changed = True
+        while self._to_rewrite and (written == 0 or written < WRITE_POINTS):
+            written += self._rewrite(self._to_rewrite.popleft())
+            changed = True
         now = time.perf_counter()
         moved = view != self._view
         # No plan while shown nodes wait to be written: an eviction must not meet a node not yet written.
@@ -104,12 +113,13 @@ class Streamer:
                 self.state.begin(p)
                 for e in p.evict:
                     self.scene.clear_store_batches(e.batches)
+                    self._kept.pop(e.row, None)
                     self.evicted += 1
                     changed = True
                 for r in p.request:
                     self.reader.request(r.row)
         self.scene.settled = (self._view == view and not self._events and not self._to_write
-                              and self.state.in_flight == 0)
+                              and not self._to_rewrite and self.state.in_flight == 0)
         return changed
 
     def _write(self, row: int) -> int:
@@ -117,11 +127,31 @@ class Streamer:
         batch = self._arrived.pop(row)
         for i, b in enumerate(self.state.batches[row]):
             self.scene.write_store_batch(batch.rows(i * BATCH_POINTS, min((i + 1) * BATCH_POINTS, batch.count)), b)
+        if self.keep:
+            self._kept[row] = batch
         return batch.count
 
+    def kept(self) -> list[Batch]:
+        """The resident nodes' points (with `keep`; those written, not those on their way)."""
+        return list(self._kept.values())
+
+    def _rewrite(self, row: int) -> int:
+        """A resident node written again from its kept points (in one frame: emptied and
+        written, so it never leaves the image); 0 for one evicted since."""
+        if row not in self._kept:
+            return 0
+        self.scene.clear_store_batches(self.state.batches[row])
+        self._arrived[row] = self._kept.pop(row)
+        return self._write(row)
+
     def restart(self, names: tuple[str, ...]) -> None:
-        """Read every node again with the attributes `names` (another is shown): the store
-        empties, the plan starts from the roots; reads under way are discarded."""
+        """Show another attribute. With `keep`, the resident nodes are written again from
+        their kept points (the others' reads carry every attribute already); else every
+        node is read again with the attributes `names`: the store empties, the plan starts
+        from the roots, reads under way are discarded."""
+        if self.keep:
+            self._to_rewrite = deque(self._kept)
+            return
         self.reader.names = names
         self.scene.clear_store_batches([b for p in self.state.clear() for b in p.batches])
         self._arrived.clear()

@@ -18,7 +18,7 @@ import pytest
 from range_server import Faults, RangeServer, self_signed
 from test_copc import SMALL, damaged_copc, limit_for, nodes_of, plain_copy
 
-from conftest import SAMPLE, SHARED_DATA
+from conftest import SAMPLE, SHARED_DATA, shared_file
 from progressive.cli import main
 from progressive.errors import InputError
 from progressive.loaders import CloudLoader
@@ -514,30 +514,35 @@ def test_session_survives_a_failed_fetch(server, files, gl):
     assert 0 < loaded <= int(nodes["point_count"][:-1].sum()) and shown > 0
 
 
-def test_streaming_a_url_draws_while_nodes_are_on_their_way(server, files):
-    """Streamed over HTTP with every node's answer 2 s late: frames keep coming while
+def test_streaming_a_url_draws_while_nodes_are_on_their_way():
+    """Streamed over HTTP with every node's answer a second late: frames keep coming while
     the nodes are fetched (the frame loop never waits for the network), then the still
-    view is exact over the resident nodes, which were each fetched once."""
-    from test_copc_stream import assert_exact, assert_tree_cut, converge, las_xyz, resident, streamed
+    view is exact over the resident nodes, which were each fetched once. lone-star: it
+    has no RGB, so opening it fetches only its first node (a file with RGB fetches the
+    nodes of its first 500,000 points to decide its colours' bits: all of the sample's).
+    A server of its own: another test's late answers cannot land in its counts."""
+    from test_copc_stream import assert_exact, assert_tree_cut, las_xyz, resident, streamed
 
-    name = "lone-star.copc.laz" if "lone-star.copc.laz" in files else "sample.copc.laz"
-    nodes = [n for n in nodes_of(files[name]) if n.point_count > 0]
-    server.faults.delays = {n.offset: 2.0 for n in nodes}
-    _, xyz = las_xyz(files[name])
+    path = shared_file("lone-star.copc.laz")
+    name = path.name
+    nodes = [n for n in nodes_of(path) if n.point_count > 0]
+    _, xyz = las_xyz(path)
+    with RangeServer({name: path}) as server:
+        server.faults.delays = {n.offset: 1.0 for n in nodes}
 
-    def run():
-        with streamed(server.url(name), limit_for(250_000), color_by="intensity") as s:
-            camera = s.auto_camera()
-            frames = 0
-            while s.status().stream.resident_nodes == 0:
+        def run():
+            with streamed(server.url(name), limit_for(250_000), color_by="intensity") as s:
+                camera = s.auto_camera()
+                while_loading = 0
                 s.frame(camera)
-                frames += 1
-            converge(s, camera)
-            assert_tree_cut(s)
-            assert_exact(s, camera, xyz)
-            return frames, resident(s)[0].size
+                while not s.converged:      # bounded() ends a hang
+                    while_loading += s.status().stream.loading_nodes > 0
+                    s.frame(camera)
+                assert_tree_cut(s)
+                assert_exact(s, camera, xyz)
+                return while_loading, resident(s)[0].size
 
-    (frames, kept), _ = bounded(run)
+        (frames, kept), _ = bounded(run)
+        fetched = [r for r in server.ranges if r[0] in server.faults.delays]
     assert frames >= 5
-    fetched = [r for r in server.ranges if r[0] in server.faults.delays]
-    assert len(fetched) == len(set(fetched)) >= kept
+    assert len(fetched) == len(set(fetched)) >= kept - 1     # the first node may come within the first bytes read

@@ -213,6 +213,33 @@ def test_switching_the_attribute_reads_the_nodes_again():
         assert_scalar_colours(s.image()[..., :3].astype(np.int32), ids, values, reference_range(values[index]))
 
 
+def test_switching_with_the_nodes_kept_rewrites_them_without_reading(sample_copc):
+    """switchable: the resident nodes are kept on the host with every attribute, so
+    another attribute is written from them node by node: nothing is read again, every
+    frame of the switch shows points, and the view ends in the new colours over the
+    resident points, with their histogram."""
+    las, xyz = las_xyz(sample_copc)
+    with streamed(sample_copc, limit_for(60_000), color_by="intensity", switchable=True) as s:
+        camera = s.auto_camera()
+        converge(s, camera)
+        nodes_read = s.info.files[0].reads.snapshot()[0]
+        s.switch_attribute("elevation")
+        for _ in range(FRAMES):
+            s.frame(camera)
+            assert s.covered().any()
+            if s.converged:
+                break
+        assert s.converged and s.info.files[0].reads.snapshot()[0] == nodes_read
+        _, index, _ = resident(s)
+        ids = assert_exact(s, camera, xyz)
+        values = las_values(las, "elevation")
+        lo, hi = reference_range(values[index])
+        assert_scalar_colours(s.image()[..., :3].astype(np.int32), ids, values, (lo, hi))
+        np.testing.assert_array_equal(s.histogram(8, (lo, hi)), np.histogram(
+            (las.z[index] - s.attribute.offset).astype(np.float32).astype(np.float64) + s.attribute.offset, 8,
+            (lo, hi))[0])
+
+
 def test_a_node_that_does_not_decode_is_skipped_with_a_warning(tmp_path):
     """lone-star with one node's chunk corrupted: that node (and what is below it) is
     left out with one warning naming it; every other node streams, exactly."""
