@@ -142,13 +142,26 @@ class Nodes:
         return parent
 
 
-def choose(nodes: Nodes, view: View, budget: int, parent: np.ndarray | None = None) -> np.ndarray:
+def choose(nodes: Nodes, view: View, budget: int, parent: np.ndarray | None = None,
+           errors: np.ndarray | None = None) -> np.ndarray:
     """Rows of the nodes kept for `view` within `budget` points, ascending: every root
     (even past the budget: there is nothing coarser to show), then greedily by error.
-    parent: nodes.parents(), where the caller keeps it (a choice made every time the
-    camera moves need not find the parents anew)."""
-    errors = nodes.errors(view)
+    parent, errors: nodes.parents() and nodes.errors(view), where the caller has them (a
+    choice made every time the camera moves need not find them anew)."""
+    errors = nodes.errors(view) if errors is None else errors
     parent = nodes.parents() if parent is None else parent
+    root = parent < 0
+    up = np.where(root, np.arange(parent.size), parent)
+    if np.all(errors <= errors[up]):
+        # No child outranks its parent (its cube lies in the parent's, its spacing is half:
+        # always so for Nodes.of_files; a tie goes to the parent's lower level), so the
+        # greedy order below is the whole order by the same keys: its prefix that fits.
+        order = np.lexsort((np.arange(parent.size), nodes.key[:, 2], nodes.key[:, 1], nodes.key[:, 0], nodes.file,
+                            nodes.level, -errors))
+        rest = order[~root[order]]
+        fits = int(nodes.points[root].sum()) + np.cumsum(nodes.points[rest]) <= budget
+        taken = rest[: fits.size if fits.all() else int(np.argmin(fits))]
+        return np.sort(np.concatenate([np.nonzero(root)[0], taken]).astype(np.int64))
     children: dict[int, list[int]] = {}
     for i, p in enumerate(parent.tolist()):
         children.setdefault(p, []).append(i)

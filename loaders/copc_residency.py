@@ -172,8 +172,9 @@ class Residency:
     def free(self) -> tuple[int, ...]:
         return tuple(sorted(self._free))
 
-    def target(self, view: View) -> np.ndarray:
-        """Rows of choose's tree cut for `view` in store batches, the lost left out."""
+    def target(self, view: View, errors: np.ndarray | None = None) -> np.ndarray:
+        """Rows of choose's tree cut for `view` in store batches, the lost left out
+        (errors: nodes.errors(view), where the caller has them)."""
         rows = np.nonzero(~self.lost)[0]
         columns = {f.name: getattr(self.nodes, f.name)[rows] for f in dataclasses.fields(Nodes)}
         # The lost go with their whole subtrees, so every other row's parent is among the rows.
@@ -181,7 +182,8 @@ class Residency:
         at[rows] = np.arange(rows.size)
         up = self.parent[rows]
         parent = np.where(up >= 0, at[np.maximum(up, 0)], -1)
-        return rows[choose(Nodes(**{**columns, "points": self.cost[rows]}), view, self.budget, parent)]
+        return rows[choose(Nodes(**{**columns, "points": self.cost[rows]}), view, self.budget, parent,
+                           None if errors is None else errors[rows])]
 
     def begin(self, plan: Plan) -> None:
         """Book a plan: its evictions freed, its requests loading in their batches."""
@@ -264,7 +266,7 @@ def plan(state: Residency, view: View, options: PlanOptions = PlanOptions()) -> 
     """What to evict and request for `view` (the module docstring says by which rules).
     It only reads `state`: the same state and view give the same plan."""
     errors = state.nodes.errors(view)
-    target = state.target(view)
+    target = state.target(view, errors)
     in_target = np.zeros(errors.size, bool)
     in_target[target] = True
     booked = np.isin(state.status, BOOKED)

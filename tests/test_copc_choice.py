@@ -212,3 +212,21 @@ def test_nodes_off_the_image_rank_last():
     assert cubes and all(on_screen(view, c) for c in cubes)
     others = choose(nodes, blind, budget)
     assert not all(on_screen(view, nodes.lo[i] + nodes.side[i] * CORNERS) for i in others if nodes.level[i] > 0)
+
+
+def test_a_child_that_outranks_its_parent_still_waits_for_it():
+    """Rows made by hand whose deepest node has the largest spacing (no file's nodes are
+    so: a child's spacing is half its parent's): the choice is still a tree cut, the
+    parent taken first, and stops at the first node that does not fit."""
+    level = np.array([0, 1, 2, 1])
+    key = np.array([[0, 0, 0], [0, 0, 0], [0, 0, 0], [1, 1, 1]])
+    side = 8.0 / np.exp2(level)
+    nodes = Nodes(np.zeros(4, int), level, key, np.array([10, 10, 10, 10]), key * side[:, None], side,
+                  np.array([1.0, 0.1, 5.0, 0.2]))
+    view = View((100.0, 100.0, 100.0), (-1.0, -1.0, -1.0), 500, 60.0)
+    errors = nodes.errors(view)
+    assert errors[2] > errors[0] > errors[3] > errors[1]
+    assert choose(nodes, view, 20).tolist() == [0, 3]          # not 2 before its parent 1, which 3 outranks
+    assert choose(nodes, view, 30).tolist() == [0, 1, 3]
+    assert choose(nodes, view, 40).tolist() == [0, 1, 2, 3]
+    assert choose(nodes, view, 10).tolist() == [0]
