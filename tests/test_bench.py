@@ -77,3 +77,31 @@ def test_upload_bench_runs(tmp_path):
     starts = payload["raw"]["startup"]
     assert {staging: [run["staging"] for run in runs] for staging, runs in starts.items()} == \
         {s.value: [s.value] for s in Staging}
+
+
+def test_stream_bench_runs(tmp_path):
+    """bench.stream on the sample converted to COPC (cached, so a second run reuses it):
+    for the file and over HTTP, the overview and each leg of the path settle and
+    converge within the limit's room, and the HTTP rows count what was fetched."""
+    from bench import stream
+
+    args = ["--points", "110000", "--limit", "9M", "--size", "96x64", "--frames", "3", "--still-seconds", "60",
+            "--cache", str(tmp_path / "cache"), "--out", str(tmp_path)]
+    assert stream.main(args) == 0
+    payload = json.loads((tmp_path / "stream.json").read_text())
+    assert payload["name"] == "stream" and payload["run"]["device"] and payload["columns"] == list(stream.COLUMNS)
+    rows = [dict(zip(stream.COLUMNS, r)) for r in payload["rows"]]
+    legs = ["overview", "zoom in", "fly along", "zoom out"]
+    assert [(r["source"], r["leg"]) for r in rows] == [(s, leg) for s in ("file", "HTTP") for leg in legs]
+    assert all(r["converged s"] is not None and r["settled s"] <= r["converged s"] for r in rows)
+    assert all(r["moving frames"] == (0 if r["leg"] == "overview" else 3) for r in rows)
+    raw = payload["raw"]
+    assert raw["built"]["points"] == 110_000 and not raw["built"]["cached"]
+    for source in ("file", "http"):
+        assert 0 < raw[source]["resident_points"] <= raw[source]["capacity_points"]
+        assert all(leg["nodes_read"] >= leg["resident_nodes"] for leg in raw[source]["legs"])
+    assert all(r["MB fetched"] > 0 and r["requests"] > 0 for r in rows if r["source"] == "HTTP")
+    assert stream.build(110_000, tmp_path / "cache").cached
+    md = (tmp_path / "stream.md").read_text()
+    assert md.startswith("# ") and "N: 110,000" in md
+    assert {line.count("|") for line in md.splitlines() if line.startswith("|")} == {len(stream.COLUMNS) + 1}

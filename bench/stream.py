@@ -1,0 +1,337 @@
+"""Streaming COPC (issue 15): a COPC file many times larger than a GPU memory limit,
+opened streamed (SessionOptions(stream=Streaming.ON)) and driven frame by frame as a
+viewer drives it. From a local file, then over HTTP from a range server on 127.0.0.1:
+the time to the first image and until the overview is settled (every node it needs
+resident) and converged (the still image exact); then a camera path of three legs
+(a zoom from the overview into a close-up of one corner, a fly along that edge, a zoom
+back out), each timed per frame (the wall time of Session.frame: on llvmpipe the GPU is
+the CPU, and the frame loop's pacing waits for it, so this is what a user feels) and
+followed by the time its still end view takes to settle and converge. The file is the
+bundled sample tiled to N points (bench/data.py) and converted once, cached.
+
+    python -m bench.stream [--points 20000000] [--limit 64M] [--size 640x360] [--frames 60]
+
+writes bench/results/<machine>/stream.{md,json}."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from bench.data import CACHE, write_tiled
+from bench.report import RunInfo, Table
+from bench.synthetic import SAMPLE
+from progressive import memory
+from progressive.camera import Camera
+from progressive.cli import bytes_arg
+from progressive.loaders.copc_residency import Status
+from progressive.loaders.copc_write import write_copc
+from progressive.loaders.records import RECORD_BYTES
+from progressive.loaders.types import BATCH_POINTS
+from progressive.session import Session, SessionOptions, Streaming
+from progressive.streaming import WRITE_POINTS
+
+RESULTS = Path(__file__).resolve().parent / "results"
+TESTS = Path(__file__).resolve().parents[1] / "tests"
+POINTS = 20_000_000
+"""The issue's target on this machine: a 20 M-point COPC file with a LIMIT GPU memory limit."""
+LIMIT = "64M"
+SIZE = "640x360"
+"""An image whose per-pixel buffers take a quarter of LIMIT, leaving room for points."""
+LEG_FRAMES = 60
+"""Frames of camera motion per leg of the path."""
+STILL_SECONDS = 300.0
+"""Longest a still view is given to settle and converge before the bench gives up on it."""
+CORNER = 0.05
+"""The close-up's target: this share of the cloud's X and Y extent in from its lowest corner."""
+CLOSE = 0.04
+"""The close-up's distance from its target, a share of the cloud's larger horizontal extent."""
+FLY = 0.3
+"""How far the fly leg moves along X, a share of the cloud's X extent."""
+NEAR = 0.01
+"""A moving camera's near plane, a share of its distance to its target."""
+NAME = "cloud.copc.laz"
+"""The file's name on the range server."""
+FIELDS = ("seconds", "resident_nodes", "resident_points", "loading_nodes", "held_nodes", "evicted_nodes",
+          "settled", "converged")
+"""What is recorded of each frame (raw JSON, a list per field)."""
+
+
+@dataclass(frozen=True)
+class Built:
+    """The cached COPC file and what converting it took (its sidecar JSON keeps it)."""
+
+    path: Path
+    points: int
+    nodes: int
+    levels: int
+    bytes: int
+    tile_seconds: float       # the tiled LAS written (0 where it was there already)
+    convert_seconds: float    # loaders/copc_write.write_copc, as `progressive convert` runs it
+    cached: bool              # this run found it built
+
+
+def build(points: int, cache: Path = CACHE) -> Built:
+    """The sample tiled to `points` as LAS (bench/data.py, shared with the other benches),
+    converted to COPC once; the LAS is removed again where this made it."""
+    cache.mkdir(parents=True, exist_ok=True)
+    stem = cache / f"{SAMPLE.stem}_x{points}"
+    path, sidecar = stem.with_suffix(".copc.laz"), stem.with_suffix(".copc.json")
+    if path.exists() and sidecar.exists():
+        return Built(**{**json.loads(sidecar.read_text()), "path": path, "cached": True})
+    las = stem.with_suffix(".las")
+    made = not las.exists()
+    t0 = time.perf_counter()
+    if made:
+        write_tiled(SAMPLE, las, points, compress=False)
+    t1 = time.perf_counter()
+    tmp = path.with_suffix(".tmp")
+    with open(tmp, "w+b") as stream:
+        written = write_copc(stream, [str(las)])
+    convert = time.perf_counter() - t1
+    tmp.replace(path)
+    if made:
+        las.unlink()
+    built = Built(path, written.points, written.nodes, written.levels, path.stat().st_size, t1 - t0, convert, False)
+    sidecar.write_text(json.dumps({k: v for k, v in asdict(built).items() if k not in ("path", "cached")}))
+    return built
+
+
+def between(a: Camera, b: Camera, t: float) -> Camera:
+    """The camera a share `t` of the way from a to b: the target moves straight, the
+    distance to it geometrically (a zoom at an even pace on screen), the direction blends."""
+    ta, tb = np.asarray(a.target), np.asarray(b.target)
+    oa, ob = np.subtract(a.position, a.target), np.subtract(b.position, b.target)
+    da, db = float(np.linalg.norm(oa)), float(np.linalg.norm(ob))
+    direction = (1 - t) * oa / da + t * ob / db
+    distance = da ** (1 - t) * db ** t
+    target = ta + (tb - ta) * t
+    position = target + direction / np.linalg.norm(direction) * distance
+    return Camera(tuple(position.tolist()), tuple(target.tolist()), a.up, a.fov_y_deg,
+                  near=a.near ** (1 - t) * b.near ** t, far=max(a.far, b.far))
+
+
+def legs(overview: Camera, lo: np.ndarray, hi: np.ndarray, frames: int) -> list[tuple[str, list[Camera]]]:
+    """The path: zoom into the corner near `lo`, fly along X, zoom back out to the overview."""
+    extent = hi - lo
+    target = lo + extent * np.array([CORNER, CORNER, 0.5])
+    distance = CLOSE * float(max(extent[0], extent[1]))
+    eye = target + np.array([0.0, -1.0, 1.0]) / np.sqrt(2) * distance
+    near = Camera(tuple(eye.tolist()), tuple(target.tolist()), overview.up, overview.fov_y_deg,
+                  near=NEAR * distance, far=overview.far)
+    shift = np.array([FLY * extent[0], 0.0, 0.0])
+    along = Camera(tuple((eye + shift).tolist()), tuple((target + shift).tolist()), near.up, near.fov_y_deg,
+                   near.near, near.far)
+    steps = [(k + 1) / frames for k in range(frames)]
+    return [("zoom in", [between(overview, near, t) for t in steps]),
+            ("fly along", [between(near, along, t) for t in steps]),
+            ("zoom out", [between(along, overview, t) for t in steps])]
+
+
+def record(s: Session, seconds: float, log: dict[str, list]) -> None:
+    st = s.status().stream
+    values = {"seconds": seconds, "converged": s.converged,
+              **{k: getattr(st, k) for k in FIELDS if k not in ("seconds", "converged")}}
+    for k in FIELDS:
+        log[k].append(values[k])
+
+
+def timed_frame(s: Session, camera: Camera, log: dict[str, list]) -> None:
+    t0 = time.perf_counter()
+    s.frame(camera)
+    record(s, time.perf_counter() - t0, log)
+
+
+def hold(s: Session, camera: Camera, since: float, log: dict[str, list], limit_s: float) -> dict:
+    """Frames of a still `camera` until the view is settled and converged; seconds from
+    `since` to each (None: not within `limit_s`)."""
+    settled = converged = None
+    frames = 0
+    while time.perf_counter() - since < limit_s:
+        timed_frame(s, camera, log)
+        frames += 1
+        now = time.perf_counter() - since
+        if settled is None and log["settled"][-1]:
+            settled = now
+        if log["settled"][-1] and log["converged"][-1]:
+            converged = now
+            break
+    return {"settled_s": settled, "converged_s": converged, "still_frames": frames}
+
+
+def summary(log: dict[str, list], moving: int, before_evicted: int) -> dict:
+    """A leg's frame times (its moving frames; the overview: every frame) and node counts."""
+    ms = np.array(log["seconds"][:moving] or log["seconds"]) * 1e3
+    return {"frames": moving, "frame_ms_p50": float(np.percentile(ms, 50)),
+            "frame_ms_p95": float(np.percentile(ms, 95)), "frame_ms_max": float(ms.max()),
+            "still_frame_ms_max": float(max(log["seconds"][moving:], default=0.0) * 1e3),
+            "resident_nodes": log["resident_nodes"][-1], "resident_points": log["resident_points"][-1],
+            "loading_max": max(log["loading_nodes"]), "held_max": max(log["held_nodes"]),
+            "evicted": log["evicted_nodes"][-1] - before_evicted}
+
+
+def fetched(s: Session) -> dict:
+    """The file's counts so far: nodes read (again, where evicted before) and, over HTTP, fetched."""
+    c = s.status().copc[0]
+    return {"nodes_read": c.nodes_read, "bytes_read": c.bytes_read, "bytes_fetched": c.bytes_fetched,
+            "requests": c.requests}
+
+
+def writing(run: dict) -> tuple[float, float]:
+    """Median ms of the frames that changed the store (nodes written or evicted), and of the others."""
+    logs = [leg["log"] for leg in run["legs"]]
+    ms = np.concatenate([log["seconds"] for log in logs]) * 1e3
+    points, evicted = (np.concatenate([log[k] for log in logs]) for k in ("resident_points", "evicted_nodes"))
+    changed = np.r_[True, (points[1:] != points[:-1]) | (evicted[1:] != evicted[:-1])]
+    return float(np.median(ms[changed])), float(np.median(ms[~changed]))
+
+
+def stream(source: str, options: SessionOptions, frames: int, limit_s: float) -> dict:
+    """One streamed session through the overview and the path's legs."""
+    opened = time.perf_counter()
+    with Session([source], options) as s:
+        overview = s.auto_camera()
+        log = {k: [] for k in FIELDS}
+        still = hold(s, overview, opened, log, limit_s)
+        legs_out = [{"leg": "overview", **summary(log, 0, 0), **still, **fetched(s), "log": log}]
+        status = s.status().stream
+        capacity, first_image = status.capacity_points, s.first_image_seconds
+        for name, cameras in legs(overview, s.info.bounds_min, s.info.bounds_max, frames):
+            before = log["evicted_nodes"][-1]
+            log = {k: [] for k in FIELDS}
+            for camera in cameras:
+                timed_frame(s, camera, log)
+            still = hold(s, cameras[-1], time.perf_counter(), log, limit_s)
+            legs_out.append({"leg": name, **summary(log, len(cameras), before), **still, **fetched(s), "log": log})
+        end = s.status()
+        state = s.streamer.state
+        used = int(state.cost[state.status == Status.RESIDENT].sum())
+        return {"batches": [used, state.capacity, state.store_batch_points], "source": source, "first_image_s": first_image, "startup": dict(s.startup), "capacity_points": capacity,
+                "nodes": end.stream.nodes, "on_gpu": end.on_gpu, "resident_points": end.stream.resident_points,
+                "failed_nodes": end.stream.failed_nodes, "warnings": s.warnings, "legs": legs_out,
+                "device": s.glc.caps}
+
+
+def served(path: Path, options: SessionOptions, frames: int, limit_s: float) -> dict:
+    """The same over HTTP from tests/range_server.py's RangeServer on 127.0.0.1 (python's
+    own http.server answers no ranges); the server's counts beside the client's."""
+    sys.path.insert(0, str(TESTS))
+    from range_server import RangeServer
+
+    with RangeServer({NAME: path}) as server:
+        out = stream(server.url(NAME), options, frames, limit_s)
+        out["server_requests"], out["server_bytes"] = server.counts()
+    return out
+
+
+COLUMNS = ("source", "leg", "moving frames", "frame ms p50", "frame ms p95", "frame ms max", "first image s",
+           "settled s", "converged s", "still frames", "still frame ms max", "resident nodes", "resident points",
+           "loading max", "evicted", "nodes read", "MB fetched", "requests")
+
+
+def rows(label: str, run: dict) -> list[tuple]:
+    """A row per leg; the first image on the overview's, what was fetched on HTTP's."""
+    out = []
+    for leg in run["legs"]:
+        over = leg["leg"] == "overview"
+        out.append((label, leg["leg"], leg["frames"], leg["frame_ms_p50"], leg["frame_ms_p95"], leg["frame_ms_max"],
+                    run["first_image_s"] if over else None, leg["settled_s"], leg["converged_s"],
+                    leg["still_frames"], leg["still_frame_ms_max"], leg["resident_nodes"], leg["resident_points"],
+                    leg["loading_max"], leg["evicted"], leg["nodes_read"],
+                    leg["bytes_fetched"] / 2**20 if label == "HTTP" else None, leg["requests"] if label == "HTTP" else None))
+    return out
+
+
+def run(points: int, limit: int, size: tuple[int, int], frames: int, cache: Path = CACHE,
+        limit_s: float = STILL_SECONDS) -> tuple[Table, RunInfo]:
+    load_before = os.getloadavg()[0]
+    built = build(points, cache)
+    width, height = size
+    options = SessionOptions(width=width, height=height, stream=Streaming.ON, gpu_memory_limit=limit)
+    local = stream(str(built.path), options, frames, limit_s)
+    remote = served(built.path, options, frames, limit_s)
+    load_after = os.getloadavg()[0]
+    caps = local.pop("device")
+    remote.pop("device")
+    pixel_bytes = width * height * memory.PIXEL_BYTES
+    staging = BATCH_POINTS * RECORD_BYTES
+    table = Table("stream", "Streaming COPC: a file larger than the GPU memory limit, by level of detail",
+                  f"{SAMPLE.name} tiled, converted to COPC ({built.nodes:,} nodes, {built.levels} levels, "
+                  f"{built.bytes / 2**20:.0f} MiB)", f"{built.points:,}", COLUMNS)
+    table.rows = rows("file", local) + rows("HTTP", remote)
+    convert = (f"converted in {built.convert_seconds:.1f} s (loaders/copc_write.write_copc, what `progressive "
+               f"convert IN OUT.copc.laz` runs; the tiled LAS written in {built.tile_seconds:.1f} s before)")
+    ends = ", ".join(f"{label} {r['legs'][-1]['resident_nodes']:,} nodes resident"
+                     for label, r in (("file", local), ("HTTP", remote)))
+    medians = {label: writing(r) for label, r in (("file", local), ("HTTP", remote))}
+    changes = " and ".join(f"{m[0]:.0f} ms ({label})" for label, m in medians.items())
+    others = " and ".join(f"{m[1]:.0f} ms" for m in medians.values())
+    used, batches, batch_points = local["batches"]
+    filled = local["resident_points"] / (used * batch_points)
+    unsettled = [f"{label} {leg['leg']}" for label, r in (("file", local), ("HTTP", remote)) for leg in r["legs"]
+                 if leg["converged_s"] is None]
+    table.notes = [
+        (f"{built.points:,} points: bench/data.py's tiling of the bundled sample (raw-integer copies shifted by whole "
+         f"tiles, every attribute real), {convert}{', cached from an earlier run' if built.cached else ''}. "
+         f"Image {width}x{height}, GPU memory limit {limit / 2**20:.0f} MiB: the per-pixel buffers take "
+         f"{pixel_bytes / 2**20:.1f} MiB ({memory.PIXEL_BYTES} bytes a pixel, progressive/memory.py), staging "
+         f"{staging / 2**20:.1f} MiB, which leaves the store {local['capacity_points']:,} points in whole batches "
+         f"({local['capacity_points'] / built.points:.1%} of the cloud)."),
+        (f"Each source is one session (SessionOptions(stream=Streaming.ON, gpu_memory_limit=...)) driven as a viewer "
+         f"drives it: Session.frame with the camera, never waiting for a node. Overview: the auto camera from open; "
+         f"its settled and converged seconds count from the session's open (the first image too, "
+         f"Session.first_image_seconds) and its frame times are over every frame until converged. Then {frames} "
+         f"moving frames per leg: a zoom from the overview to a close-up of the corner near the cloud's lowest X and "
+         f"Y ({CORNER:.0%} in, at {CLOSE:.0%} of its extent), a fly {FLY:.0%} of the X extent along that edge, a zoom "
+         f"back out to the overview; the camera then stops, and settled / converged count from that stop (settled: "
+         f"nothing more to read or write for the view; converged: settled and the still image exact, "
+         f"Session.converged). Frame ms: wall time of Session.frame over the moving frames (the frame loop paces "
+         f"itself against the GPU, which on llvmpipe is the CPU); still frame ms max: the longest frame of the "
+         f"stop. Resident nodes and points: at the end of the leg; loading max: most nodes in flight in a frame; "
+         f"evicted: nodes evicted during the leg and its stop; nodes read: since open (a node evicted and needed again "
+         f"is read again). Frames that changed the store (nodes written, at most {WRITE_POINTS:,} points a "
+         f"frame, or evicted) took a median {changes}, the others {others}."),
+        (f"HTTP: tests/range_server.py's RangeServer on 127.0.0.1 (the file held in memory, answering in threads of "
+         f"this process, so it shares the cores and the GIL with the renderer); MB fetched and requests: the "
+         f"client's counts (Session.status().copc[0]) at the end of each leg, cumulative; the server counted "
+         f"{remote['server_requests']:,} requests and {remote['server_bytes'] / 2**20:.1f} MiB in all."),
+        (f"End of the path: {ends}; the file session's nodes took {used} of the store's {batches} batches of {batch_points:,} "
+         f"points, their points filling {filled:.0%} of them (a node takes whole batches: the rest is each node's "
+         f"last batch's padding); "
+         f"failed nodes: file {local['failed_nodes']}, HTTP {remote['failed_nodes']}. "
+         + (f"Not converged within {limit_s:.0f} s: {', '.join(unsettled)}. " if unsettled else "")
+         + f"Load average (1 min) {load_before:.1f} before, {load_after:.1f} after, on {os.cpu_count()} cores shared "
+           f"with other work: other processes show in the frame times and the seconds to settle."),
+    ]
+    table.raw = {"built": {k: str(v) if isinstance(v, Path) else v for k, v in asdict(built).items()},
+                 "limit_bytes": limit, "size": list(size), "frames_per_leg": frames, "pixel_bytes": pixel_bytes,
+                 "staging_bytes": staging, "corner": CORNER, "close": CLOSE, "fly": FLY, "still_seconds": limit_s,
+                 "load_average": [load_before, load_after], "file": local, "http": remote}
+    return table, RunInfo.from_caps(caps, f"streamed, {limit / 2**20:.0f} MiB limit, {width}x{height}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m bench.stream", description=__doc__.splitlines()[0])
+    ap.add_argument("--points", type=int, default=POINTS)
+    ap.add_argument("--limit", type=bytes_arg, default=bytes_arg(LIMIT), help="GPU memory limit, e.g. 64M")
+    ap.add_argument("--size", default=SIZE, help="image WxH")
+    ap.add_argument("--frames", type=int, default=LEG_FRAMES, help="moving frames per leg of the path")
+    ap.add_argument("--still-seconds", type=float, default=STILL_SECONDS, help="longest wait for a still view")
+    ap.add_argument("--cache", type=Path, default=CACHE, help="where the COPC file is kept")
+    ap.add_argument("--out", type=Path, default=None, help="default: bench/results/<machine>/")
+    args = ap.parse_args(argv)
+    width, height = (int(v) for v in args.size.split("x"))
+    table, info = run(args.points, args.limit, (width, height), args.frames, args.cache, args.still_seconds)
+    table.publish(info, args.out, RESULTS)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
