@@ -47,6 +47,7 @@ from progressive.loaders.http import DEFAULTS as HTTP_DEFAULTS
 from progressive.loaders.http import FetchFailed, HttpOptions, Prefetch, RemoteFile, Tally, is_url
 from progressive.loaders.las import LasSource, TruncatedInput, is_decode_error, open_las, selection
 from progressive.loaders.laz import TABLE_OFFSET_BYTES, laz_layout
+from progressive.loaders.laz_pool import DecodeFailed, DecoderPool
 from progressive.loaders.types import BATCH_POINTS, RGB8_MAX, AttributeInfo, Batch, FileInfo
 from progressive.loaders.validate import contradicted_bounds, fail, one_line, open_binary, shown
 
@@ -372,13 +373,26 @@ class CopcSource(LasSource):
         if self.remote is not None:
             self.remote.close()
 
-    def node_batch(self, k: int, start: int, origin: np.ndarray, names: tuple[str, ...]) -> Batch:
+    def node_batch(self, k: int, start: int, origin: np.ndarray, names: tuple[str, ...],
+                   decoders: DecoderPool | None = None, lane: int = 0) -> Batch:
         """Node k (an index into hierarchy.nodes) read on its own, its points numbered from
         `start`: for a streaming reader's threads (each read opens the file, or fetches the
-        node's range, for itself). InputError where the node cannot be read or decoded."""
-        node = self.hierarchy.nodes[k:k + 1]
-        pieces = list(self._node_chunks(np.array([k]), max(1, int(node["point_count"][0])), selection(names),
-                                        salvage=False))
+        node's range, for itself). A local file's node is decoded by `decoders`' process
+        `lane` where given (lazrs holds the GIL while it decodes: in this process a node
+        stalls the frame loop), else here, as where the processes fail. InputError where
+        the node cannot be read or decoded."""
+        node = self.hierarchy.nodes[k]
+        count, size = int(node["point_count"]), int(node["byte_size"])
+        if decoders is not None and self.remote is None:
+            try:
+                records = decoders.decode_run(lane, self.info.path, int(node["offset"]), ((count, size),),
+                                              self.laz.vlr_data, las.layers(names), self.records.dtype)
+            except DecodeFailed:
+                pass
+            else:
+                self.info.reads.read(1, count, size)
+                return self.parse(records, start, origin, names)
+        pieces = list(self._node_chunks(np.array([k]), max(1, count), selection(names), salvage=False))
         return self.parse(pieces[0] if len(pieces) == 1 else np.concatenate(pieces), start, origin, names)
 
     def kept_nodes(self) -> np.ndarray:

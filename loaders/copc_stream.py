@@ -22,6 +22,7 @@ from progressive.errors import InputError
 from progressive.loaders.copc import COPC_SUFFIX, CopcSource, is_copc, node_spacing
 from progressive.loaders.copc_choice import Nodes
 from progressive.loaders.http import is_url
+from progressive.loaders.laz_pool import DecoderPool
 from progressive.loaders.types import Batch
 from progressive.loaders.validate import one_line
 
@@ -42,9 +43,12 @@ def streamable(sources) -> bool:
 class NodeReader:
     """Reads nodes of COPC sources (every one usable: `streamable`) on `threads` threads.
     request(row) queues a read; arrivals() gives (row, Batch) or (row, reason) for each
-    read finished since, without waiting. Reads may finish in any order."""
+    read finished since, without waiting. Reads may finish in any order. `decoders`:
+    decoder processes for the nodes of local files, one read at a time each (their
+    decoding then leaves the GIL to the frame loop); the reader closes them."""
 
-    def __init__(self, sources: tuple[CopcSource, ...], origin: np.ndarray, names: tuple[str, ...], threads: int):
+    def __init__(self, sources: tuple[CopcSource, ...], origin: np.ndarray, names: tuple[str, ...], threads: int,
+                 decoders: DecoderPool | None = None):
         if not streamable(sources):
             raise ValueError("every source must be a COPC file with a usable hierarchy")
         h = [s.hierarchy for s in sources]
@@ -57,6 +61,12 @@ class NodeReader:
         self._local = np.concatenate([np.arange(x.nodes.size) for x in h])
         self._start = np.concatenate([offsets[i] + x.first for i, x in enumerate(h)])
         self._pool = ThreadPoolExecutor(max(1, threads), thread_name_prefix="copc nodes")
+        self.decoders = decoders
+        if decoders is not None:
+            decoders.start_soon()       # nodes read before the processes are there are decoded here
+        self._lanes: queue.SimpleQueue = queue.SimpleQueue()     # a process's answers are for one read at a time
+        for lane in range(decoders.processes if decoders is not None else 0):
+            self._lanes.put(lane)
         self._done: queue.SimpleQueue = queue.SimpleQueue()
         self._futures: dict[int, Future] = {}
         self._lock = threading.Lock()
@@ -74,12 +84,18 @@ class NodeReader:
 
     def _read(self, row: int) -> None:
         source = self.sources[int(self._file[row])]
+        ready = self.decoders is not None and self.decoders.ready and source.remote is None
+        lane = self._lanes.get() if ready else None
         try:
-            got: Batch | str = source.node_batch(int(self._local[row]), self.first_index(row), self.origin, self.names)
+            got: Batch | str = source.node_batch(int(self._local[row]), self.first_index(row), self.origin, self.names,
+                                                 None if lane is None else self.decoders, lane or 0)
         except InputError as exc:
             got = one_line(exc)
         except Exception as exc:        # any other failure is one node's too: the viewer goes on
             got = f"{type(exc).__name__}: {one_line(exc)}"
+        finally:
+            if lane is not None:
+                self._lanes.put(lane)
         with self._lock:
             self._futures.pop(row, None)
             if self._closed:
@@ -108,4 +124,6 @@ class NodeReader:
                 f.cancel()
         for s in self.sources:
             s.close()
+        if self.decoders is not None:
+            self.decoders.close()       # a read waiting on a process wakes (and is discarded)
         self._pool.shutdown(wait=True, cancel_futures=True)

@@ -162,6 +162,7 @@ class DecoderPool:
         """Held by a parser thread while it parses records of this pool's (pipeline.py)."""
         self._workers: list[_Worker] = []
         self._lock = threading.Lock()
+        self._start_lock = threading.Lock()        # decode_run's callers start the workers once
         self._closed = False
         self._active = False
         self._failed = False
@@ -259,6 +260,37 @@ class DecoderPool:
                 self._active = False
                 if self._closed:
                     _close_sockets(workers)
+
+    def start_soon(self) -> None:
+        """Start the workers on a thread of their own, so that a caller decodes in its own
+        process meanwhile (`ready` says when they are there) instead of waiting."""
+        def start() -> None:
+            with self._start_lock:
+                if not self._workers and not self._failed and not self._closed:
+                    with contextlib.suppress(PoolClosed):
+                        self._started()
+
+        threading.Thread(target=start, name="start LAZ decoders", daemon=True).start()
+
+    @property
+    def ready(self) -> bool:
+        """The workers are started and none was lost."""
+        return bool(self._workers) and not self._failed and not self._closed
+
+    def decode_run(self, lane: int, path: str, offset: int, table: tuple[Chunk, ...], vlr: bytes,
+                   layers: laspy.DecompressionSelection | None, dtype: np.dtype) -> np.ndarray:
+        """One run of whole chunks (`table`'s (points, bytes), from byte `offset` of the
+        file) decoded by worker `lane` (mod the processes), waiting for it: for callers
+        that decode on several threads at once, each on a lane of its own (a streaming
+        reader's nodes). DecodeFailed where the workers cannot start or one is lost (the
+        caller decodes in its own process then), PoolClosed once closed."""
+        with self._start_lock:
+            workers = self._started() if self._failed or not self._workers else self._workers
+        if not workers:
+            raise DecodeFailed("the LAZ decoder processes could not start")
+        bits = None if layers is None else lazrs_bits(layers)
+        job = self._send(workers[lane % len(workers)], path, offset, table, vlr, bits, dtype.itemsize)
+        return self._take(job, dtype)
 
     def _started(self) -> list[_Worker]:
         """The workers, started now; none where they cannot start or one was lost (a

@@ -30,15 +30,17 @@ from progressive.effects import Effects
 from progressive.encoding import Precision
 from progressive.errors import ProgressiveError
 from progressive.frame_loop import FrameStats, ProgressiveOptions, ProgressiveRenderer
+from progressive.loaders import laz_pool
 from progressive.loaders.copc import CopcStatus, copc_status
 from progressive.loaders.copc_choice import View
 from progressive.loaders.copc_stream import NodeReader, may_stream, streamable
 from progressive.loaders.crs import file_crs
 from progressive.loaders.http import DEFAULTS as HTTP_DEFAULTS
-from progressive.loaders.http import HttpOptions
+from progressive.loaders.http import HttpOptions, is_url
+from progressive.loaders.laz_pool import DecoderPool
 from progressive.loaders.lookup import read_record
 from progressive.loaders.records import attribute_word
-from progressive.loaders.types import AttributeInfo, AttributeKind
+from progressive.loaders.types import AttributeInfo, AttributeKind, available_cores
 from progressive.passes.distribute import Staging
 from progressive.passes.visibility import EMPTY
 from progressive.permutation import BATCH_POINTS, BATCH_SLOTS
@@ -245,7 +247,10 @@ class Session:
         fills it as the camera moves."""
         names = tuple(a.name for a in self.info.attributes) if options.switchable else \
             self._needed(self.attribute, class_filter)
-        reader = NodeReader(self.loader.sources, self.info.origin, names, threads=options.http.in_flight)
+        threads = options.http.in_flight
+        local = any(not is_url(f.path) for f in self.info.files)
+        decoders = DecoderPool(min(threads, available_cores())) if local and laz_pool.available() else None
+        reader = NodeReader(self.loader.sources, self.info.origin, names, threads, decoders)
         scene = None
         try:
             need = int(Streamer.residency(reader, 0).cost.sum())       # every node, in whole batches

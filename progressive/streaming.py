@@ -26,9 +26,9 @@ from progressive.loaders.types import Batch
 from progressive.permutation import BATCH_POINTS
 from progressive.scene import Scene
 
-WRITE_POINTS = 262_144
-"""Points written to the GPU a frame at most (at least one node), so arrivals never
-stall a frame for long."""
+WRITE_SECONDS = 0.004
+"""Time a frame spends writing arrived nodes to the GPU at most (at least one node is
+written), so arrivals never stall a frame for long."""
 PLAN = PlanOptions()
 """How many nodes are read at once and how readily resident ones are evicted."""
 PLAN_SECONDS = 0.1
@@ -96,13 +96,12 @@ class Streamer:
             if arrival.keep:
                 self._arrived[row] = got
                 self._to_write.extend(arrival.shown)
-        written = 0
-        while self._to_write and (written == 0 or written < WRITE_POINTS):
-            written += self._write(self._to_write.popleft())
+        began = time.perf_counter()
+        while self._to_write and (not changed or time.perf_counter() - began < WRITE_SECONDS):
+            self._write(self._to_write.popleft())
             changed = True
-        while self._to_rewrite and (written == 0 or written < WRITE_POINTS):
-            written += self._rewrite(self._to_rewrite.popleft())
-            changed = True
+        while self._to_rewrite and (not changed or time.perf_counter() - began < WRITE_SECONDS):
+            changed = self._rewrite(self._to_rewrite.popleft()) or changed
         now = time.perf_counter()
         moved = view != self._view
         # No plan while shown nodes wait to be written: an eviction must not meet a node not yet written.
@@ -122,27 +121,27 @@ class Streamer:
                               and not self._to_rewrite and self.state.in_flight == 0)
         return changed
 
-    def _write(self, row: int) -> int:
+    def _write(self, row: int) -> None:
         """Node `row`'s points into its batches: its i-th takes points [i·B, (i+1)·B)."""
         batch = self._arrived.pop(row)
         for i, b in enumerate(self.state.batches[row]):
             self.scene.write_store_batch(batch.rows(i * BATCH_POINTS, min((i + 1) * BATCH_POINTS, batch.count)), b)
         if self.keep:
             self._kept[row] = batch
-        return batch.count
 
     def kept(self) -> list[Batch]:
         """The resident nodes' points (with `keep`; those written, not those on their way)."""
         return list(self._kept.values())
 
-    def _rewrite(self, row: int) -> int:
+    def _rewrite(self, row: int) -> bool:
         """A resident node written again from its kept points (in one frame: emptied and
-        written, so it never leaves the image); 0 for one evicted since."""
+        written, so it never leaves the image); False for one evicted since."""
         if row not in self._kept:
-            return 0
+            return False
         self.scene.clear_store_batches(self.state.batches[row])
         self._arrived[row] = self._kept.pop(row)
-        return self._write(row)
+        self._write(row)
+        return True
 
     def restart(self, names: tuple[str, ...]) -> None:
         """Show another attribute. With `keep`, the resident nodes are written again from

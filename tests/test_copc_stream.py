@@ -8,6 +8,9 @@ damaged nodes are skipped with a warning; bad requests are one line."""
 from __future__ import annotations
 
 import json
+import os
+import signal
+import time
 
 import laspy
 import numpy as np
@@ -19,9 +22,11 @@ from conftest import SAMPLE, shared_file
 from progressive import memory
 from progressive.camera import Camera
 from progressive.cli import main
+from progressive.loaders import laz_pool
 from progressive.loaders.copc import open_copc
 from progressive.loaders.copc_residency import Status
 from progressive.loaders.copc_stream import NodeReader
+from progressive.loaders.laz_pool import DecoderPool
 from progressive.permutation import BATCH_POINTS
 from progressive.reference import subset_reference_ids
 from progressive.session import Session, SessionOptions, Streaming, node_view
@@ -30,6 +35,8 @@ W, H = 160, 120
 EMPTY = 0xFFFFFFFF
 LONE_STAR = "lone-star.copc.laz"
 FRAMES = 400
+READ_BOUND_S = 30.0
+"""Longest the reads of one file's nodes may take here (a hang fails instead)."""
 
 
 def limit_for(points: int) -> int:
@@ -108,23 +115,43 @@ def close_up(path) -> Camera:
     return Camera(tuple(eye.tolist()), tuple(target.tolist()), up=(0, 0, 1), fov_y_deg=60.0)
 
 
+def read_all(reader: NodeReader, rows) -> dict:
+    """Every row requested, and what arrived for each (within a bound: a hang fails)."""
+    for row in rows:
+        reader.request(row)
+    got: dict = {}
+    deadline = time.monotonic() + READ_BOUND_S
+    while len(got) < len(rows) and time.monotonic() < deadline:
+        got.update(reader.arrivals())
+        time.sleep(0.005)
+    assert len(got) == len(rows) and reader.reading == 0
+    return got
+
+
+def ready_pool() -> DecoderPool:
+    pool = DecoderPool(2)
+    pool.start_soon()
+    deadline = time.monotonic() + READ_BOUND_S
+    while not pool.ready and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert pool.ready
+    return pool
+
+
+@pytest.mark.parametrize("processes", [False, pytest.param(True, marks=pytest.mark.skipif(
+    not laz_pool.available(), reason="decoder processes are for Linux"))], ids=["in this process", "decoder processes"])
 @pytest.mark.parametrize("name", [LONE_STAR, "lion_takanawa.copc.laz"])
-def test_nodes_read_alone_equal_laspy(name):
+def test_nodes_read_alone_equal_laspy(name, processes):
     """Each node read by the streaming reader holds laspy's points of that node, numbered
-    by their index in the file."""
+    by their index in the file: decoded here, or by decoder processes once they are
+    there (the GIL stays with the frame loop)."""
     path = shared_file(name)
     las, xyz = las_xyz(path)
-    reader = NodeReader((open_copc(path),), np.zeros(3), ("intensity",), threads=2)
+    pool = ready_pool() if processes else None
+    pids = pool.pids() if pool else []
+    reader = NodeReader((open_copc(path),), np.zeros(3), ("intensity",), threads=2, decoders=pool)
     try:
-        for row in range(reader.nodes.level.size):
-            reader.request(row)
-        got: dict = {}
-        for _ in range(2000):
-            got.update(reader.arrivals())
-            if len(got) == reader.nodes.level.size:
-                break
-            __import__("time").sleep(0.005)
-        assert len(got) == reader.nodes.level.size and reader.reading == 0
+        got = read_all(reader, range(reader.nodes.level.size))
         for row, batch in got.items():
             first = reader.first_index(row)
             assert batch.start == first and batch.count == reader.nodes.points[row]
@@ -133,6 +160,33 @@ def test_nodes_read_alone_equal_laspy(name):
         assert sum(b.count for b in got.values()) == len(las)
     finally:
         reader.close()
+    assert len(pids) == (2 if processes else 0) and not any(os.path.exists(f"/proc/{pid}") for pid in pids)
+
+
+@pytest.mark.skipif(not laz_pool.available(), reason="decoder processes are for Linux")
+def test_decoder_processes_lost_or_given_a_damaged_node(tmp_path):
+    """A damaged node decoded by a process is that node's failure, the others arrive; a
+    process killed under the reader leaves the decoding to this process, every point
+    still laspy's; closing ends every process."""
+    path, bad, node = damaged_copc(tmp_path)
+    las, xyz = las_xyz(path)
+    pool = ready_pool()
+    reader = NodeReader((open_copc(bad),), np.zeros(3), ("intensity",), threads=2, decoders=pool)
+    pids = pool.pids()
+    try:
+        rows = range(reader.nodes.level.size)
+        got = read_all(reader, rows)
+        failed = [row for row, b in got.items() if isinstance(b, str)]
+        assert len(failed) == 1 and reader.nodes.points[failed[0]] == node.point_count
+        for pid in pids:
+            os.kill(pid, signal.SIGKILL)
+        got = read_all(reader, [r for r in rows if r not in failed])
+        for row, batch in got.items():
+            first = reader.first_index(row)
+            np.testing.assert_array_equal(batch.positions, xyz[first:first + batch.count].astype(np.float32))
+    finally:
+        reader.close()
+    assert not any(os.path.exists(f"/proc/{pid}") for pid in pids)
 
 
 @pytest.mark.parametrize("case", [None, LONE_STAR])
