@@ -305,6 +305,11 @@ class Session:
         return (attribute.name, *(n for n in filters if n in known))
 
     @property
+    def streamed(self) -> bool:
+        """COPC nodes stream as the camera moves (SessionOptions.stream)."""
+        return self.streamer is not None
+
+    @property
     def progressive(self) -> bool:
         return isinstance(self.renderer, ProgressiveRenderer)
 

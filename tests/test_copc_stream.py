@@ -91,7 +91,7 @@ def assert_exact(s: Session, camera: Camera, xyz: np.ndarray) -> np.ndarray:
     tie = np.zeros(len(xyz), np.int64)
     tie[index] = slots
     ids = s.ids()
-    expected = subset_reference_ids(xyz, index, camera, W, H, tie)
+    expected = subset_reference_ids(xyz, index, camera, *s.size, tie)
     assert np.mean(ids == expected) >= 0.999
     assert (ids != EMPTY).sum() > 300
     return ids

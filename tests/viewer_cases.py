@@ -1139,3 +1139,28 @@ def test_dragging_the_panel_edge_sets_its_width_within_the_clamp(display):
         no_gl_error(v)
     finally:
         v.close()
+
+
+def test_a_copc_file_streams_in_the_window_and_a_node_that_fails_is_said(display, tmp_path):
+    """The window streams a COPC file (view's default): its nodes come as the frames go,
+    the still view is the reference over every node that can be read, and the node that
+    does not decode is a note in the panel once its read fails, not only at opening."""
+    from test_copc import damaged_copc
+    from test_copc_stream import assert_exact, las_xyz
+
+    from progressive.session import Streaming
+
+    path, bad, node = damaged_copc(tmp_path)
+    _, xyz = las_xyz(path)
+    v = open_viewer([bad], stream=Streaming.AUTO)
+    try:
+        assert v.session.streamed
+        v.act(Action.PANEL)
+        settle(v)
+        assert any("could not be read" in m and f"{node.key.level}-{node.key.x}-{node.key.y}-{node.key.z}" in m
+                   for m in v.messages)
+        assert_exact(v.session, v.camera, xyz)
+        assert v.categories() == v.session.categories()
+        no_gl_error(v)
+    finally:
+        v.close()

@@ -152,6 +152,7 @@ class Viewer:
         self.pasted: Camera | None = None
         self.messages: list[str] = []
         self._message_times: list[float] = []
+        self._said: set[str] = set()       # the session's warnings shown so far
         self.error: str | None = None
         self.running = True
         self.frames = 0
@@ -207,14 +208,24 @@ class Viewer:
                                 clip=self.options.clip if not add else self.settings.clip,
                                 returns=self.options.returns if not add else self.settings.returns)
         self.messages, self._message_times = [], []
-        for warning in session.warnings:
-            self.say(warning)
+        self._said = set()
+        self._say_new_warnings()
         self._categories = None
         return True
 
+    def _say_new_warnings(self) -> None:
+        """The session's warnings not shown yet: those of opening, then those that come
+        while it runs (a streamed COPC node that cannot be read)."""
+        for warning in self.session.warnings:
+            if warning not in self._said:
+                self._said.add(warning)
+                self.say(warning)
+
     def categories(self) -> list[int]:
-        """Category codes present in the shown attribute (for the legend), once loaded."""
-        if self._categories is None and self.session is not None and not self.session.status().loading:
+        """Category codes present in the shown attribute (for the legend), once loaded (a
+        streamed cloud's as its nodes come: they change as the camera moves)."""
+        if self.session is not None and (self._categories is None or self.session.streamed) \
+                and not self.session.status().loading:
             self._categories = self.session.categories()
         return self._categories or []
 
@@ -462,6 +473,7 @@ class Viewer:
             style = s.style(self.settings.colormap, self.settings.value_range, self.settings.background)
             self.last_passes = s.frame(self.camera, style, self.settings.effects, self.settings.hidden_classes,
                                        self.settings.clip, self.settings.returns)
+            self._say_new_warnings()
         except ProgressiveError as exc:
             self.fail(f"{exc} (showing the {s.status().loaded:,} points read before)")
             s.stop_loading()
