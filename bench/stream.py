@@ -36,7 +36,7 @@ from progressive.loaders.copc_write import write_copc
 from progressive.loaders.records import RECORD_BYTES
 from progressive.loaders.types import BATCH_POINTS
 from progressive.session import Session, SessionOptions, Streaming
-from progressive.streaming import WRITE_POINTS
+from progressive.streaming import WRITE_SECONDS
 
 RESULTS = Path(__file__).resolve().parent / "results"
 TESTS = Path(__file__).resolve().parents[1] / "tests"
@@ -296,8 +296,8 @@ def run(points: int, limit: int, size: tuple[int, int], frames: int, cache: Path
          f"itself against the GPU, which on llvmpipe is the CPU); still frame ms max: the longest frame of the "
          f"stop. Resident nodes and points: at the end of the leg; loading max: most nodes in flight in a frame; "
          f"evicted: nodes evicted during the leg and its stop; nodes read: since open (a node evicted and needed again "
-         f"is read again). Frames that changed the store (nodes written, at most {WRITE_POINTS:,} points a "
-         f"frame, or evicted) took a median {changes}, the others {others}."),
+         f"is read again). Frames that changed the store (nodes written, for at most {WRITE_SECONDS * 1e3:g} ms "
+         f"a frame past the first node, or evicted) took a median {changes}, the others {others}."),
         (f"HTTP: tests/range_server.py's RangeServer on 127.0.0.1 (the file held in memory, answering in threads of "
          f"this process, so it shares the cores and the GIL with the renderer); MB fetched and requests: the "
          f"client's counts (Session.status().copc[0]) at the end of each leg, cumulative; the server counted "
