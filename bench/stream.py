@@ -274,7 +274,7 @@ def run(points: int, limit: int, size: tuple[int, int], frames: int, cache: Path
     changes = " and ".join(f"{m[0]:.0f} ms ({label})" for label, m in medians.items())
     others = " and ".join(f"{m[1]:.0f} ms" for m in medians.values())
     used, batches, batch_points = local["batches"]
-    filled = local["resident_points"] / (used * batch_points)
+    filled = local["resident_points"] / (used * batch_points) if used else 0.0     # nothing came: said below
     unsettled = [f"{label} {leg['leg']}" for label, r in (("file", local), ("HTTP", remote)) for leg in r["legs"]
                  if leg["converged_s"] is None]
     table.notes = [
