@@ -289,8 +289,12 @@ class DecoderPool:
         if not workers:
             raise DecodeFailed("the LAZ decoder processes could not start")
         bits = None if layers is None else lazrs_bits(layers)
-        job = self._send(workers[lane % len(workers)], path, offset, table, vlr, bits, dtype.itemsize)
-        return self._take(job, dtype)
+        worker = workers[lane % len(workers)]
+        try:
+            return self._take(self._send(worker, path, offset, table, vlr, bits, dtype.itemsize), dtype)
+        except OSError as exc:        # its socket reset: the worker is gone
+            self._check_open()
+            raise self._lost(worker) from exc
 
     def _started(self) -> list[_Worker]:
         """The workers, started now; none where they cannot start or one was lost (a

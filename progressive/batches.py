@@ -29,6 +29,11 @@ class BatchOrder(enum.Enum):
     MORTON = "morton"
 
 
+BATCH_ORDER = BatchOrder.FILE
+"""The renderer's batch order (MORTON is not the default yet: it is unmeasured on a GPU,
+and the loaded batch is sorted on the thread that uploads it)."""
+
+
 MORTON_BITS = 5
 """Bits per axis of the Morton code a loaded batch is sorted by: 32³ cells over its box,
 far finer than the few dozen store batches it holds, and a 15-bit code that numpy sorts

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from progressive.batches import BatchOrder
+from progressive.batches import BATCH_ORDER, BatchOrder
 from progressive.budget import BudgetParams
 from progressive.camera import NO_CLIP, Camera, Clip, Returns, ViewUniforms, view_uniforms
 from progressive.colors import ColorStyle
@@ -49,7 +49,7 @@ class ProgressiveOptions:
     keep_batches: bool = False          # keep loaded attributes in host memory to switch attributes
     class_filter: bool = False          # keep classification codes on the GPU: hidden classes apply to any colouring
     tuning: ComputeTuning = DEFAULT_TUNING  # how the compute raster walks the store (benchmarks compare them)
-    batch_order: BatchOrder = BatchOrder.FILE  # which consecutive points make a store batch (progressive/batches.py)
+    batch_order: BatchOrder = BATCH_ORDER  # which consecutive points make a store batch (progressive/batches.py)
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from progressive.batches import BatchOrder
+from progressive.batches import BATCH_ORDER, BatchOrder
 from progressive.camera import NO_CLIP, Camera, Clip, Returns, view_uniforms
 from progressive.colors import Colormap, ColorStyle
 from progressive.context import GLContext
@@ -47,7 +47,7 @@ class Renderer:
                  chunk_points: int | None = None, capacity: int | None = None, scene: Scene | None = None,
                  keep_batches: bool = False, tuning: ComputeTuning = DEFAULT_TUNING,
                  class_filter: bool = False, position_encoding: Encoding = Encoding.WORDS,
-                 batch_order: BatchOrder = BatchOrder.FILE):
+                 batch_order: BatchOrder = BATCH_ORDER):
         """`scene`: a cloud already on the GPU to render (kept on release)."""
         self.glc, self.info, self.attribute = glc, info, attribute
         self._own_scene = scene is None

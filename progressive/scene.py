@@ -68,7 +68,7 @@ class Scene:
                  capacity: int | None = None, keep_batches: bool = False, order: FillOrder = LAYOUT,
                  class_filter: bool = False, records: RecordOrder = RecordOrder.BATCHES,
                  position_encoding: encoding.Encoding = encoding.Encoding.WORDS,
-                 batch_order: batch_boxes.BatchOrder = batch_boxes.BatchOrder.FILE, streamed: bool = False):
+                 batch_order: batch_boxes.BatchOrder = batch_boxes.BATCH_ORDER, streamed: bool = False):
         """capacity: points kept on the GPU (default all; see progressive/memory.py).
         keep_batches: keep the loaded attributes in host memory to switch attributes.
         order: FILE stores points in file order (the unshuffled baseline, for benchmarks).

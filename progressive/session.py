@@ -21,7 +21,7 @@ import numpy as np
 
 from progressive import batches, encoding, memory
 from progressive.attributes import default_choice, find_attribute
-from progressive.batches import BatchOrder
+from progressive.batches import BATCH_ORDER, BatchOrder
 from progressive.budget import BudgetParams
 from progressive.camera import NO_CLIP, Camera, Clip, Returns, auto_camera, view_uniforms
 from progressive.colors import DEFAULT_PALETTE, Colormap, ColorStyle, Palette
@@ -129,7 +129,7 @@ class SessionOptions:
     within encoding.ADAPTIVE_ERROR_PX of where it projects. Progressive frames read all
     (a point kept from the last frame is reprojected where its exact position lies, so
     coarse fills would leave it where it was not drawn)."""
-    batch_order: BatchOrder = BatchOrder.FILE
+    batch_order: BatchOrder = BATCH_ORDER
     """Which consecutive points make a store batch: the file's order, or MORTON: each
     loaded batch's whole store batches sorted by Morton code (compacter batches where the
     file's order wanders; progressive/batches.py)."""
@@ -249,7 +249,10 @@ class Session:
             self._needed(self.attribute, class_filter)
         threads = options.http.in_flight
         local = any(not is_url(f.path) for f in self.info.files)
-        decoders = DecoderPool(min(threads, available_cores())) if local and laz_pool.available() else None
+        cores = available_cores()
+        # as the loader's Decoders.AUTO: on fewer cores the processes' start slows the first image
+        processes = local and laz_pool.available() and cores >= laz_pool.MIN_AUTO_PROCESSES
+        decoders = DecoderPool(min(threads, cores)) if processes else None
         reader = NodeReader(self.loader.sources, self.info.origin, names, threads, decoders)
         scene = None
         try:
