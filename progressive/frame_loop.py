@@ -135,6 +135,7 @@ class ProgressiveRenderer:
         self._regather = False
         self._has_visible = False
         self._nodes_changed = False
+        self._refresh = False           # the last frame's visible points are read anew before they are reprojected
         self._in_flight: deque[int] = deque()
         self.pacing_waits = 0
 
@@ -158,11 +159,14 @@ class ProgressiveRenderer:
         when loading outruns the frames."""
         return max(0, self.options.batches_per_frame - len(self.pending))
 
-    def nodes_changed(self) -> None:
-        """A streamed cloud's batches were written or emptied (progressive/streaming.py):
-        the next frame fills again, and its prepare reads every visible record anew (the
-        copies of an emptied batch's points are gone from the store)."""
+    def nodes_changed(self, emptied: bool) -> None:
+        """A streamed cloud's batches were written (progressive/streaming.py): the next
+        frame fills again; `emptied`: some were emptied too, so before it reprojects the
+        last frame's points it reads them anew from the store. (Stale copies drawn in the
+        first frame of a fill would hide the points they cover until the fill came round
+        again, after the view was taken to have converged.)"""
         self._nodes_changed = True
+        self._refresh |= emptied
 
     def resize(self, width: int, height: int) -> None:
         if (width, height) != (self.vis.width, self.vis.height):
@@ -196,7 +200,7 @@ class ProgressiveRenderer:
             self.scene.add_batch(self.pending.popleft())
             passes.append("distribute")
         if self._nodes_changed:
-            self._nodes_changed, self._regather = False, True
+            self._nodes_changed = False
             passes.append("nodes")
         if self.scene.reencoded != reencoded:
             self._regather = True       # this frame's prepare reads every visible record anew: copies moved
@@ -248,6 +252,10 @@ class ProgressiveRenderer:
         if self._has_visible:
             passes.append("reproject")
         b.stamp(Stamp.FRAME)
+        if self._refresh and self._has_visible:
+            self.prepare.run(regather=True)     # from the last frame's visibility, before it is cleared
+            reprojection = self.prepare.reprojection
+        self._refresh = False
         self.vis.clear()
         raster.begin_frame(view)
         for p in range(raster.passes):

@@ -48,7 +48,7 @@ from progressive.pointstore import CLASS_BYTES, GPUMemoryError
 from progressive.renderer import Frame, Raster, Renderer, ids_for
 from progressive.reproject import Geography, open_loader, target_crs
 from progressive.scene import CLASSIFICATION, AttributeSwitch, Scene
-from progressive.streaming import PLAN, Streamer, StreamStatus
+from progressive.streaming import PLAN, StoreChange, Streamer, StreamStatus
 
 PICK_RADIUS = 7
 """Pixels around a picked pixel searched for the nearest point shown."""
@@ -406,8 +406,8 @@ class Session:
         attribute = find_attribute(self.info, name)
         if self.streamer is not None:
             self.renderer.scene.show_streamed(attribute)
-            self.streamer.restart(self._needed(attribute, self._class_filter))
-            self.renderer.nodes_changed()
+            if change := self.streamer.restart(self._needed(attribute, self._class_filter)):
+                self.renderer.nodes_changed(StoreChange.EMPTIED in change)
         else:
             self.renderer.switch_attribute(attribute)
         self.attribute = attribute
@@ -520,8 +520,8 @@ class Session:
             passes = ("distribute", "raster", "resolve")
         else:
             self._pump(block=False)
-            if self.streamer is not None and self.streamer.update(node_view(camera, *self.size)):
-                self.renderer.nodes_changed()
+            if self.streamer is not None and (change := self.streamer.update(node_view(camera, *self.size))):
+                self.renderer.nodes_changed(StoreChange.EMPTIED in change)
             passes = self.renderer.frame(camera, style, effects, hidden, clip, returns)
         if self.first_image_seconds is None and self.renderer.scene.loaded > 0:
             now = time.perf_counter()

@@ -13,6 +13,7 @@ file read whole; a still view converges to the exact render of the resident node
 
 from __future__ import annotations
 
+import enum
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -34,6 +35,16 @@ PLAN = PlanOptions()
 PLAN_SECONDS = 0.1
 """Least time between two plans while the camera moves and nothing arrives (a plan
 walks every node)."""
+
+
+class StoreChange(enum.Flag):
+    """What an update did to the store: WRITTEN, batches that were empty now hold points
+    (the fill starts again); EMPTIED, batches emptied (and maybe written again), so copies
+    of their points kept from the last frame are stale too."""
+
+    NONE = 0
+    WRITTEN = enum.auto()
+    EMPTIED = enum.auto()
 
 
 @dataclass(frozen=True)
@@ -80,10 +91,10 @@ class Streamer:
         """The plan's state for a budget of points (the store gets its capacity)."""
         return Residency(reader.nodes, budget_points, BATCH_POINTS)
 
-    def update(self, view: View) -> bool:
+    def update(self, view: View) -> StoreChange:
         """Take the reads that have finished, write what may be shown, plan for `view`;
-        True where the store changed (the image starts filling again)."""
-        changed = False
+        what that did to the store."""
+        changed = StoreChange.NONE
         for row, got in self.reader.arrivals():
             self._events = True
             if isinstance(got, str):
@@ -99,9 +110,10 @@ class Streamer:
         began = time.perf_counter()
         while self._to_write and (not changed or time.perf_counter() - began < WRITE_SECONDS):
             self._write(self._to_write.popleft())
-            changed = True
+            changed |= StoreChange.WRITTEN
         while self._to_rewrite and (not changed or time.perf_counter() - began < WRITE_SECONDS):
-            changed = self._rewrite(self._to_rewrite.popleft()) or changed
+            if self._rewrite(self._to_rewrite.popleft()):
+                changed |= StoreChange.WRITTEN | StoreChange.EMPTIED
         now = time.perf_counter()
         moved = view != self._view
         # No plan while shown nodes wait to be written: an eviction must not meet a node not yet written.
@@ -114,7 +126,7 @@ class Streamer:
                     self.scene.clear_store_batches(e.batches)
                     self._kept.pop(e.row, None)
                     self.evicted += 1
-                    changed = True
+                    changed |= StoreChange.EMPTIED
                 for r in p.request:
                     self.reader.request(r.row)
         self.scene.settled = (self._view == view and not self._events and not self._to_write
@@ -143,19 +155,20 @@ class Streamer:
         self._write(row)
         return True
 
-    def restart(self, names: tuple[str, ...]) -> None:
+    def restart(self, names: tuple[str, ...]) -> StoreChange:
         """Show another attribute. With `keep`, the resident nodes are written again from
         their kept points (the others' reads carry every attribute already); else every
         node is read again with the attributes `names`: the store empties, the plan starts
         from the roots, reads under way are discarded."""
         if self.keep:
             self._to_rewrite = deque(self._kept)
-            return
+            return StoreChange.NONE
         self.reader.names = names
         self.scene.clear_store_batches([b for p in self.state.clear() for b in p.batches])
         self._arrived.clear()
         self._to_write.clear()
         self._events = True
+        return StoreChange.EMPTIED
 
     def status(self) -> StreamStatus:
         s, points = self.state.status, self.state.nodes.points
