@@ -203,7 +203,7 @@ class ProgressiveRenderer:
             self._nodes_changed = False
             passes.append("nodes")
         if self.scene.reencoded != reencoded:
-            self._regather = True       # this frame's prepare reads every visible record anew: copies moved
+            self._refresh = True        # copies moved: read anew before they are reprojected (nodes_changed says why)
         style = self.scene.resolved(style)
         hidden, returns = self.scene.drawable(hidden), self.scene.drawable_returns(returns)
         moved = (camera, hidden, clip, returns) != self._camera
