@@ -39,7 +39,8 @@ def test_plan(gl):
 
 def test_subset_is_uniform_and_rendered_exactly(tmp_path, capsys):
     ids_path, stats_path = tmp_path / "ids.npy", tmp_path / "s.json"
-    code = main(["render", *SMALL, str(SAMPLE), "--gpu-memory-limit", str(limit_for(40_000)),
+    # file order: the kept points are then the permutation's, computed here from file indices
+    code = main(["render", *SMALL, str(SAMPLE), "--gpu-memory-limit", str(limit_for(40_000)), "--batch-order", "file",
                  "--ids", str(ids_path), "--stats", str(stats_path), "--save-camera", str(tmp_path / "c.json")])
     err = capsys.readouterr().err
     assert code == 0, err

@@ -154,7 +154,7 @@ def test_switching_attribute_changes_the_image_and_streams_the_words(viewer):
 
     expected = np.concatenate([attribute_word(b, s.attribute, float(s.info.origin[2]))
                                for b in sorted(s.renderer.scene.batches, key=lambda b: b.start)])
-    slots = s.renderer.store.slots_of(np.arange(s.info.points))
+    slots = s.renderer.store.permutation.forward(np.arange(s.info.points))    # kept batches' rows: in the store's order
     np.testing.assert_array_equal(words[slots], expected)
     no_gl_error(viewer)
 
