@@ -84,7 +84,12 @@ class RangeServer:
         with self.lock:
             return self.requests, self.bytes
 
-    def reset(self) -> None:
+    def reset(self, idle_s: float = HOLD_S) -> None:
+        """Counts from zero, once the answers still being sent are done (at most idle_s):
+        an earlier test's late answers must not count in the next one's."""
+        deadline = time.monotonic() + idle_s
+        while self.active and time.monotonic() < deadline:
+            time.sleep(0.01)
         with self.lock:
             self.requests, self.bytes, self.ranges, self.most_active, self.connections = 0, 0, [], 0, 0
 
