@@ -33,6 +33,7 @@ from progressive.permutation import BATCH_POINTS
 from progressive.reference import subset_reference_ids
 from progressive.session import Session, SessionOptions, Streaming, node_view
 from progressive.streaming import StoreChange
+from progressive.viewer.status import stream_lines
 
 W, H = 160, 120
 EMPTY = 0xFFFFFFFF
@@ -222,6 +223,9 @@ def test_limit_keeps_a_tree_cut_renders_it_exactly_and_picks_the_files_points():
         rows, index, _ = resident(s)
         assert 1 < rows.size < s.streamer.state.nodes.level.size
         assert s.status().on_gpu == index.size <= 250_000
+        lines = stream_lines(s.status().stream)         # the panel's
+        assert f"{rows.size:,} / 15 on the GPU" in lines[0] and f"points {index.size:,} / {len(las):,}" in lines[1]
+        assert lines[-1].strip() == "the view's nodes are all on the GPU"
         assert any("streaming the COPC octree nodes each view needs" in w for w in s.warnings)
         assert not any("uniform random subset" in w for w in s.warnings)
         ids = assert_exact(s, camera, xyz)
