@@ -754,12 +754,17 @@ def _keep_for_view(sources: tuple, copc: list, point_budget: int, fixed: int, vi
         view = view(np.min([s.info.bounds_min for s in sources], axis=0).astype(np.float64),
                     np.max([s.info.bounds_max for s in sources], axis=0).astype(np.float64))
     h = [s.hierarchy for s in copc]
-    nodes = Nodes.of_files([(x.info.center, x.info.halfsize, node_spacing(x.info), x.nodes) for x in h])
+    nodes = hierarchy_nodes(h)
     rows = choose(nodes, view, max(point_budget - fixed, 0))
     starts = np.cumsum([0] + [x.nodes.size for x in h])
     cut = {id(s): s.for_view(rows[(rows >= a) & (rows < b)] - a, point_budget)
            for s, a, b in zip(copc, starts[:-1], starts[1:])}
     return tuple(cut.get(id(s), s) for s in sources)
+
+
+def hierarchy_nodes(hierarchies) -> Nodes:
+    """The node choice's rows of these files' hierarchies, file after file."""
+    return Nodes.of_files([(x.info.center, x.info.halfsize, node_spacing(x.info), x.nodes) for x in hierarchies])
 
 
 def node_spacing(info: CopcInfo) -> float:

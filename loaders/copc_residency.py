@@ -151,7 +151,7 @@ class Residency:
         for i in np.argsort(self.rank).tolist():
             if self.parent[i] >= 0:
                 self.children[self.parent[i]].append(i)
-        self.cost = -(-nodes.points.astype(np.int64) // store_batch_points)
+        self.cost = batch_cost(nodes.points, store_batch_points)
         self.budget = int(budget_points) // store_batch_points
         self.capacity = max(self.budget, int(self.cost[self.parent < 0].sum()))
         self.status = np.zeros(n, np.int8)
@@ -260,6 +260,11 @@ class Residency:
         for b in batches:
             heapq.heappush(self._free, b)
         return batches
+
+
+def batch_cost(points: np.ndarray, store_batch_points: int) -> np.ndarray:
+    """Store batches each node takes: whole ones (its points [i·B, (i+1)·B) in its i-th)."""
+    return -(-np.asarray(points, np.int64) // store_batch_points)
 
 
 def plan(state: Residency, view: View, options: PlanOptions = PlanOptions()) -> Plan:

@@ -19,8 +19,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 import numpy as np
 
 from progressive.errors import InputError
-from progressive.loaders.copc import COPC_SUFFIX, CopcSource, is_copc, node_spacing
-from progressive.loaders.copc_choice import Nodes
+from progressive.loaders.copc import COPC_SUFFIX, CopcSource, hierarchy_nodes, is_copc
 from progressive.loaders.http import is_url
 from progressive.loaders.laz_pool import DecoderPool
 from progressive.loaders.types import Batch
@@ -52,7 +51,7 @@ class NodeReader:
         if not streamable(sources):
             raise ValueError("every source must be a COPC file with a usable hierarchy")
         h = [s.hierarchy for s in sources]
-        self.nodes = Nodes.of_files([(x.info.center, x.info.halfsize, node_spacing(x.info), x.nodes) for x in h])
+        self.nodes = hierarchy_nodes(h)
         self.sources = sources
         self.origin = np.asarray(origin, np.float64)
         self.names = names

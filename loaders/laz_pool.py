@@ -241,7 +241,7 @@ class DecoderPool:
         workers: list[_Worker] = []
         pending: deque[_Job] = deque()
         try:
-            workers = self._started() if self._failed or not self._workers else self._workers
+            workers = self._current()
             if not workers:
                 yield from decode_chunks(path, laz, points, first_read, dtype, available_cores(),
                                          None if layers is None else layers.to_lazrs(), skip)
@@ -285,7 +285,7 @@ class DecoderPool:
         reader's nodes). DecodeFailed where the workers cannot start or one is lost (the
         caller decodes in its own process then), PoolClosed once closed."""
         with self._start_lock:
-            workers = self._started() if self._failed or not self._workers else self._workers
+            workers = self._current()
         if not workers:
             raise DecodeFailed("the LAZ decoder processes could not start")
         bits = None if layers is None else lazrs_bits(layers)
@@ -295,6 +295,10 @@ class DecoderPool:
         except OSError as exc:        # its socket reset: the worker is gone
             self._check_open()
             raise self._lost(worker) from exc
+
+    def _current(self) -> list[_Worker]:
+        """The workers there are, or those started now where there are none or one was lost."""
+        return self._started() if self._failed or not self._workers else self._workers
 
     def _started(self) -> list[_Worker]:
         """The workers, started now; none where they cannot start or one was lost (a

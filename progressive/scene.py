@@ -130,8 +130,7 @@ class Scene:
         self.store.reorder(at, np.arange(part.start, part.start + part.count, dtype=np.uint32))
         placed = replace(part, start=at)
         if self.assembler is not None:
-            self._encode_group([(at, part.count, [(placed, 0, part.count)])])
-            hidden = _hidden_points(placed, self.attribute, float(self.info.origin[2]))
+            hidden = self._encode_group([(at, part.count, [(placed, 0, part.count)])])
         else:
             hidden = self._upload_records(placed, self.attribute)
             self.store.add_boxes(_positions(placed), at)
@@ -190,11 +189,11 @@ class Scene:
         self.store.reorder(batch.start + lo, (batch.start + lo + order).astype(np.uint32))
         return batch.reordered(lo, lo + order.shape[0], order)
 
-    def _encode_group(self, group: list) -> None:
+    def _encode_group(self, group: list) -> int:
         """Frame the batches of a group of runs (encoding.BatchAssembler) by the boxes of
         their points, or by their integers where every part is of one LAS grid whose
         batches span under 2^30 cells, then upload the runs (distribute encodes them in
-        those frames)."""
+        those frames); the points of the runs never drawn."""
         parts = [part.rows(lo, hi) for _, _, pieces in group for part, lo, hi in pieces]
         first = group[0][0] // BATCH_POINTS
         k = (group[-1][0] + group[-1][1] - 1) // BATCH_POINTS - first + 1
@@ -218,8 +217,7 @@ class Scene:
             shift = encoding.cell_shifts(least, most)
             self.store.set_frames(first, encoding.integer_frames(least, shift, scale, offset, self.info.origin), boxes,
                                   least, shift)
-        for part in parts:
-            self._upload_records(part, self.attribute)
+        return sum(self._upload_records(part, self.attribute) for part in parts)
 
     def _upload_records(self, batch: Batch, attribute: AttributeInfo) -> int:
         """Pack the batch's records straight into the distribute pass's staging memory
@@ -278,8 +276,9 @@ class Scene:
                 self.held[k] = None
 
     def show_streamed(self, attribute: AttributeInfo) -> None:
-        """Streamed: batches written from now on carry `attribute` (the Streamer reads
-        every node again); its colour range is taken once they are."""
+        """Streamed: batches written from now on carry `attribute` (the Streamer writes
+        every resident node again, or reads them again); its colour range is taken once
+        they are."""
         if attribute not in self.info.attributes:
             raise ProgressiveError(f"this cloud has no attribute '{attribute.name}'")
         self.attribute, self._range, self._range_loaded = attribute, None, 0

@@ -33,6 +33,7 @@ from progressive.frame_loop import FrameStats, ProgressiveOptions, ProgressiveRe
 from progressive.loaders import laz_pool
 from progressive.loaders.copc import CopcStatus, copc_status
 from progressive.loaders.copc_choice import View
+from progressive.loaders.copc_residency import batch_cost
 from progressive.loaders.copc_stream import NodeReader, may_stream, streamable
 from progressive.loaders.crs import file_crs
 from progressive.loaders.http import DEFAULTS as HTTP_DEFAULTS
@@ -256,7 +257,7 @@ class Session:
         reader = NodeReader(self.loader.sources, self.info.origin, names, threads, decoders)
         scene = None
         try:
-            need = int(Streamer.residency(reader, 0).cost.sum())       # every node, in whole batches
+            need = int(batch_cost(reader.nodes.points, BATCH_POINTS).sum())     # every node, in whole batches
             self.memory = memory.plan(need * BATCH_SLOTS, self.glc.caps, options.width * options.height,
                                       options.gpu_memory_limit, CLASS_BYTES if class_filter else 0)
             state = Streamer.residency(reader, self.memory.capacity * BATCH_POINTS // BATCH_SLOTS)
@@ -401,8 +402,9 @@ class Session:
 
     def switch_attribute(self, name: str) -> AttributeSwitch | None:
         """Colour by another attribute (needs SessionOptions.switchable). Progressive
-        frames stream it in; the brute renderer rewrites it here. A streamed cloud reads
-        its nodes again with it (None: no switch to follow)."""
+        frames stream it in; the brute renderer rewrites it here. A streamed cloud writes
+        its resident nodes again from their kept points (switchable), else reads them
+        again (None: no switch to follow)."""
         attribute = find_attribute(self.info, name)
         if self.streamer is not None:
             self.renderer.scene.show_streamed(attribute)
