@@ -7,6 +7,7 @@ damaged nodes are skipped with a warning; bad requests are one line."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -62,6 +63,15 @@ def las_xyz(path) -> tuple[laspy.LasData, np.ndarray]:
 
 def streamed(path, limit=None, **kw) -> Session:
     return Session([str(path)], SessionOptions(width=W, height=H, stream=Streaming.ON, gpu_memory_limit=limit, **kw))
+
+
+@contextlib.contextmanager
+def still(path, limit=None, **kw):
+    """A streamed session (as `streamed`) and its auto camera, the view converged."""
+    with streamed(path, limit, **kw) as s:
+        camera = s.auto_camera()
+        converge(s, camera)
+        yield s, camera
 
 
 def converge(s: Session, camera: Camera) -> int:
@@ -201,9 +211,7 @@ def test_no_limit_streams_every_node_exactly_with_the_colour_contract(case, samp
     point of the file, coloured over its percentiles."""
     path = sample_copc if case is None else shared_file(case)
     las, xyz = las_xyz(path)
-    with streamed(path, color_by="intensity") as s:
-        camera = s.auto_camera()
-        converge(s, camera)
+    with still(path, color_by="intensity") as (s, camera):
         status = s.status()
         assert status.stream.settled and status.stream.resident_nodes == status.stream.nodes
         assert status.on_gpu == status.points == len(las) and not status.loading
@@ -216,9 +224,7 @@ def test_no_limit_streams_every_node_exactly_with_the_colour_contract(case, samp
 def test_limit_keeps_a_tree_cut_renders_it_exactly_and_picks_the_files_points():
     path = shared_file(LONE_STAR)
     las, xyz = las_xyz(path)
-    with streamed(path, limit_for(250_000), color_by="intensity") as s:
-        camera = s.auto_camera()
-        converge(s, camera)
+    with still(path, limit_for(250_000), color_by="intensity") as (s, camera):
         assert_tree_cut(s)
         rows, index, _ = resident(s)
         assert 1 < rows.size < s.streamer.state.nodes.level.size
@@ -244,9 +250,7 @@ def test_moving_the_camera_brings_its_nodes_and_evicts_others():
     what is resident (nothing more is evicted) and the view is exact again."""
     path = shared_file(LONE_STAR)
     _, xyz = las_xyz(path)
-    with streamed(path, limit_for(250_000), color_by="intensity") as s:
-        overview = s.auto_camera()
-        converge(s, overview)
+    with still(path, limit_for(250_000), color_by="intensity") as (s, overview):
         before = set(resident(s)[0].tolist())
         assert before == set(s.streamer.state.target(node_view(overview, W, H)).tolist())
         near = close_up(path)
@@ -265,9 +269,7 @@ def test_moving_the_camera_brings_its_nodes_and_evicts_others():
 def test_switching_the_attribute_reads_the_nodes_again():
     path = shared_file(LONE_STAR)
     las, xyz = las_xyz(path)
-    with streamed(path, limit_for(250_000), color_by="intensity") as s:
-        camera = s.auto_camera()
-        converge(s, camera)
+    with still(path, limit_for(250_000), color_by="intensity") as (s, camera):
         assert s.switch_attribute("elevation") is None
         converge(s, camera)
         _, index, _ = resident(s)
@@ -282,9 +284,7 @@ def test_switching_with_the_nodes_kept_rewrites_them_without_reading(sample_copc
     frame of the switch shows points, and the view ends in the new colours over the
     resident points, with their histogram."""
     las, xyz = las_xyz(sample_copc)
-    with streamed(sample_copc, limit_for(60_000), color_by="intensity", switchable=True) as s:
-        camera = s.auto_camera()
-        converge(s, camera)
+    with still(sample_copc, limit_for(60_000), color_by="intensity", switchable=True) as (s, camera):
         nodes_read = s.info.files[0].reads.snapshot()[0]
         s.switch_attribute("elevation")
         for _ in range(FRAMES):
@@ -308,9 +308,7 @@ def test_a_node_that_does_not_decode_is_skipped_with_a_warning(tmp_path):
     left out with one warning naming it; every other node streams, exactly."""
     path, bad, node = damaged_copc(tmp_path)
     _, xyz = las_xyz(path)
-    with streamed(bad, color_by="intensity") as s:
-        camera = s.auto_camera()
-        converge(s, camera)
+    with still(bad, color_by="intensity") as (s, camera):
         status = s.status().stream
         lost = s.streamer.state.lost         # the node and every node below it
         assert status.failed_nodes == 1 and status.resident_nodes == status.nodes - lost.sum() < status.nodes - 1
@@ -359,9 +357,7 @@ def test_classes_of_the_streamed_nodes_are_listed_and_hidden(sample_copc):
     """The classification codes of the nodes written are listed (no batches are kept on
     the host), and hiding one leaves the reference over the other resident points."""
     las, xyz = las_xyz(sample_copc)
-    with streamed(sample_copc, limit_for(60_000), class_filter=True, color_by="intensity") as s:
-        camera = s.auto_camera()
-        converge(s, camera)
+    with still(sample_copc, limit_for(60_000), class_filter=True, color_by="intensity") as (s, camera):
         rows, index, slots = resident(s)
         assert 1 < rows.size < s.streamer.state.nodes.level.size
         codes = np.asarray(las.classification)
@@ -440,9 +436,7 @@ def test_nodes_evicted_while_in_view_leave_the_image():
     path = shared_file(LONE_STAR)
     _, xyz = las_xyz(path)
     fill = ProgressiveOptions(budget=BudgetParams(fixed=20_000))     # the fill takes frames: stale copies would hide points
-    with streamed(path, limit_for(250_000), color_by="intensity", progressive=fill) as s:
-        overview = s.auto_camera()
-        converge(s, overview)
+    with still(path, limit_for(250_000), color_by="intensity", progressive=fill) as (s, overview):
         shown = set(np.unique(s.ids()).tolist())
         near = node_view(close_up(path), W, H)
         deadline = time.monotonic() + READ_BOUND_S
