@@ -1,11 +1,17 @@
 """The adaptive fill budget (paper 3.4.1) as pure integer arithmetic.
 
-Each frame fills a fixed first range, measures its rate from GPU timestamps, and
-fills as many more points as fit in the time left. `shaders/budget.comp` runs the
-same arithmetic on the GPU (uint64 nanoseconds, no floats, so both agree exactly);
-this module is its tested twin. A damped gain, corrected from the previous frame's
-total time, absorbs what the first-fill rate does not see (prepare, resolve, the
-32-bit path's second pass) without oscillating.
+Each frame fills a fixed first range, then as many more points as fit in the time
+left at the fill rate measured from GPU timestamps. A first fill of a million points
+takes microseconds on a large GPU, so its fixed costs (dispatches, the budget pass)
+hide its rate; measured from it alone, only the gain's steps (about 11 % a frame) grew
+the budget into the frame. So the previous frame's fill gives the rate and the first
+fill's fixed cost (its adaptive part's time per point, and what the first fill took
+beyond that), and this frame's first fill, less that fixed cost, shows whether the
+view became dearer (a jump, a zoom out of a culled close-up): the rate is the slower
+of the two. `shaders/budget.comp` runs the same arithmetic on the GPU (uint64
+nanoseconds, no floats, so both agree exactly); this module is its tested twin. A
+damped gain, corrected from the previous frame's total time, absorbs what the rate
+does not see (prepare, resolve, effects) without oscillating.
 """
 
 from __future__ import annotations
@@ -55,6 +61,18 @@ class BudgetState:
     rate_ns: int = 0            # ... in this many nanoseconds
     gain_q10: int = GAIN_ONE
     next_first: int = 0         # the next frame's first fill (0: the configured size)
+    fixed_ns: int = 0           # the first fill's fixed cost, from the last frame that showed it
+
+
+@dataclass(frozen=True)
+class LastFill:
+    """The previous frame's fill: points in all and in its first part, nanoseconds from
+    its fill's start to the end of its first part and of all of it."""
+
+    points: int
+    first: int
+    ns: int
+    first_ns: int
 
 
 def elapsed(later: int, earlier: int) -> int | None:
@@ -64,17 +82,17 @@ def elapsed(later: int, earlier: int) -> int | None:
 
 
 def step(t_frame: int, t_fill: int, t_first: int, prev_frame_ns: int | None, first_points: int,
-         state: BudgetState, params: BudgetParams, prev_after_ns: int | None = None) -> tuple[int, BudgetState]:
+         state: BudgetState, params: BudgetParams, prev_after_ns: int | None = None,
+         prev_fill: LastFill | None = None) -> tuple[int, BudgetState]:
     """Points to fill after the first fill, and the state for the next frame.
 
     t_frame, t_fill, t_first: timestamps at frame start, fill start, first fill end.
     prev_frame_ns: the previous frame's GPU time; prev_after_ns: its time from the end
-    of its fill to its end (prepare, resolve, effects); None when unknown."""
+    of its fill to its end (prepare, resolve, effects); prev_fill: its fill; None when
+    unknown (after frames without a fill: the rate and fixed cost kept stand in)."""
     if params.fixed is not None:
         return 0, state
-    fill_ns = elapsed(t_first, t_fill)
-    if first_points > 0 and fill_ns:
-        state = replace(state, rate_points=first_points, rate_ns=fill_ns)
+    state = measure(state, prev_fill, first_points, elapsed(t_first, t_fill))
     goal = params.goal_ns
     if prev_frame_ns is not None and 0 < prev_frame_ns < VALID_NS:
         ratio = min(max(goal * GAIN_ONE // prev_frame_ns, GAIN_STEP_MIN), GAIN_STEP_MAX)
@@ -91,6 +109,32 @@ def step(t_frame: int, t_fill: int, t_first: int, prev_frame_ns: int | None, fir
         share = state.rate_points * (goal // FIRST_SHARE) // state.rate_ns
         state = replace(state, next_first=min(params.first_fill, max(FIRST_MIN, share)))
     return min(max(budget, params.min_budget), params.max_budget), state
+
+
+def measure(state: BudgetState, prev: LastFill | None, first_points: int, first_ns: int | None) -> BudgetState:
+    """The rate this frame's budget uses. The previous fill's adaptive part gives the
+    reference rate and, with its first part, that part's fixed cost (none when the
+    first part was quicker than its points at the reference rate). An adaptive part
+    smaller than the first has fixed costs of its own: then the whole fill is the
+    reference and the cost kept stands. Without a previous fill, the kept rate and cost
+    stand in. This frame's first fill less that cost is the view's rate now: it
+    replaces the reference where it is slower, or where there is none (then the first
+    fill's time in full)."""
+    if prev is not None and prev.points > prev.first and prev.ns > prev.first_ns:
+        adaptive, adaptive_ns = prev.points - prev.first, prev.ns - prev.first_ns
+        if adaptive >= prev.first:
+            over = prev.first_ns * adaptive - min(prev.first * adaptive_ns, prev.first_ns * adaptive)
+            state = replace(state, rate_points=adaptive, rate_ns=adaptive_ns, fixed_ns=over // adaptive)
+        else:
+            state = replace(state, rate_points=prev.points, rate_ns=prev.ns)
+    if first_points == 0 or not first_ns:
+        return state
+    if state.rate_ns == 0:
+        return replace(state, rate_points=first_points, rate_ns=first_ns)
+    now_ns = first_ns - min(state.fixed_ns, first_ns)
+    if now_ns * state.rate_points > state.rate_ns * first_points:
+        return replace(state, rate_points=first_points, rate_ns=now_ns)
+    return state
 
 
 def frame_fill(budget: int, first_points: int, n: int) -> int:

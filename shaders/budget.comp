@@ -83,13 +83,45 @@ void main() {
     uint budget = 0u;
     if (!u_fixed) {
         uint first_points = state[STATE_FIRST];
-        uint64_t fill_ns;
-        if (first_points > 0u && elapsed(stamps[base + TS_FIRST_END], stamps[base + TS_FILL], fill_ns) && fill_ns > 0ul) {
-            state[STATE_RATE_POINTS] = first_points;
-            state[STATE_RATE_NS] = uint(fill_ns);
+        uint64_t first_ns;
+        bool first_timed = elapsed(stamps[base + TS_FIRST_END], stamps[base + TS_FILL], first_ns) && first_ns > 0ul;
+        uint prev_base = (1u - u_parity) * TIMESTAMP_SLOTS;
+        // the rate, as budget.measure: the previous fill's adaptive part and the first part's fixed cost
+        uint64_t last_ns, last_first_ns;
+        if (u_have_prev && elapsed(stamps[prev_base + TS_FILL_END], stamps[prev_base + TS_FILL], last_ns)
+                && elapsed(stamps[prev_base + TS_FIRST_END], stamps[prev_base + TS_FILL], last_first_ns)) {
+            uint points = state[STATE_FRAME_POINTS];
+            uint first = state[STATE_FRAME_FIRST];
+            if (points > first && last_ns > last_first_ns) {
+                uint adaptive = points - first;
+                uint64_t adaptive_ns = last_ns - last_first_ns;
+                if (adaptive >= first) {
+                    uint64_t a = last_first_ns * uint64_t(adaptive);
+                    uint64_t b = uint64_t(first) * adaptive_ns;
+                    state[STATE_RATE_POINTS] = adaptive;
+                    state[STATE_RATE_NS] = uint(adaptive_ns);
+                    state[STATE_FIXED_NS] = uint((a - (b < a ? b : a)) / uint64_t(adaptive));
+                } else {
+                    state[STATE_RATE_POINTS] = points;
+                    state[STATE_RATE_NS] = uint(last_ns);
+                }
+            }
+        }
+        // this frame's first fill less that cost: the view now, where it is slower
+        if (first_points > 0u && first_timed) {
+            if (state[STATE_RATE_NS] == 0u) {
+                state[STATE_RATE_POINTS] = first_points;
+                state[STATE_RATE_NS] = uint(first_ns);
+            } else {
+                uint64_t fixed_ns = uint64_t(state[STATE_FIXED_NS]);
+                uint64_t now_ns = first_ns - (fixed_ns < first_ns ? fixed_ns : first_ns);
+                if (now_ns * uint64_t(state[STATE_RATE_POINTS]) > uint64_t(state[STATE_RATE_NS]) * uint64_t(first_points)) {
+                    state[STATE_RATE_POINTS] = first_points;
+                    state[STATE_RATE_NS] = uint(now_ns);
+                }
+            }
         }
         uint64_t goal = uint64_t(u_goal_ns);
-        uint prev_base = (1u - u_parity) * TIMESTAMP_SLOTS;
         uint64_t prev_ns;
         if (u_have_prev && elapsed(stamps[prev_base + TS_END], stamps[prev_base + TS_FRAME], prev_ns) && prev_ns > 0ul) {
             uint64_t ratio = clamp64(goal * 1024ul / prev_ns, 820ul, 1250ul);
@@ -116,5 +148,7 @@ void main() {
         budget = min(budget, u_points > first ? u_points - first : 0u);
     }
     state[STATE_BUDGET] = budget;
+    state[STATE_FRAME_FIRST] = state[STATE_FIRST];
+    state[STATE_FRAME_POINTS] = state[STATE_FIRST] + budget;
     place(2u, budget);
 }

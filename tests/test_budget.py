@@ -6,7 +6,18 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from progressive.budget import GAIN_ONE, U64, BudgetParams, BudgetState, elapsed, frame_fill, split_ring, step
+from progressive.budget import (
+    GAIN_ONE,
+    U64,
+    BudgetParams,
+    BudgetState,
+    LastFill,
+    elapsed,
+    frame_fill,
+    measure,
+    split_ring,
+    step,
+)
 
 MS = 1_000_000
 
@@ -91,20 +102,28 @@ def test_split_ring_covers_each_slot_once(n):
 
 
 def simulate(rate_per_ms, overhead_ms, target_ms, frames=300, first=100_000, effects_ms=lambda frame: 0.0,
-             reserve=True):
+             reserve=True, fill_fixed_ms=0.0, last_fill=True, rate_at=None):
     """GPU time = overhead + points / true rate + the effects; a third of the overhead
     comes before the fill, the rest and the effects after it (prepare, resolve, effects
     on a real GPU), which the next frame sees as the previous frame's time after its fill
-    (reserve=False: the budget is not told)."""
+    (reserve=False: the budget is not told). Each of a frame's two fill parts costs
+    fill_fixed_ms besides its points (dispatches); rate_at(frame) overrides the rate
+    (the view changes); last_fill=False: the budget is not told the previous fill."""
     p = BudgetParams(target_ns=int(target_ms * MS), margin_q10=0, first_fill=first)
-    state, prev, prev_after, times = BudgetState(), None, None, []
+    state, prev, prev_after, prev_fill, times = BudgetState(), None, None, None, []
     for frame in range(frames):
+        rate = rate_at(frame) if rate_at else rate_per_ms
+        first_points = p.first(10**12, state)
+        first_ms = fill_fixed_ms + first_points / rate
         t_fill = int(overhead_ms / 3 * MS)
-        t_first = t_fill + int(first / rate_per_ms * MS)
-        budget, state = step(0, t_fill, t_first, prev, first, state, p, prev_after if reserve else None)
+        t_first = t_fill + int(first_ms * MS)
+        budget, state = step(0, t_fill, t_first, prev, first_points, state, p, prev_after if reserve else None,
+                             prev_fill if last_fill else None)
+        fill_ms = first_ms + fill_fixed_ms + budget / rate
         after = overhead_ms * 2 / 3 + effects_ms(frame)
-        total = overhead_ms / 3 + (first + budget) / rate_per_ms + after
+        total = overhead_ms / 3 + fill_ms + after
         prev, prev_after = int(total * MS), int(after * MS)
+        prev_fill = LastFill(first_points + budget, first_points, int(fill_ms * MS), int(first_ms * MS))
         times.append(total)
     return np.array(times), p
 
@@ -161,14 +180,19 @@ def test_grows_when_under_and_shrinks_when_over():
 
 
 CASES = [
-    # t_frame, t_fill, t_first, prev_frame_start, prev_fill_end, prev_frame_end, first, state(rate_pts, rate_ns, gain)
-    (0, 2 * MS, 3 * MS, None, None, None, 1000, (0, 0, 1024)),
-    (10, 2 * MS, 2 * MS, 0, 12 * MS, 20 * MS, 1000, (500, MS, 1024)),
-    (U64 - 100, 50, 7000, U64 - 30 * MS, U64 - 10 * MS, U64 - 200, 70, (0, 0, 2000)),
-    (0, 5 * MS, 4 * MS, 0, 9 * MS, 8 * MS, 1000, (3000, 2 * MS, 900)),
-    (123456789, 123456789 + 10**6, 123456789 + 25 * 10**6, 0, 8 * MS, 9 * MS, 1_000_000, (0, 0, 1024)),
-    (0, MS, 2 * MS, 0, 4 * MS, 20 * MS, 1000, (1000, MS, 1024)),
-    (0, 1, 2, 5, 3, 4, 4_000_000_000, (7, 3, 8192)),
+    # t_frame, t_fill, t_first, previous frame's stamps (FRAME, FILL, FIRST_END, FILL_END, END) and its
+    # points (all, first part) or None, first fill, state (rate_pts, rate_ns, gain, fixed_ns)
+    (0, 2 * MS, 3 * MS, None, 1000, (0, 0, 1024, 0)),
+    (10, 2 * MS, 2 * MS, ((0, MS, 2 * MS, 12 * MS, 20 * MS), (600_000, 1000)), 1000, (500, MS, 1024, 0)),
+    (U64 - 100, 50, 7000, ((U64 - 30 * MS, U64 - 29 * MS, U64 - 28 * MS, U64 - 10 * MS, U64 - 200), (5000, 70)),
+     70, (0, 0, 2000, 3)),
+    (0, 5 * MS, 4 * MS, ((0, MS, 3 * MS, 9 * MS, 8 * MS), (2_000_000, 1000)), 1000, (3000, 2 * MS, 900, 0)),
+    (123456789, 123456789 + 10**6, 123456789 + 25 * 10**6, ((0, MS, 2 * MS, 8 * MS, 9 * MS), (1500, 1000)),
+     1_000_000, (0, 0, 1024, 0)),
+    (0, MS, 2 * MS, ((0, MS, MS + 30_000, MS + 130_000, 20 * MS), (101_000, 1000)), 1000, (1000, MS, 1024, 0)),
+    (0, MS, MS + 32_000, ((0, MS, MS + 30_000, MS + 130_000, 20 * MS), (101_000, 1000)), 1000, (1000, MS, 1024, 0)),
+    (0, MS, MS + 500, ((0, 0, 500, 100_500, 5 * MS), (4_000_000_000, 1000)), 1000, (7, 3, 1024, 99)),
+    (0, 1, 2, ((5, 6, 7, 3, 4), (10, 20)), 4_000_000_000, (7, 3, 8192, 5)),
 ]
 
 
@@ -177,34 +201,44 @@ CASES = [
 def test_gpu_budget_equals_pure_function(gl, case, points):
     from progressive.passes.budget import TIMESTAMP_SLOTS, BudgetPass, Stamp, StateWord
 
-    t_frame, t_fill, t_first, prev_start, prev_fill_end, prev_end, first, (rp, rn, gain) = case
+    t_frame, t_fill, t_first, prev, first, (rp, rn, gain, fixed_ns) = case
     params = BudgetParams(target_ns=16_666_667, first_fill=first, min_budget=100, max_budget=50_000_000)
     batches = max(1, points // 10_240)
     bp = BudgetPass(gl, points, params, batches)
     offset = points // 3
     st = np.zeros(StateWord.WORDS, dtype=np.uint32)
-    st[[StateWord.OFFSET, StateWord.RATE_POINTS, StateWord.RATE_NS, StateWord.GAIN]] = [offset, rp, rn, gain]
+    st[[StateWord.OFFSET, StateWord.RATE_POINTS, StateWord.RATE_NS, StateWord.GAIN, StateWord.FIXED_NS]] = \
+        [offset, rp, rn, gain, fixed_ns]
+    if prev is not None:
+        st[[StateWord.FRAME_POINTS, StateWord.FRAME_FIRST]] = prev[1]
     bp.state.write(st.tobytes())
     bp.begin(reset=True)
     stamps = np.zeros(2 * TIMESTAMP_SLOTS, dtype=np.uint64)
     stamps[[Stamp.FRAME, Stamp.FILL, Stamp.FIRST_END]] = [t_frame, t_fill, t_first]
-    if prev_start is not None:
-        stamps[TIMESTAMP_SLOTS + Stamp.FRAME] = prev_start
-        stamps[TIMESTAMP_SLOTS + Stamp.FILL_END] = prev_fill_end
-        stamps[TIMESTAMP_SLOTS + Stamp.END] = prev_end
+    if prev is not None:
+        stamps[TIMESTAMP_SLOTS + np.array([Stamp.FRAME, Stamp.FILL, Stamp.FIRST_END, Stamp.FILL_END, Stamp.END])] = \
+            prev[0]
     bp.stamps.write(stamps.tobytes())
-    bp.have_prev = prev_start is not None
+    bp.have_prev = prev is not None
     bp.adapt()
     gl.check()
     got = np.frombuffer(bp.state.read(), dtype=np.uint32)
     first_points = params.first(points)
-    prev_ns = elapsed(prev_end, prev_start) if prev_start is not None else None
-    after_ns = elapsed(prev_end, prev_fill_end) if prev_start is not None else None
-    budget, state = step(t_frame, t_fill, t_first, prev_ns, first_points, BudgetState(rp, rn, gain), params, after_ns)
+    prev_ns = after_ns = last = None
+    if prev is not None:
+        (p_frame, p_fill, p_first, p_fill_end, p_end), (p_points, p_first_points) = prev
+        prev_ns, after_ns = elapsed(p_end, p_frame), elapsed(p_end, p_fill_end)
+        ns, first_ns = elapsed(p_fill_end, p_fill), elapsed(p_first, p_fill)
+        if ns is not None and first_ns is not None:
+            last = LastFill(p_points, p_first_points, ns, first_ns)
+    budget, state = step(t_frame, t_fill, t_first, prev_ns, first_points, BudgetState(rp, rn, gain, fixed_ns=fixed_ns),
+                         params, after_ns, last)
     budget = frame_fill(budget, first_points, points)
     assert got[StateWord.BUDGET] == budget
-    assert (got[StateWord.RATE_POINTS], got[StateWord.RATE_NS], got[StateWord.GAIN], got[StateWord.NEXT_FIRST]) == \
-        (state.rate_points, state.rate_ns, state.gain_q10, state.next_first)
+    assert (got[StateWord.RATE_POINTS], got[StateWord.RATE_NS], got[StateWord.GAIN], got[StateWord.NEXT_FIRST],
+            got[StateWord.FIXED_NS]) == \
+        (state.rate_points, state.rate_ns, state.gain_q10, state.next_first, state.fixed_ns)
+    assert (got[StateWord.FRAME_POINTS], got[StateWord.FRAME_FIRST]) == (first_points + budget, first_points)
     piece0, piece1, after_first = split_ring(offset, first_points, points)
     piece2, piece3, after = split_ring(after_first, budget, points)
     pieces = got[StateWord.PIECES: StateWord.PIECES + 8].reshape(4, 2)
@@ -223,3 +257,50 @@ def test_gpu_budget_equals_pure_function(gl, case, points):
         groups = int(walk[0]) * int(walk[1])
         assert met <= groups < met + max(int(walk[0]), 1) and (groups == 0) == (met == 0) and walk[2] == 1
     bp.release()
+
+
+def test_a_first_fill_of_fixed_costs_does_not_hold_the_budget_back():
+    """A large GPU (150 G points/s) fills the first million points in 6.7 us, and each
+    fill part's dispatches cost 20 us: the first fill's rate is a quarter of the true
+    one. From the previous fill the budget has the frame's target from the second frame
+    on; from the first fill alone (as before), it was still under half of it after 15."""
+    times, _ = simulate(150_000_000, 3.0, 16.0, frames=40, first=1_000_000, fill_fixed_ms=0.02)
+    assert np.all(np.abs(times[1:] - 16.0) < 1.5) and np.all(np.abs(times[8:] - 16.0) < 0.2), times[:12]
+    alone, _ = simulate(150_000_000, 3.0, 16.0, frames=40, first=1_000_000, fill_fixed_ms=0.02, last_fill=False)
+    assert np.all(alone[:15] < 8.0), alone[:15]
+
+
+@pytest.mark.parametrize("slower", [1.5, 3.0, 10.0])
+def test_a_dearer_view_is_seen_by_the_first_fill(slower):
+    """The view becomes `slower` times dearer between two frames (a jump, a zoom out of a
+    culled close-up): the first fill less its fixed cost shows it, so that frame is not
+    over the target by the previous fill's rate; and a cheaper view is used within two
+    frames."""
+    rate = 150_000_000
+    times, _ = simulate(rate, 3.0, 16.0, frames=200, first=1_000_000, fill_fixed_ms=0.02,
+                        rate_at=lambda f: rate if f < 100 else rate / slower)
+    assert np.all(times[100:] < 16.5), times[98:110]
+    back, _ = simulate(rate, 3.0, 16.0, frames=200, first=1_000_000, fill_fixed_ms=0.02,
+                       rate_at=lambda f: rate / slower if f < 100 else rate)
+    assert np.all(np.abs(back[102:] - 16.0) < 1.5) and np.all(np.abs(back[110:] - 16.0) < 0.2), back[98:112]
+
+
+def test_measure_takes_the_adaptive_part_and_the_first_parts_fixed_cost():
+    # last frame: 1,000 points in 30 us, then 100,000 more in 100 us (1 point/ns): 29 us of the first part was fixed
+    prev = LastFill(points=101_000, first=1000, ns=130_000, first_ns=30_000)
+    state = measure(BudgetState(), prev, 1000, 30_000)
+    assert (state.rate_points, state.rate_ns, state.fixed_ns) == (100_000, 100_000, 29_000)
+    assert measure(BudgetState(), prev, 1000, 29_000) == state      # a cheaper view waits for the next fill
+    # this first fill took 32 us, 3 us beyond the fixed cost: three times as dear a point as before
+    dearer = measure(BudgetState(), prev, 1000, 32_000)
+    assert (dearer.rate_points, dearer.rate_ns) == (1000, 3000)
+    # no previous fill: the kept rate and cost; none kept: the first fill in full
+    assert measure(state, None, 1000, 30_000) == state
+    fresh = measure(BudgetState(), None, 1000, 30_000)
+    assert (fresh.rate_points, fresh.rate_ns) == (1000, 30_000)
+    # an adaptive part smaller than the first: the whole fill, the cost kept
+    small = measure(BudgetState(fixed_ns=7), LastFill(1500, 1000, 40_000, 30_000), 1000, 0)
+    assert (small.rate_points, small.rate_ns, small.fixed_ns) == (1500, 40_000, 7)
+    # a first part quicker than its points at the adaptive rate: no fixed cost
+    quick = measure(BudgetState(), LastFill(101_000, 1000, 100_500, 500), 1000, None)
+    assert quick.fixed_ns == 0

@@ -66,7 +66,10 @@ class StateWord(enum.IntEnum):
     FIRST = 6           # the fixed first part of this frame
     NEXT_FIRST = 7      # the next frame's first part (adaptive: a share of the goal)
     PIECES = 8          # FILL_PIECES x (first slot, count)
-    WORDS = 16
+    FRAME_FIRST = 16    # this frame's first part and
+    FRAME_POINTS = 17   # ... all the points it fills: the next frame measures its rate from them
+    FIXED_NS = 18       # the first part's fixed cost (budget.BudgetState.fixed_ns)
+    WORDS = 19
 
     @classmethod
     def defines(cls) -> dict[str, int]:
