@@ -152,13 +152,16 @@ def first_image_lines(first: dict) -> list[str]:
 
 def progressive_lines(prog: dict) -> list[str]:
     out = []
+    brute = prog["raw"]["brute_ms"]
     for r in prog["raw"]["rows"]:
-        if r["target_ms"] and r["path"] == "still" and r.get("batch_groups", True):
+        store = r.get("store", "words")
+        if r["target_ms"] and r["path"] == "still" and r.get("batch_groups", True) and store == "words":
             conv = (f"exact after {r['frames_to_converge']} frames ({r['ms_to_converge']:.1f} ms of GPU time)"
                     if r["frames_to_converge"] else "not converged within the run")
+            brute_ms = brute[store] if isinstance(brute, dict) else brute
             out.append(f"- Progressive, {prog['points']} points, {r['budget']}, still camera: frame median "
                        f"{r['frame_ms_median']:.2f} ms, p95 {r['frame_ms_p95']:.2f} ms; {conv}; one brute-force "
-                       f"frame {prog['raw']['brute_ms']:.2f} ms (`{prog['_file']}`).")
+                       f"frame {brute_ms:.2f} ms (`{prog['_file']}`).")
     return out
 
 

@@ -20,6 +20,7 @@ from bench.synthetic import SAMPLE, TiledCloud, load, tiled
 from progressive.budget import BudgetParams
 from progressive.camera import Camera, auto_camera
 from progressive.context import GLContext, create_context
+from progressive.encoding import Encoding
 from progressive.frame_loop import FrameStats, ProgressiveOptions, ProgressiveRenderer
 from progressive.passes.raster_compute import DEFAULT_TUNING, ComputeTuning
 from progressive.renderer import Renderer
@@ -152,45 +153,57 @@ def warm_up(glc: GLContext, scene: Scene, cloud: TiledCloud, size: tuple[int, in
     r.release()
 
 
+STORE_LABELS = {Encoding.WORDS: "words", Encoding.FLOAT: "float records"}
+"""The store column: the renderer's word planes, or float32 records (the baseline)."""
+
+
 def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], targets_ms: list[float],
-        paths: list[CameraPath], motion: int, max_frames: int, compare_walk: bool = False) -> Table:
+        paths: list[CameraPath], motion: int, max_frames: int, compare_walk: bool = False,
+        encodings: tuple[Encoding, ...] = (Encoding.WORDS,)) -> Table:
     """compare_walk: also run every case with fill pieces walked one invocation a slot
-    (ComputeTuning.batch_groups off), side by side with the renderer's batch walk."""
+    (ComputeTuning.batch_groups off), side by side with the renderer's batch walk;
+    encodings: the stores to run every case on, one after the other in this run."""
     cloud = tiled(str(SAMPLE), points)
-    scene, upload_s = load(glc, cloud)
-    brute = brute_ms(glc, scene, cloud, size)
-    warm_up(glc, scene, cloud, size)
-    rows, frames = [], {}
-    for budget in budgets(fixed, targets_ms):
-        for path in paths:
-            for tuning in (DEFAULT_TUNING, ComputeTuning(batch_groups=False)) if compare_walk else (DEFAULT_TUNING,):
-                summary, stats = run_case(glc, scene, cloud, size, budget, path, motion, max_frames, tuning)
-                rows.append(summary)
-                walk = "" if tuning == DEFAULT_TUNING else ", one invocation a slot"
-                frames[f"{budget.label}, {path.value}{walk}"] = stats
-    scene.release()
+    rows, frames, brute = [], {}, {}
+    for position_encoding in encodings:
+        store = STORE_LABELS[position_encoding]
+        scene, upload_s = load(glc, cloud, position_encoding=position_encoding)
+        brute[store] = brute_ms(glc, scene, cloud, size)
+        warm_up(glc, scene, cloud, size)
+        for budget in budgets(fixed, targets_ms):
+            for path in paths:
+                for tuning in (DEFAULT_TUNING, ComputeTuning(batch_groups=False)) if compare_walk else (DEFAULT_TUNING,):
+                    summary, stats = run_case(glc, scene, cloud, size, budget, path, motion, max_frames, tuning)
+                    summary.update(store=store, upload_s=upload_s)
+                    rows.append(summary)
+                    walk = "" if tuning == DEFAULT_TUNING else ", one invocation a slot"
+                    frames[f"{store}, {budget.label}, {path.value}{walk}"] = stats
+        scene.release()
     table = Table(f"progressive_{points}", f"Progressive frames, {size[0]}x{size[1]}",
                   f"{SAMPLE.name} tiled on a grid", f"{points:,}", (
-                      "budget", "camera", "fill work group", "frame ms median", "p95", "max", "target ms", "frames over target",
+                      "store", "budget", "camera", "fill work group", "frame ms median", "p95", "max", "target ms", "frames over target",
                       "reproject", "fill", "prepare", "resolve", "fill share", "points/frame",
                       "frames to converge", "ms to converge"))
     for r in rows:
         p = r["pass_ms_median"]
-        table.rows.append((r["budget"], r["path"], "batch" if r["batch_groups"] else "256 slots", r["frame_ms_median"], r["frame_ms_p95"], r["frame_ms_max"],
+        table.rows.append((r["store"], r["budget"], r["path"], "batch" if r["batch_groups"] else "256 slots", r["frame_ms_median"], r["frame_ms_p95"], r["frame_ms_max"],
                            r["target_ms"], f"{r['over_target']:.0%}" if r["over_target"] is not None else None,
                            p["reproject"], p["fill"], p["prepare"], p["resolve"], f"{r['fill_share_median']:.0%}",
                            round(r["points_per_frame_median"]), r["frames_to_converge"] or "no",
                            r["ms_to_converge"]))
     table.notes = [
-        f"One brute-force frame (compute, every point) takes {brute:.2f} ms here, same camera.",
+        "One brute-force frame (compute, every point) takes " + ", ".join(
+            f"{ms:.2f} ms ({store})" for store, ms in brute.items()) + " here, same camera.",
         (f"GPU milliseconds from timestamps (medians per pass over all frames of a run). Camera paths move for "
          f"{motion} frames (orbit 60° about the target, zoom to 20 % of the distance, fly across the cloud at low "
          f"height), then hold the last camera. Frames to converge count from the first still frame to the first "
          f"frame by which every point was filled since the last change (exact: the image then equals brute "
          f"force); ms to converge sums their GPU frame times. Runs stop there or at {max_frames} frames. "
          f"Two frames in flight, as a swap chain paces a window. Fill work group: batch = fill pieces walked "
-         f"one work group a batch (the renderer's), 256 slots = one invocation a slot.")]
-    table.raw = {"brute_ms": brute, "upload_s": upload_s, "rows": rows, "frames": frames}
+         f"one work group a batch (the renderer's), 256 slots = one invocation a slot. Store: words = the "
+         f"renderer's (three 10-bit position words and the attribute word, each in its plane), float records = "
+         f"float32 xyz and the attribute word together; each store loaded and run in turn.")]
+    table.raw = {"brute_ms": brute, "rows": rows, "frames": frames}
     return table
 
 
@@ -203,12 +216,15 @@ def main(argv=None) -> int:
     ap.add_argument("--motion-frames", type=int, default=30)
     ap.add_argument("--max-frames", type=int, default=400)
     ap.add_argument("--compare-walk", action="store_true", help="also run each case with one invocation a slot")
+    ap.add_argument("--stores", nargs="+", choices=list(STORE_LABELS.values()), default=["words"],
+                    help="run every case on each store in turn")
     ap.add_argument("--out", default="bench/results/local")
     args = ap.parse_args(argv)
     glc = create_context()
     size = tuple(int(v) for v in args.size.split("x"))
     table = run(glc, args.points, size, args.fixed, args.targets_ms, list(CameraPath), args.motion_frames,
-                args.max_frames, args.compare_walk)
+                args.max_frames, args.compare_walk,
+                tuple(e for e, label in STORE_LABELS.items() if label in args.stores))
     info = RunInfo.from_caps(glc.caps, "progressive only")
     table.write(Path(args.out), info)
     print(table.markdown(info))

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from progressive.context import Capabilities
 from progressive.loaders.records import RECORD_BYTES
 from progressive.loaders.types import BATCH_POINTS
+from progressive.pointstore import BLOCK_RECORDS
 
 PIXEL_BYTES = 8 + 8 + 2 * (4 + 16) + 4 + 4 + 4     # visibility, reference, two lists, hint, words, image
 HEADROOM = 0.9                                     # of the free memory the driver reports
@@ -51,11 +52,20 @@ def plan(points: int, caps: Capabilities, pixels: int, limit_bytes: int | None =
 
 
 def points_within(available_bytes: int, pixels: int, extra_bytes_per_point: int = 0) -> int:
-    """Points that fit in `available_bytes` beside the per-pixel and staging buffers. The
-    loader asks it of the configured limit before the GL context (and the driver's
-    figure) exists, to choose a COPC file's levels."""
-    overhead = pixels * PIXEL_BYTES + BATCH_POINTS * RECORD_BYTES
-    return max(0, (available_bytes - overhead) // (RECORD_BYTES + extra_bytes_per_point))
+    """Points that fit in `available_bytes` beside the per-pixel and staging buffers and
+    the word store's padding (its last block's unused records). The loader asks it of
+    the configured limit before the GL context (and the driver's figure) exists, to
+    choose a COPC file's levels."""
+    return max(0, (available_bytes - _overhead(pixels)) // (RECORD_BYTES + extra_bytes_per_point))
+
+
+def bytes_for(points: int, pixels: int, extra_bytes_per_point: int = 0) -> int:
+    """The least memory limit under which `points` points fit (points_within's inverse)."""
+    return _overhead(pixels) + points * (RECORD_BYTES + extra_bytes_per_point)
+
+
+def _overhead(pixels: int) -> int:
+    return pixels * PIXEL_BYTES + (BATCH_POINTS + BLOCK_RECORDS) * RECORD_BYTES
 
 
 def peak_rss_bytes() -> int:

@@ -1,8 +1,9 @@
 """The shuffled point buffer on the GPU: 16 bytes a slot, split into chunks so no GL
 buffer exceeds the driver's storage-block limit or 2^31 bytes. The batched layout
-keeps each point as four words in four planes (progressive/encoding.py: three
-position words relative to its batch, then the attribute word); the other layouts
-keep one float32 record a slot (xyz relative to the origin, the attribute word)."""
+keeps each point as four words (progressive/encoding.py: three position words
+relative to its batch, then the attribute word) in blocks of BLOCK_RECORDS records
+that hold each word plane in turn; the other layouts keep one float32 record a slot
+(xyz relative to the origin, the attribute word)."""
 
 from __future__ import annotations
 
@@ -37,11 +38,14 @@ def chunk_capacity(max_ssbo_bytes: int, item_bytes: int = RECORD_BYTES) -> int:
     return min(max_ssbo_bytes, 2**31 - 1) // item_bytes
 
 
-QUAD_WORDS = 4
-"""A word plane's buffers hold a multiple of this many words, so a batch walk's 16-byte
-loads of four words (ComputeTuning.vector_loads) stay aligned in the second buffer too."""
-PLANE_CHUNKS = MAX_POINT_CHUNKS // encoding.PLANES
-"""Buffers of each plane of the word store at most (the bindings are shared)."""
+BLOCK_RECORDS = 4096
+"""Records of a word store's block: its four planes in turn, 64 KiB. Planes in buffers
+of their own put a point's words gigabytes apart, each an address translation of its
+own: on the H200 at 1 B points, prepare took 3.7 times and a fill of 10 M points (a
+slice of each batch) 1.8 times as long as on float records, side by side in one run
+(bench/results/nvidia-h200/progressive_1000000000_planes.md); in blocks, as long
+(progressive_1000000000.md). A multiple of 4, so a batch walk's 16-byte loads of four
+words (ComputeTuning.vector_loads) never leave a block."""
 
 
 class RecordOrder(enum.Enum):
@@ -115,20 +119,20 @@ class PointStore:
         slots = self.permutation.slots
         words = position_encoding is encoding.Encoding.WORDS and self.permutation.batches > 0
         self.encoding = encoding.Encoding.WORDS if words else encoding.Encoding.FLOAT
-        self.item_bytes = 4 if words else RECORD_BYTES
-        """Bytes of one point in one buffer: a word of a plane, or a whole float record."""
-        limit = chunk_capacity(glc.caps.max_ssbo_bytes, self.item_bytes)
-        limit -= limit % QUAD_WORDS if words else 0
+        limit = chunk_capacity(glc.caps.max_ssbo_bytes)
+        if words:
+            limit -= limit % BLOCK_RECORDS
+            chunk_points = chunk_points and chunk_points + (-chunk_points) % BLOCK_RECORDS
         self.chunk_points = min(chunk_points or limit, limit)
+        """Records a buffer holds (word store: whole blocks, a chunk_points asked for rounded up)."""
         # A capacity that holds the cloud holds the layout's padding too (under one batch).
         self.capacity = slots if capacity is None or capacity >= count else max(0, capacity)
         self.layout = StoreLayout.of(self.permutation, self.capacity, records)
         chunks = max(1, -(-self.capacity // self.chunk_points))
-        most = PLANE_CHUNKS if words else MAX_POINT_CHUNKS
-        if chunks > most:
+        if chunks > MAX_POINT_CHUNKS:
             raise ProgressiveError(
-                f"{self.capacity:,} points need {chunks} GPU buffers of {self.chunk_points:,} points"
-                f"{' for each word' if words else ''}; at most {most} are supported")
+                f"{self.capacity:,} points need {chunks} GPU buffers of {self.chunk_points:,} points; "
+                f"at most {MAX_POINT_CHUNKS} are supported")
         self.chunks = chunks
         self._glc = glc
         self.class_buffer = None
@@ -157,18 +161,15 @@ class PointStore:
         self.layout_buffer = glc.ctx.buffer(self.layout.words(self.permutation.batches))
         self.layout_buffer.label = "store layout"
         self.buffers = []
-        planes = [f"words{p}" for p in range(encoding.POSITION_WORDS)] + ["attributes"] if words else ["points"]
-        item = self.item_bytes
-        for plane in planes:
-            for c in range(chunks):
-                n = self._chunk_words(c)
-                buf = glc.ctx.buffer(reserve=(n + (-n) % QUAD_WORDS if words else n) * item)
-                buf.label = f"{plane}[{c}]"
-                glc.gl.clear_u32(buf.glo, EMPTY_WORD, total=buf.size)
-                self.buffers.append(buf)
-                if glc.ctx.error == "GL_OUT_OF_MEMORY":
-                    self.release()
-                    raise GPUMemoryError(f"the GPU could not allocate {n * item / 2**20:.0f} MiB for points")
+        for c in range(chunks):
+            size = self._chunk_records(c) * RECORD_BYTES
+            buf = glc.ctx.buffer(reserve=size)
+            buf.label = f"{'words' if words else 'points'}[{c}]"
+            glc.gl.clear_u32(buf.glo, EMPTY_WORD, total=buf.size)
+            self.buffers.append(buf)
+            if glc.ctx.error == "GL_OUT_OF_MEMORY":
+                self.release()
+                raise GPUMemoryError(f"the GPU could not allocate {size / 2**20:.0f} MiB for points")
 
     @property
     def batched(self) -> bool:
@@ -204,17 +205,10 @@ class PointStore:
         b = np.asarray(sorted(batches_cleared), dtype=np.int64)
         if b.size == 0:
             return
-        records = self.layout.batch_record(b)
-        for plane in range(len(self.buffers) // self.chunks):
-            for r in records.tolist():
-                at, end = r, r + BATCH_SLOTS
-                while at < end:          # a batch may straddle two of a plane's buffers
-                    c, within = divmod(at, self.chunk_points)
-                    n = min(end - at, self.chunk_points - within)
-                    buf = self.buffers[plane * self.chunks + c]
-                    self._glc.gl.clear_u32(buf.glo, EMPTY_WORD, within * self.item_bytes, n * self.item_bytes,
-                                           total=buf.size)
-                    at += n
+        gl = self._glc.gl
+        for r in self.layout.batch_record(b).tolist():
+            for c, offset, size in self._record_bytes(r, r + BATCH_SLOTS):
+                gl.clear_u32(self.buffers[c].glo, EMPTY_WORD, offset, size, total=self.buffers[c].size)
         self.boxes[b] = batches.empty_boxes(b.size)
         self.frames[b] = encoding.empty_frames(b.size)
         self.integer[b] = False
@@ -253,7 +247,7 @@ class PointStore:
     @property
     def defines(self) -> dict[str, int]:
         return {"POINT_CHUNKS": self.chunks, "CHUNK_POINTS": self.chunk_points, "CLASS_FILTER": int(self.has_classes),
-                "WORD_PLANES": int(self.words)}
+                "WORD_PLANES": int(self.words), "BLOCK_RECORDS": BLOCK_RECORDS}
 
     def bind(self) -> None:
         for c, buf in enumerate(self.buffers):
@@ -284,19 +278,38 @@ class PointStore:
             cloud = back[cloud]
         return self.permutation.forward(cloud)
 
-    def _chunk_words(self, c: int) -> int:
-        """Records held by buffer c of each plane (a word plane's buffer is padded to a
-        multiple of QUAD_WORDS words)."""
-        return max(1, min(self.chunk_points, self.capacity - c * self.chunk_points))
+    def _chunk_records(self, c: int) -> int:
+        """Records buffer c has room for: those it holds, the word store's in whole blocks."""
+        n = max(1, min(self.chunk_points, self.capacity - c * self.chunk_points))
+        return n + (-n) % BLOCK_RECORDS if self.words else n
+
+    def _record_bytes(self, first: int, end: int):
+        """(buffer, byte offset, bytes) runs holding records [first, end): a float
+        record's 16 bytes, or each plane's words block by block."""
+        at = first
+        while at < end:
+            c, within = divmod(at, self.chunk_points)
+            if not self.words:
+                n = min(end - at, self.chunk_points - within)
+                yield c, within * RECORD_BYTES, n * RECORD_BYTES
+            else:
+                block, j = divmod(within, BLOCK_RECORDS)
+                n = min(end - at, BLOCK_RECORDS - j)
+                for plane in range(encoding.PLANES):
+                    yield c, ((block * encoding.PLANES + plane) * BLOCK_RECORDS + j) * 4, n * 4
+            at += n
 
     def raw_words(self) -> np.ndarray:
         """Every record as (capacity, 4) uint32 in record order (StoreLayout): the float
         record, or the word store's three position words and attribute word (tests and
         debugging only)."""
-        planes = [np.concatenate([np.frombuffer(b.read(size=self._chunk_words(c) * self.item_bytes), dtype=np.uint32)
-                                  for c, b in enumerate(self.buffers[p * self.chunks: (p + 1) * self.chunks])])
-                  for p in range(len(self.buffers) // self.chunks)]
-        return np.stack(planes, axis=1) if self.words else planes[0].reshape(-1, 4)
+        chunks = []
+        for c, buf in enumerate(self.buffers):
+            words = np.frombuffer(buf.read(size=self._chunk_records(c) * RECORD_BYTES), dtype=np.uint32)
+            if self.words:
+                words = words.reshape(-1, encoding.PLANES, BLOCK_RECORDS).transpose(0, 2, 1)
+            chunks.append(words.reshape(-1, 4)[: max(0, min(self.chunk_points, self.capacity - c * self.chunk_points))])
+        return np.concatenate(chunks)
 
     def read_words(self) -> np.ndarray:
         """raw_words in slot order."""

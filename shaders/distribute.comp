@@ -70,7 +70,7 @@ void main() {
     uint slot = piece * (u_batches * SLICE_POINTS) + b * SLICE_POINTS + (shuffled - piece * SLICE_POINTS);
     if (slot >= u_capacity) return;
     uint record = store_batches == 0u ? slot : batch_record(b) + shuffled;
-    PLANE_WRITE(attributes0, attributes1, record, staged[i]);
+    set_plane_word(3u, record, staged[i]);
 #else
     uint slot = slot_of(u_start + i, u_prime, u_rotation, u_batches);
     if (slot >= u_capacity) return;

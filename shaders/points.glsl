@@ -1,64 +1,121 @@
 // The shuffled point store (progressive/pointstore.py), and where each slot's record
-// lives (StoreLayout). WORD_PLANES: four planes of one word a point, each in
-// POINT_CHUNKS buffers of CHUNK_POINTS words (plane p's chunk c at binding
-// POINTS_0 + p·POINT_CHUNKS + c): three position words relative to the point's batch
-// (progressive/encoding.py), then the attribute word; load_point decodes them into a
-// float record, so passes that need a whole point see the float layout. Else
-// POINT_CHUNKS buffers of CHUNK_POINTS 16-byte records (xyz float bits relative to the
-// origin, the attribute word).
+// lives (StoreLayout). WORD_PLANES: four words a point, three position words relative
+// to the point's batch (progressive/encoding.py), then the attribute word, in blocks of
+// BLOCK_RECORDS records holding each word plane in turn (record r's plane p at word
+// (block·4 + p)·BLOCK_RECORDS + r mod BLOCK_RECORDS), POINT_CHUNKS buffers of
+// CHUNK_POINTS records (a multiple of BLOCK_RECORDS) at bindings POINTS_0..: a point's
+// four words, and a slice's, lie within one block (64 KiB), where a gather or a thin
+// fill piece finds them with one address translation, not one a plane. load_point
+// decodes them into a float record, so passes that need a whole point see the float
+// layout. Else POINT_CHUNKS buffers of CHUNK_POINTS 16-byte records (xyz float bits
+// relative to the origin, the attribute word).
 #include "records.glsl"
 
 #if WORD_PLANES
-#if POINT_CHUNKS > 2
-#error "the word store binds at most two buffers a plane"
-#endif
-// VECTOR_WORDS (a batch walk's four-word loads): the planes are read as uvec4s, a word
-// as a component of one (every plane buffer holds a multiple of 4 words), and not written.
+// VECTOR_WORDS (a batch walk's four-word loads): the blocks are read as uvec4s, a word
+// as a component of one (BLOCK_RECORDS is a multiple of 4), and not written.
 #ifdef VECTOR_WORDS
 #define PLANE_ACCESS readonly
 #define PLANE_TYPE uvec4
-#define WORD_AT(a, index) a[(index) >> 2u][(index) & 3u]
+#define WORD_AT(a, w) a[(w) >> 2u][(w) & 3u]
 #else
 #define PLANE_ACCESS
 #define PLANE_TYPE uint
-#define WORD_AT(a, index) a[index]
+#define WORD_AT(a, w) a[w]
 #endif
-layout(std430, binding = BINDING_POINTS_0) PLANE_ACCESS buffer Words0a { PLANE_TYPE words0a[]; };
-layout(std430, binding = BINDING_POINTS_0 + POINT_CHUNKS) PLANE_ACCESS buffer Words1a { PLANE_TYPE words1a[]; };
-layout(std430, binding = BINDING_POINTS_0 + 2 * POINT_CHUNKS) PLANE_ACCESS buffer Words2a { PLANE_TYPE words2a[]; };
-layout(std430, binding = BINDING_POINTS_0 + 3 * POINT_CHUNKS) PLANE_ACCESS buffer Attributes0 { PLANE_TYPE attributes0[]; };
+layout(std430, binding = BINDING_POINTS_0) PLANE_ACCESS buffer Words0 { PLANE_TYPE words0[]; };
 #if POINT_CHUNKS > 1
-layout(std430, binding = BINDING_POINTS_1) PLANE_ACCESS buffer Words0b { PLANE_TYPE words0b[]; };
-layout(std430, binding = BINDING_POINTS_1 + POINT_CHUNKS) PLANE_ACCESS buffer Words1b { PLANE_TYPE words1b[]; };
-layout(std430, binding = BINDING_POINTS_1 + 2 * POINT_CHUNKS) PLANE_ACCESS buffer Words2b { PLANE_TYPE words2b[]; };
-layout(std430, binding = BINDING_POINTS_1 + 3 * POINT_CHUNKS) PLANE_ACCESS buffer Attributes1 { PLANE_TYPE attributes1[]; };
-#define PLANE_READ(a, b, index) ((index) < uint(CHUNK_POINTS) ? WORD_AT(a, index) : WORD_AT(b, (index) - uint(CHUNK_POINTS)))
-#define QUAD_READ(a, b, index) ((index) < uint(CHUNK_POINTS) ? a[(index) >> 2u] : b[((index) - uint(CHUNK_POINTS)) >> 2u])
-#define PLANE_WRITE(a, b, index, value) if ((index) < uint(CHUNK_POINTS)) a[index] = (value); else b[(index) - uint(CHUNK_POINTS)] = (value)
-#else
-#define PLANE_READ(a, b, index) WORD_AT(a, index)
-#define QUAD_READ(a, b, index) a[(index) >> 2u]
-#define PLANE_WRITE(a, b, index, value) a[index] = (value)
+layout(std430, binding = BINDING_POINTS_1) PLANE_ACCESS buffer Words1 { PLANE_TYPE words1[]; };
+#endif
+#if POINT_CHUNKS > 2
+layout(std430, binding = BINDING_POINTS_2) PLANE_ACCESS buffer Words2 { PLANE_TYPE words2[]; };
+#endif
+#if POINT_CHUNKS > 3
+layout(std430, binding = BINDING_POINTS_3) PLANE_ACCESS buffer Words3 { PLANE_TYPE words3[]; };
+#endif
+#if POINT_CHUNKS > 4
+layout(std430, binding = BINDING_POINTS_4) PLANE_ACCESS buffer Words4 { PLANE_TYPE words4[]; };
+#endif
+#if POINT_CHUNKS > 5
+layout(std430, binding = BINDING_POINTS_5) PLANE_ACCESS buffer Words5 { PLANE_TYPE words5[]; };
+#endif
+#if POINT_CHUNKS > 6
+layout(std430, binding = BINDING_POINTS_6) PLANE_ACCESS buffer Words6 { PLANE_TYPE words6[]; };
+#endif
+#if POINT_CHUNKS > 7
+layout(std430, binding = BINDING_POINTS_7) PLANE_ACCESS buffer Words7 { PLANE_TYPE words7[]; };
 #endif
 
-#ifdef VECTOR_WORDS
-// Whether records first.. first + span - 1 can be read as quads: one buffer holds them
-// all, and they start on a multiple of 4 in it.
-bool quads_aligned(uint first, uint span) {
-#if POINT_CHUNKS > 1
-    if (first < uint(CHUNK_POINTS) && first + span > uint(CHUNK_POINTS)) return false;
-    return ((first < uint(CHUNK_POINTS) ? first : first - uint(CHUNK_POINTS)) & 3u) == 0u;
+const uint BLOCKS_A_CHUNK = uint(CHUNK_POINTS) / uint(BLOCK_RECORDS);
+
+// The buffer of record `index` and the word of its plane `plane` in it.
+uvec2 word_place(uint plane, uint index) {
+    uint block = index / uint(BLOCK_RECORDS);
+    uint c = block / BLOCKS_A_CHUNK;
+    return uvec2(c, ((block - c * BLOCKS_A_CHUNK) * 4u + plane) * uint(BLOCK_RECORDS) + (index - block * uint(BLOCK_RECORDS)));
+}
+
+#define SWITCH_CHUNK(c, STATEMENT) switch (c) { \
+    case 0u: STATEMENT(words0); break; \
+    CHUNK_CASES(STATEMENT) }
+#if POINT_CHUNKS > 7
+#define CHUNK_CASES(S) case 1u: S(words1); break; case 2u: S(words2); break; case 3u: S(words3); break; \
+    case 4u: S(words4); break; case 5u: S(words5); break; case 6u: S(words6); break; case 7u: S(words7); break;
+#elif POINT_CHUNKS > 6
+#define CHUNK_CASES(S) case 1u: S(words1); break; case 2u: S(words2); break; case 3u: S(words3); break; \
+    case 4u: S(words4); break; case 5u: S(words5); break; case 6u: S(words6); break;
+#elif POINT_CHUNKS > 5
+#define CHUNK_CASES(S) case 1u: S(words1); break; case 2u: S(words2); break; case 3u: S(words3); break; \
+    case 4u: S(words4); break; case 5u: S(words5); break;
+#elif POINT_CHUNKS > 4
+#define CHUNK_CASES(S) case 1u: S(words1); break; case 2u: S(words2); break; case 3u: S(words3); break; \
+    case 4u: S(words4); break;
+#elif POINT_CHUNKS > 3
+#define CHUNK_CASES(S) case 1u: S(words1); break; case 2u: S(words2); break; case 3u: S(words3); break;
+#elif POINT_CHUNKS > 2
+#define CHUNK_CASES(S) case 1u: S(words1); break; case 2u: S(words2); break;
+#elif POINT_CHUNKS > 1
+#define CHUNK_CASES(S) case 1u: S(words1); break;
 #else
-    return (first & 3u) == 0u;
+#define CHUNK_CASES(S)
 #endif
+
+// Word w of buffer c (a place from word_place; plane p + k of a record is k·BLOCK_RECORDS on).
+uint word_in(uint c, uint w) {
+    uint v = EMPTY;
+#define READ_WORD(a) v = WORD_AT(a, w)
+    SWITCH_CHUNK(c, READ_WORD)
+#undef READ_WORD
+    return v;
+}
+
+uint plane_word(uint plane, uint index) {
+    uvec2 at = word_place(plane, index);
+    return word_in(at.x, at.y);
+}
+
+#ifdef VECTOR_WORDS
+// Whether records first.. can be read as quads: they start on a multiple of 4 (a quad
+// never leaves its block, nor so its buffer).
+bool quads_aligned(uint first, uint span) {
+    return (first & 3u) == 0u;
 }
 
 // Plane `plane`'s words of records index.. index + 3 (index as quads_aligned allows).
 uvec4 quad_words(uint plane, uint index) {
-    if (plane == 0u) return QUAD_READ(words0a, words0b, index);
-    if (plane == 1u) return QUAD_READ(words1a, words1b, index);
-    if (plane == 2u) return QUAD_READ(words2a, words2b, index);
-    return QUAD_READ(attributes0, attributes1, index);
+    uvec2 at = word_place(plane, index);
+    uvec4 q = uvec4(EMPTY);
+#define READ_QUAD(a) q = a[at.y >> 2u]
+    SWITCH_CHUNK(at.x, READ_QUAD)
+#undef READ_QUAD
+    return q;
+}
+#else
+void set_plane_word(uint plane, uint index, uint value) {
+    uvec2 at = word_place(plane, index);
+#define WRITE_WORD(a) a[at.y] = value
+    SWITCH_CHUNK(at.x, WRITE_WORD)
+#undef WRITE_WORD
 }
 #endif
 
@@ -68,14 +125,8 @@ const uint LEVEL_MASK = 0x3FFu;
 const uint HIDDEN_WORD = 0xFFFFFFFFu;
 const uint CELLS = 1u << 30u;
 
-uint point_word(uint index, uint level) {
-    if (level == 0u) return PLANE_READ(words0a, words0b, index);
-    if (level == 1u) return PLANE_READ(words1a, words1b, index);
-    return PLANE_READ(words2a, words2b, index);
-}
-
 uint attribute_word(uint index) {
-    return PLANE_READ(attributes0, attributes1, index);
+    return plane_word(3u, index);
 }
 
 // The cells of a point from its first `levels` words (1..3): the cell's centre below
@@ -102,7 +153,9 @@ uvec3 position_bits(uvec3 words, uint levels, vec3 base, vec3 step) {
 
 // The first `levels` words of record `index`, loaded together (none waits on another).
 uvec3 point_words(uint index, uint levels) {
-    return uvec3(point_word(index, 0u), levels > 1u ? point_word(index, 1u) : 0u, levels > 2u ? point_word(index, 2u) : 0u);
+    uvec2 at = word_place(0u, index);
+    return uvec3(word_in(at.x, at.y), levels > 1u ? word_in(at.x, at.y + uint(BLOCK_RECORDS)) : 0u,
+                 levels > 2u ? word_in(at.x, at.y + 2u * uint(BLOCK_RECORDS)) : 0u);
 }
 
 uvec3 decode_position(uint b, uint index, uint levels) {
@@ -111,7 +164,12 @@ uvec3 decode_position(uint b, uint index, uint levels) {
 
 uvec4 load_point(uint slot) {
     uint index = record_index(slot);
-    return uvec4(decode_position(slot_batch_of(slot), index, 3u), attribute_word(index));
+    uvec2 at = word_place(0u, index);
+    uvec3 words = uvec3(word_in(at.x, at.y), word_in(at.x, at.y + uint(BLOCK_RECORDS)),
+                        word_in(at.x, at.y + 2u * uint(BLOCK_RECORDS)));
+    uint b = slot_batch_of(slot);
+    return uvec4(position_bits(words, 3u, batch_frames[2u * b].xyz, batch_frames[2u * b + 1u].xyz),
+                 word_in(at.x, at.y + 3u * uint(BLOCK_RECORDS)));
 }
 
 #ifndef VECTOR_WORDS
@@ -120,11 +178,11 @@ uvec4 load_point(uint slot) {
 void store_point(uint slot, uvec4 words, int component) {
     uint index = record_index(slot);
     if (component < 0) {
-        PLANE_WRITE(words0a, words0b, index, words.x);
-        PLANE_WRITE(words1a, words1b, index, words.y);
-        PLANE_WRITE(words2a, words2b, index, words.z);
+        set_plane_word(0u, index, words.x);
+        set_plane_word(1u, index, words.y);
+        set_plane_word(2u, index, words.z);
     }
-    PLANE_WRITE(attributes0, attributes1, index, words.w);
+    set_plane_word(3u, index, words.w);
 }
 #endif
 #else

@@ -214,11 +214,10 @@ def test_a_memory_limit_keeps_the_same_share_of_every_sorted_batch(gl):
     as the store ordered it (one slice at most apart), and the render is the
     reference's over the points kept, ties to their slots."""
     from progressive import memory
-    from progressive.loaders.records import RECORD_BYTES
     from progressive.reference import subset_reference_ids
     from progressive.session import Method, Session, SessionOptions
 
-    budget = W * H * memory.PIXEL_BYTES + memory.BATCH_POINTS * RECORD_BYTES + 40_000 * RECORD_BYTES
+    budget = memory.bytes_for(40_000, W * H)
     options = SessionOptions(width=W, height=H, method=Method.BRUTE, batch_order=BatchOrder.MORTON,
                              gpu_memory_limit=budget)
     with Session([str(SAMPLE)], options) as s:

@@ -23,7 +23,6 @@ from progressive.cli import main
 from progressive.loaders import CloudLoader
 from progressive.loaders.copc import ENTRY, is_copc, keep_levels, open_copc
 from progressive.loaders.las import open_las
-from progressive.loaders.records import RECORD_BYTES
 from progressive.permutation import LAYOUT, Permutation
 from progressive.reference import subset_reference_ids
 
@@ -36,7 +35,7 @@ SCAN_STEP = 0.006
 
 def limit_for(points: int) -> int:
     """A --gpu-memory-limit with room for exactly `points` points at W x H."""
-    return W * H * memory.PIXEL_BYTES + memory.BATCH_POINTS * RECORD_BYTES + points * RECORD_BYTES
+    return memory.bytes_for(points, W * H)
 
 
 def nodes_of(path) -> list:

@@ -46,7 +46,7 @@ READ_BOUND_S = 30.0
 
 def limit_for(points: int) -> int:
     """A gpu_memory_limit with room for `points` points (of 16 bytes) at W x H."""
-    return W * H * memory.PIXEL_BYTES + memory.BATCH_POINTS * 16 + points * 16
+    return memory.bytes_for(points, W * H)
 
 
 @pytest.fixture(scope="module")

@@ -16,7 +16,6 @@ import numpy as np
 from conftest import SAMPLE
 from progressive import memory
 from progressive.cli import main
-from progressive.loaders.records import RECORD_BYTES
 from progressive.permutation import LAYOUT, Permutation
 from progressive.reference import EMPTY, reference_ids, subset_reference_ids
 
@@ -24,7 +23,7 @@ SMALL = ["--width", "160", "--height", "120"]
 
 
 def limit_for(points: int, pixels: int = 160 * 120) -> int:
-    return pixels * memory.PIXEL_BYTES + memory.BATCH_POINTS * RECORD_BYTES + points * RECORD_BYTES
+    return memory.bytes_for(points, pixels)
 
 
 def test_plan(gl):

@@ -200,7 +200,7 @@ def test_eight_chunk_store_converges(gl, cloud, brute):
     pr = ProgressiveRenderer(gl, info, default_attribute(info),
                              ProgressiveOptions(W, H, budget=BudgetParams(fixed=B), batches_per_frame=100,
                                                 chunk_points=-(-Permutation.for_count(info.points, order=LAYOUT).slots // 2)))
-    assert len(pr.store.buffers) == 8 and pr.store.chunks == 2
+    assert len(pr.store.buffers) == 2 and pr.store.chunks == 2
     for b in batches:
         pr.add_batch(b)
     assert frames_until_equal(gl, pr, cam, pr.scene.style(), brute(cam), math.ceil(pr.store.capacity / B) + 1)
