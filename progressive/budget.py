@@ -10,8 +10,18 @@ beyond that), and this frame's first fill, less that fixed cost, shows whether t
 view became dearer (a jump, a zoom out of a culled close-up): the rate is the slower
 of the two. `shaders/budget.comp` runs the same arithmetic on the GPU (uint64
 nanoseconds, no floats, so both agree exactly); this module is its tested twin. A
-damped gain, corrected from the previous frame's total time, absorbs what the rate
-does not see (prepare, resolve, effects) without oscillating.
+damped gain, corrected from the previous frame's total time, takes back what a frame
+over the goal shows the rate missed, and returns to one.
+
+The time after the fill is reserved as the previous frame took it, but it grows with
+the fill where prepare gathers the new winners from a store of gigabytes (during
+motion on the H200 at 1 B points, 2 ms after a fill of a million points and 20 ms
+after one of a billion): a budget of the time left then alternated between the whole
+cloud and nothing (bench/results/nvidia-h200/progressive_1000000000.md). So a frame
+also fills at most the previous frame's points scaled by the goal over its time (each
+less the time known to be fixed): the points it would fill were the rest of its time
+proportional to them, which approaches the goal from below without overshooting it,
+and from above (a secant through zero of a time that grows with the points).
 """
 
 from __future__ import annotations
@@ -21,7 +31,7 @@ from dataclasses import dataclass, replace
 U64 = 2**64
 VALID_NS = 2**32          # a difference above ~4.3 s (or negative, wrapped) is not a measurement
 GAIN_ONE = 1024           # gain in 1/1024 units
-GAIN_MIN, GAIN_MAX = 128, 8192
+GAIN_MIN, GAIN_MAX = 128, GAIN_ONE   # the gain only takes back: growth comes from the scaled points
 GAIN_STEP_MIN, GAIN_STEP_MAX = 820, 1250   # at most -20 % / +22 % per frame
 RAW_CAP = 2**48           # keeps raw budget x gain inside uint64 on the GPU
 FIRST_MIN = 1024          # the measured first fill never shrinks below this
@@ -67,12 +77,14 @@ class BudgetState:
 @dataclass(frozen=True)
 class LastFill:
     """The previous frame's fill: points in all and in its first part, nanoseconds from
-    its fill's start to the end of its first part and of all of it."""
+    its fill's start to the end of its first part and of all of it, and from its
+    frame's start to its fill's."""
 
     points: int
     first: int
     ns: int
     first_ns: int
+    before_ns: int = 0
 
 
 def elapsed(later: int, earlier: int) -> int | None:
@@ -106,6 +118,8 @@ def step(t_frame: int, t_fill: int, t_first: int, prev_frame_ns: int | None, fir
         budget = params.min_budget
     else:
         budget = min(state.rate_points * left // state.rate_ns, RAW_CAP) * state.gain_q10 // GAIN_ONE
+        if prev_fill is not None and prev_frame_ns is not None and 0 < prev_frame_ns < VALID_NS:
+            budget = min(budget, max(scaled_points(prev_fill, prev_frame_ns, state.fixed_ns, goal) - first_points, 0))
         share = state.rate_points * (goal // FIRST_SHARE) // state.rate_ns
         state = replace(state, next_first=min(params.first_fill, max(FIRST_MIN, share)))
     return min(max(budget, params.min_budget), params.max_budget), state
@@ -135,6 +149,16 @@ def measure(state: BudgetState, prev: LastFill | None, first_points: int, first_
     if now_ns * state.rate_points > state.rate_ns * first_points:
         return replace(state, rate_points=first_points, rate_ns=now_ns)
     return state
+
+
+def scaled_points(prev: LastFill, prev_frame_ns: int, fixed_ns: int, goal: int) -> int:
+    """The points a frame fills were its time, less its known fixed part (before the fill
+    and the first part's fixed cost), proportional to them: the previous frame's points
+    times the goal over its time, each less that part."""
+    fixed = prev.before_ns + fixed_ns
+    if fixed >= prev_frame_ns or fixed >= goal:
+        return prev.points * goal // prev_frame_ns
+    return prev.points * (goal - fixed) // (prev_frame_ns - fixed)
 
 
 def frame_fill(budget: int, first_points: int, n: int) -> int:

@@ -87,9 +87,11 @@ void main() {
         bool first_timed = elapsed(stamps[base + TS_FIRST_END], stamps[base + TS_FILL], first_ns) && first_ns > 0ul;
         uint prev_base = (1u - u_parity) * TIMESTAMP_SLOTS;
         // the rate, as budget.measure: the previous fill's adaptive part and the first part's fixed cost
-        uint64_t last_ns, last_first_ns;
-        if (u_have_prev && elapsed(stamps[prev_base + TS_FILL_END], stamps[prev_base + TS_FILL], last_ns)
-                && elapsed(stamps[prev_base + TS_FIRST_END], stamps[prev_base + TS_FILL], last_first_ns)) {
+        uint64_t last_ns, last_first_ns, last_before_ns;
+        bool last_fill = u_have_prev && elapsed(stamps[prev_base + TS_FILL_END], stamps[prev_base + TS_FILL], last_ns)
+            && elapsed(stamps[prev_base + TS_FIRST_END], stamps[prev_base + TS_FILL], last_first_ns)
+            && elapsed(stamps[prev_base + TS_FILL], stamps[prev_base + TS_FRAME], last_before_ns);
+        if (last_fill) {
             uint points = state[STATE_FRAME_POINTS];
             uint first = state[STATE_FRAME_FIRST];
             if (points > first && last_ns > last_first_ns) {
@@ -124,9 +126,9 @@ void main() {
         uint64_t goal = uint64_t(u_goal_ns);
         uint64_t prev_ns;
         if (u_have_prev && elapsed(stamps[prev_base + TS_END], stamps[prev_base + TS_FRAME], prev_ns) && prev_ns > 0ul) {
-            uint64_t ratio = clamp64(goal * 1024ul / prev_ns, 820ul, 1250ul);
-            uint64_t half_step = (1024ul + ratio) / 2ul;
-            uint64_t gain = clamp64(uint64_t(state[STATE_GAIN]) * half_step / 1024ul, 128ul, 8192ul);
+            uint64_t ratio = clamp64(goal * GAIN_ONE / prev_ns, GAIN_STEP_MIN, GAIN_STEP_MAX);
+            uint64_t half_step = (GAIN_ONE + ratio) / 2ul;
+            uint64_t gain = clamp64(uint64_t(state[STATE_GAIN]) * half_step / GAIN_ONE, GAIN_MIN, GAIN_MAX);
             state[STATE_GAIN] = uint(gain);
         }
         // the previous frame's time after its fill (prepare, resolve, effects) is reserved
@@ -138,9 +140,18 @@ void main() {
         uint64_t raw = uint64_t(u_min_budget);
         if (state[STATE_RATE_NS] != 0u) {
             raw = clamp64(uint64_t(state[STATE_RATE_POINTS]) * left / uint64_t(state[STATE_RATE_NS]), 0ul, 281474976710656ul);
-            raw = raw * uint64_t(state[STATE_GAIN]) / 1024ul;
-            uint64_t share = uint64_t(state[STATE_RATE_POINTS]) * (goal / 4ul) / uint64_t(state[STATE_RATE_NS]);
-            share = share < 1024ul ? 1024ul : share;
+            raw = raw * uint64_t(state[STATE_GAIN]) / GAIN_ONE;
+            // the previous frame's points scaled by the goal over its time (budget.step)
+            if (last_fill && u_have_prev && prev_ns > 0ul && prev_ns < VALID_NS) {
+                // budget.scaled_points
+                uint64_t known = last_before_ns + uint64_t(state[STATE_FIXED_NS]);
+                uint64_t whole = known >= prev_ns || known >= goal ? uint64_t(state[STATE_FRAME_POINTS]) * goal / prev_ns
+                    : uint64_t(state[STATE_FRAME_POINTS]) * (goal - known) / (prev_ns - known);
+                uint64_t cap = whole > uint64_t(first_points) ? whole - uint64_t(first_points) : 0ul;
+                raw = raw < cap ? raw : cap;
+            }
+            uint64_t share = uint64_t(state[STATE_RATE_POINTS]) * (goal / FIRST_SHARE) / uint64_t(state[STATE_RATE_NS]);
+            share = share < FIRST_MIN ? FIRST_MIN : share;
             state[STATE_NEXT_FIRST] = uint(share < uint64_t(u_first_fill) ? share : uint64_t(u_first_fill));
         }
         budget = uint(clamp64(raw, uint64_t(u_min_budget), uint64_t(u_max_budget)));

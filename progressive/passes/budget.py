@@ -11,7 +11,17 @@ import numpy as np
 
 from progressive import shaderlib
 from progressive.bindings import Binding
-from progressive.budget import FIRST_INITIAL, GAIN_ONE, BudgetParams
+from progressive.budget import (
+    FIRST_INITIAL,
+    FIRST_MIN,
+    FIRST_SHARE,
+    GAIN_MAX,
+    GAIN_MIN,
+    GAIN_ONE,
+    GAIN_STEP_MAX,
+    GAIN_STEP_MIN,
+    BudgetParams,
+)
 from progressive.context import GLContext
 from progressive.glext import GL_QUERY_BUFFER, GL_QUERY_RESULT, GL_TIMESTAMP
 from progressive.gpu import dispatch_defines
@@ -40,6 +50,9 @@ def layout_defines() -> dict[str, int]:
     d.update({f"STAGE_{s.name}": int(s) for s in Stage})
     d["TIMESTAMP_SLOTS"] = TIMESTAMP_SLOTS
     d["FIRST_INITIAL"] = f"{FIRST_INITIAL}u"
+    d.update({name: f"{value}ul" for name, value in (("GAIN_ONE", GAIN_ONE), ("GAIN_MIN", GAIN_MIN), ("GAIN_MAX", GAIN_MAX),
+                                                      ("GAIN_STEP_MIN", GAIN_STEP_MIN), ("GAIN_STEP_MAX", GAIN_STEP_MAX),
+                                                      ("FIRST_MIN", FIRST_MIN), ("FIRST_SHARE", FIRST_SHARE))})
     d["DRAW_ARGS_WORD"] = f"{DRAW_ARGS_WORD}u"
     d["WALK_ARGS_WORD"] = f"{WALK_ARGS_WORD}u"
     return d
