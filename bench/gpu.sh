@@ -14,7 +14,7 @@
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
-CHUNKS=(files-100M load-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B accuracy attributes)
+CHUNKS=(files-100M load-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B accuracy attributes)
 chunk="${1:-list}"
 if [ "$chunk" = list ]; then
     printf '%s\n' "${CHUNKS[@]}"
@@ -24,6 +24,8 @@ fi
 [ -f .gpu/env.sh ] && source .gpu/env.sh >&2
 OUT="${OUT:-bench/results}"
 bench=("${PYTHON:-python3}" -m bench --full --out-root "$OUT")
+# the results folder's name for this GPU (bench/report.py), for the commands that take --out
+machine() { "${PYTHON:-python3}" -c 'from bench.report import machine_name; from progressive.context import create_context; print(machine_name(create_context().caps))'; }
 
 case "$chunk" in
     # the LAS, LAZ and fast-format files of 100M points the load chunk measures, made apart so that it fits
@@ -39,12 +41,14 @@ case "$chunk" in
     # wall-clock column in one table
     layouts-100M)     "${PYTHON:-python3}" -m bench.raster --points 100000000 --size 1920x1080 --repeats 5 --copy-mib 2048 \
                           --layouts batched "batched, float records" "batched, scan order" \
-                          "batched, scan order, Morton in loaded batches" --out "$OUT/$(
-                          "${PYTHON:-python3}" -c 'from bench.report import machine_name; from progressive.context import create_context; print(machine_name(create_context().caps))')" "${@:2}" ;;
+                          "batched, scan order, Morton in loaded batches" --out "$OUT/$(machine)" "${@:2}" ;;
     raster-100M)      "${bench[@]}" --sections raster --raster-points 100000000 "${@:2}" ;;
     raster-1B)        "${bench[@]}" --sections raster --raster-points 1000000000 "${@:2}" ;;
     progressive-100M) "${bench[@]}" --sections progressive --progressive-points 100000000 "${@:2}" ;;
     progressive-1B)   "${bench[@]}" --sections progressive --progressive-points 1000000000 "${@:2}" ;;
+    # every progressive case at 1B on the word store and on float records in turn, one run (3 min on the H200)
+    stores-1B)        "${PYTHON:-python3}" -m bench.progressive --points 1000000000 --size 1920x1080 --fixed 10000000 \
+                          --targets-ms 16.6 --motion-frames 60 --max-frames 600 --stores words "float records" --out "$OUT/$(machine)" "${@:2}" ;;
     accuracy)         "${bench[@]}" --sections accuracy "${@:2}" ;;
     attributes)       "${bench[@]}" --sections attributes "${@:2}" ;;
     *) echo "unknown chunk '$chunk'; one of: ${CHUNKS[*]}" >&2; exit 2 ;;

@@ -190,3 +190,13 @@ def in_view(boxes: np.ndarray, view: ViewUniforms) -> np.ndarray:
                            w - y + BOX_MARGIN * (aw + np.abs(y)), w + y + BOX_MARGIN * (aw + np.abs(y))], axis=-1)
         outside = (planes < 0).all(axis=1).any(axis=1)
     return ~empty & ~outside
+
+
+def runs(sorted_batches) -> list[tuple[int, int]]:
+    """[lo, hi) runs of consecutive numbers in a sorted sequence (batches written or
+    emptied together, each run one GPU call)."""
+    b = np.asarray(sorted_batches, dtype=np.int64)
+    if b.size == 0:
+        return []
+    cuts = np.flatnonzero(np.diff(b) != 1) + 1
+    return [(int(run[0]), int(run[-1]) + 1) for run in np.split(b, cuts)]

@@ -104,7 +104,8 @@ def step(t_frame: int, t_fill: int, t_first: int, prev_frame_ns: int | None, fir
     unknown (after frames without a fill: the rate and fixed cost kept stand in)."""
     if params.fixed is not None:
         return 0, state
-    state = measure(state, prev_fill, first_points, elapsed(t_first, t_fill))
+    first_ns = elapsed(t_first, t_fill)
+    state = measure(state, prev_fill, first_points, first_ns)
     goal = params.goal_ns
     if prev_frame_ns is not None and 0 < prev_frame_ns < VALID_NS:
         ratio = min(max(goal * GAIN_ONE // prev_frame_ns, GAIN_STEP_MIN), GAIN_STEP_MAX)
@@ -120,7 +121,10 @@ def step(t_frame: int, t_fill: int, t_first: int, prev_frame_ns: int | None, fir
         budget = min(state.rate_points * left // state.rate_ns, RAW_CAP) * state.gain_q10 // GAIN_ONE
         if prev_fill is not None and prev_frame_ns is not None and 0 < prev_frame_ns < VALID_NS:
             budget = min(budget, max(scaled_points(prev_fill, prev_frame_ns, state.fixed_ns, goal) - first_points, 0))
-        share = state.rate_points * (goal // FIRST_SHARE) // state.rate_ns
+    if first_points > 0 and first_ns:
+        # the next first fill: a share of the goal at this one's own rate, fixed costs and all
+        # (a rate less them would grow a fill whose fixed costs exceed the share)
+        share = first_points * (goal // FIRST_SHARE) // first_ns
         state = replace(state, next_first=min(params.first_fill, max(FIRST_MIN, share)))
     return min(max(budget, params.min_budget), params.max_budget), state
 
@@ -129,14 +133,14 @@ def measure(state: BudgetState, prev: LastFill | None, first_points: int, first_
     """The rate this frame's budget uses. The previous fill's adaptive part gives the
     reference rate and, with its first part, that part's fixed cost (none when the
     first part was quicker than its points at the reference rate). An adaptive part
-    smaller than the first has fixed costs of its own: then the whole fill is the
-    reference and the cost kept stands. Without a previous fill, the kept rate and cost
+    smaller than the first (none, where the frame had no time left) has fixed costs of
+    its own: then the whole fill is the reference and the cost kept stands. Without a previous fill, the kept rate and cost
     stand in. This frame's first fill less that cost is the view's rate now: it
     replaces the reference where it is slower, or where there is none (then the first
     fill's time in full)."""
-    if prev is not None and prev.points > prev.first and prev.ns > prev.first_ns:
+    if prev is not None and prev.points > 0 and prev.ns > 0:
         adaptive, adaptive_ns = prev.points - prev.first, prev.ns - prev.first_ns
-        if adaptive >= prev.first:
+        if adaptive >= prev.first and adaptive_ns > 0:
             over = prev.first_ns * adaptive - min(prev.first * adaptive_ns, prev.first_ns * adaptive)
             state = replace(state, rate_points=adaptive, rate_ns=adaptive_ns, fixed_ns=over // adaptive)
         else:

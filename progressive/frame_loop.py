@@ -6,11 +6,12 @@ once it has, frames do no GPU work at all. The CPU never waits for the GPU here.
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from progressive.batches import BATCH_ORDER, BatchOrder
+from progressive.batches import BATCH_ORDER, BatchOrder, runs
 from progressive.budget import BudgetParams
 from progressive.camera import NO_CLIP, Camera, Clip, Returns, ViewUniforms, view_uniforms
 from progressive.colors import ColorStyle
@@ -135,6 +136,7 @@ class ProgressiveRenderer:
         self._regather = False
         self._has_visible = False
         self._nodes_changed = False
+        self._fresh: set[int] = set()   # batches written into empty ones since the last frame: drawn whole
         self._refresh = False           # the last frame's visible points are read anew before they are reprojected
         self._in_flight: deque[int] = deque()
         self.pacing_waits = 0
@@ -159,12 +161,19 @@ class ProgressiveRenderer:
         when loading outruns the frames."""
         return max(0, self.options.batches_per_frame - len(self.pending))
 
-    def nodes_changed(self, emptied: bool) -> None:
-        """A streamed cloud's batches were written (progressive/streaming.py): the next
-        frame fills again; `emptied`: some were emptied too, so before it reprojects the
-        last frame's points it reads them anew from the store. (Stale copies drawn in the
-        first frame of a fill would hide the points they cover until the fill came round
-        again, after the view was taken to have converged.)"""
+    def nodes_changed(self, emptied: bool, written: Iterable[int] = ()) -> None:
+        """A streamed cloud's batches were written (progressive/streaming.py). Batches
+        `written` into empty ones, none emptied: the next frame draws them whole over
+        what the fill has drawn (the image with them is the least of both), and the fill
+        goes on. Else the next frame fills again; `emptied`: before it reprojects the last
+        frame's points it reads them anew from the store. (Stale copies drawn in the first
+        frame of a fill would hide the points they cover until the fill came round again,
+        after the view was taken to have converged.) A raster that cannot draw whole
+        batches fills again either way."""
+        written = list(written)
+        if written and not emptied and self.raster.draws_batches:
+            self._fresh.update(written)
+            return
         self._nodes_changed = True
         self._refresh |= emptied
 
@@ -204,6 +213,9 @@ class ProgressiveRenderer:
             passes.append("nodes")
         if self.scene.reencoded != reencoded:
             self._refresh = True        # copies moved: read anew before they are reprojected (nodes_changed says why)
+        restart = bool(passes)
+        if self._fresh:
+            passes.append("batches")
         style = self.scene.resolved(style)
         hidden, returns = self.scene.drawable(hidden), self.scene.drawable_returns(returns)
         moved = (camera, hidden, clip, returns) != self._camera
@@ -222,7 +234,7 @@ class ProgressiveRenderer:
             if restyled or regather:
                 passes += self.shading.run(style, effects, self.prepare.pixel_words)
         else:
-            return self._render(camera, hidden, clip, returns, style, effects, passes, reset=bool(passes) or moved)
+            return self._render(camera, hidden, clip, returns, style, effects, passes, reset=restart or moved)
         self.budget.end_frame(complete=False)
         self._idle_frame(tuple(passes))
         return tuple(passes)
@@ -271,6 +283,9 @@ class ProgressiveRenderer:
                 b.adapt()
             raster.draw_piece(view, pieces, 2, p)
             raster.draw_piece(view, pieces, 3, p)
+            for first, end in runs(sorted(self._fresh)):
+                raster.draw_batches(view, first, end - first, p)
+        self._fresh.clear()
         raster.end_frame(view)
         b.stamp(Stamp.FILL_END)
         self.prepare.run(regather=self._regather)

@@ -212,7 +212,7 @@ class PointStore:
         self.boxes[b] = batches.empty_boxes(b.size)
         self.frames[b] = encoding.empty_frames(b.size)
         self.integer[b] = False
-        for lo, hi in _runs_of(b):
+        for lo, hi in batches.runs(b):
             self.box_buffer.write(self.boxes[lo:hi].tobytes(), offset=lo * self.boxes.itemsize * batches.BOX_FLOATS)
             if self.frame_buffer is not None:
                 self.frame_buffer.write(self.frames[lo:hi].tobytes(),
@@ -342,8 +342,3 @@ class PointStore:
             self.class_buffer.release()
             self.class_buffer = None
 
-
-def _runs_of(sorted_batches: np.ndarray) -> list[tuple[int, int]]:
-    """[lo, hi) runs of consecutive numbers in a sorted array."""
-    cuts = np.flatnonzero(np.diff(sorted_batches) != 1) + 1
-    return [(int(run[0]), int(run[-1]) + 1) for run in np.split(sorted_batches, cuts)]

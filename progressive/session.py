@@ -523,7 +523,7 @@ class Session:
         else:
             self._pump(block=False)
             if self.streamer is not None and (change := self.streamer.update(node_view(camera, *self.size))):
-                self.renderer.nodes_changed(StoreChange.EMPTIED in change)
+                self.renderer.nodes_changed(StoreChange.EMPTIED in change, self.streamer.written)
             passes = self.renderer.frame(camera, style, effects, hidden, clip, returns)
         if self.first_image_seconds is None and self.renderer.scene.loaded > 0:
             now = time.perf_counter()

@@ -39,8 +39,9 @@ walks every node)."""
 
 class StoreChange(enum.Flag):
     """What an update did to the store: WRITTEN, batches that were empty now hold points
-    (the fill starts again); EMPTIED, batches emptied (and maybe written again), so copies
-    of their points kept from the last frame are stale too."""
+    (drawn whole in the next frame); EMPTIED, batches emptied (and maybe written again),
+    so the fill starts again and copies of their points kept from the last frame are
+    stale too."""
 
     NONE = 0
     WRITTEN = enum.auto()
@@ -85,6 +86,8 @@ class Streamer:
         self._planned_at = -np.inf
         self.evicted = 0
         self.warnings: list[str] = []
+        self.written: list[int] = []
+        """The batches the last update wrote (into empty ones, where it emptied none)."""
 
     @staticmethod
     def residency(reader: NodeReader, budget_points: int) -> Residency:
@@ -93,8 +96,9 @@ class Streamer:
 
     def update(self, view: View) -> StoreChange:
         """Take the reads that have finished, write what may be shown, plan for `view`;
-        what that did to the store."""
+        what that did to the store (the batches it wrote: `written`)."""
         changed = StoreChange.NONE
+        self.written = []
         for row, got in self.reader.arrivals():
             self._events = True
             if isinstance(got, str):
@@ -138,6 +142,7 @@ class Streamer:
         batch = self._arrived.pop(row)
         for i, b in enumerate(self.state.batches[row]):
             self.scene.write_store_batch(batch.rows(i * BATCH_POINTS, min((i + 1) * BATCH_POINTS, batch.count)), b)
+            self.written.append(b)
         if self.keep:
             self._kept[row] = batch
 

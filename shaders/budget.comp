@@ -94,10 +94,10 @@ void main() {
         if (last_fill) {
             uint points = state[STATE_FRAME_POINTS];
             uint first = state[STATE_FRAME_FIRST];
-            if (points > first && last_ns > last_first_ns) {
+            if (points > 0u && last_ns > 0ul) {
                 uint adaptive = points - first;
                 uint64_t adaptive_ns = last_ns - last_first_ns;
-                if (adaptive >= first) {
+                if (points >= first && adaptive >= first && last_ns > last_first_ns) {
                     uint64_t a = last_first_ns * uint64_t(adaptive);
                     uint64_t b = uint64_t(first) * adaptive_ns;
                     state[STATE_RATE_POINTS] = adaptive;
@@ -150,7 +150,10 @@ void main() {
                 uint64_t cap = whole > uint64_t(first_points) ? whole - uint64_t(first_points) : 0ul;
                 raw = raw < cap ? raw : cap;
             }
-            uint64_t share = uint64_t(state[STATE_RATE_POINTS]) * (goal / FIRST_SHARE) / uint64_t(state[STATE_RATE_NS]);
+        }
+        if (first_points > 0u && first_timed) {
+            // the next first fill: a share of the goal at this one's own rate (budget.step)
+            uint64_t share = uint64_t(first_points) * (goal / FIRST_SHARE) / first_ns;
             share = share < FIRST_MIN ? FIRST_MIN : share;
             state[STATE_NEXT_FIRST] = uint(share < uint64_t(u_first_fill) ? share : uint64_t(u_first_fill));
         }

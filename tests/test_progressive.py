@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from conftest import SAMPLE
 from progressive.attributes import default_attribute
 from progressive.budget import BudgetParams
 from progressive.camera import Camera, auto_camera
@@ -291,3 +292,54 @@ def test_fill_pieces_walk_batches_frame_for_frame(gl, cloud, brute, view):
         assert all(np.array_equal(a, b) for a, b in zip(frames, reference))
     assert not np.array_equal(reference[0], reference[-1])
     assert np.array_equal(reference[-1], brute(cam))
+
+
+def test_batches_written_into_a_still_view_are_drawn_whole(gl, brute):
+    """A streamed store (progressive/streaming.py) whose nodes arrive while the camera
+    holds still: batches written into empty ones are drawn whole in the next frame and
+    the fill goes on, so a view whose fill had gone round is exact in that frame. Told
+    nothing of which batches (as before), the fill starts again and takes a pass (the
+    sample's 112,640 slots at B points a frame). Both end equal to brute force."""
+    from progressive.loaders import CloudLoader
+    from progressive.permutation import BATCH_POINTS
+    from progressive.scene import Scene
+
+    with CloudLoader([SAMPLE], batch_points=BATCH_POINTS) as loader:
+        info = loader.info
+        loader.start()
+        parts = sorted(loader, key=lambda b: b.start)
+    assert [p.start for p in parts] == [b * BATCH_POINTS for b in range(len(parts))]
+    cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
+    expected = brute(cam)
+    half = len(parts) // 2
+    frames = {}
+    for told in (True, False):
+        scene = Scene(gl, info, default_attribute(info), streamed=True)
+        pr = ProgressiveRenderer(gl, info, scene.attribute, ProgressiveOptions(W, H, budget=BudgetParams(fixed=B)),
+                                 scene=scene)
+        style = pr.scene.style()
+        try:
+            for b in range(half):
+                scene.write_store_batch(parts[b], b)
+            pr.nodes_changed(False, range(half))
+            scene.settled = True            # what the streamer says once nothing more is on its way
+            converge(pr, cam, style)
+            for b in range(half, len(parts)):
+                scene.write_store_batch(parts[b], b)
+            pr.nodes_changed(False, range(half, len(parts)) if told else ())
+            frames[told] = converge(pr, cam, style)
+            gl.check()
+            assert np.array_equal(pr.read_ids(), expected)
+        finally:
+            pr.release()
+            scene.release()
+    assert frames[True] <= 2 and frames[False] >= math.ceil(112_640 / B) - 1, frames
+
+
+def converge(pr: ProgressiveRenderer, cam: Camera, style, limit: int = 200) -> int:
+    """Frames until the still view is exact."""
+    for k in range(1, limit + 1):
+        pr.frame(cam, style)
+        if pr.converged:
+            return k
+    raise AssertionError("did not converge")

@@ -11,6 +11,7 @@ from progressive.context import GLContext
 from progressive.encoding import Precision
 from progressive.gpu import grid, set_view
 from progressive.passes.handles import Culling, FillPieces, Meta, Reprojection, Source, StateWord, Visibility
+from progressive.permutation import SLICE_POINTS
 from progressive.pointstore import PointStore
 
 SUBGROUP_EXTENSIONS = ("GL_KHR_shader_subgroup", "GL_NV_shader_subgroup_partitioned")     # as the driver names them
@@ -150,6 +151,22 @@ class ComputeRaster:
             else:
                 program.run(*grid(count))
             self.glc.ctx.memory_barrier()
+
+    @property
+    def draws_batches(self) -> bool:
+        """Whether draw_batches can draw whole batches (the batch walk)."""
+        return self.batch_groups
+
+    def draw_batches(self, view: ViewUniforms, first: int, count: int, pass_index: int) -> None:
+        """Pass `pass_index` over every slot of batches first.. first+count-1 (batches
+        written since the last frame): the batch walk from batch `first`'s first slice
+        to the store's last slot, one group for each of the `count` batches."""
+        program = self._prepare(Source.RANGE, pass_index, view)
+        start = first * SLICE_POINTS
+        program["u_first"] = start
+        program["u_count"] = self.store.capacity - start
+        program.run(*grid(count, local_size=1))
+        self.glc.ctx.memory_barrier()
 
     def draw_piece(self, view: ViewUniforms, pieces: FillPieces, piece: int, pass_index: int) -> None:
         program = self._prepare(Source.PIECE, pass_index, view)

@@ -23,6 +23,8 @@ class PointsRaster:
     least slot among equal depths (the render contract's tie rule)."""
 
     passes = 1
+    draws_batches = False
+    """Slots in order only: batches written anew start the fill again (frame_loop.py)."""
 
     def __init__(self, glc: GLContext, store: PointStore, vis: Visibility):
         self.glc, self.store, self.vis = glc, store, vis
