@@ -15,37 +15,69 @@
 // VECTOR_WORDS (a batch walk's four-word loads): the blocks are read as uvec4s, a word
 // as a component of one (BLOCK_RECORDS is a multiple of 4), and not written.
 #ifdef VECTOR_WORDS
-#define PLANE_ACCESS readonly
-#define PLANE_TYPE uvec4
+#define STORE_ACCESS readonly
+#define STORE_TYPE uvec4
 #define WORD_AT(a, w) a[(w) >> 2u][(w) & 3u]
 #else
-#define PLANE_ACCESS
-#define PLANE_TYPE uint
+#define STORE_ACCESS
+#define STORE_TYPE uint
 #define WORD_AT(a, w) a[w]
 #endif
-layout(std430, binding = BINDING_POINTS_0) PLANE_ACCESS buffer Words0 { PLANE_TYPE words0[]; };
+#else
+#define STORE_ACCESS
+#define STORE_TYPE uvec4
+#endif
+layout(std430, binding = BINDING_POINTS_0) STORE_ACCESS buffer Store0 { STORE_TYPE store0[]; };
 #if POINT_CHUNKS > 1
-layout(std430, binding = BINDING_POINTS_1) PLANE_ACCESS buffer Words1 { PLANE_TYPE words1[]; };
+layout(std430, binding = BINDING_POINTS_1) STORE_ACCESS buffer Store1 { STORE_TYPE store1[]; };
 #endif
 #if POINT_CHUNKS > 2
-layout(std430, binding = BINDING_POINTS_2) PLANE_ACCESS buffer Words2 { PLANE_TYPE words2[]; };
+layout(std430, binding = BINDING_POINTS_2) STORE_ACCESS buffer Store2 { STORE_TYPE store2[]; };
 #endif
 #if POINT_CHUNKS > 3
-layout(std430, binding = BINDING_POINTS_3) PLANE_ACCESS buffer Words3 { PLANE_TYPE words3[]; };
+layout(std430, binding = BINDING_POINTS_3) STORE_ACCESS buffer Store3 { STORE_TYPE store3[]; };
 #endif
 #if POINT_CHUNKS > 4
-layout(std430, binding = BINDING_POINTS_4) PLANE_ACCESS buffer Words4 { PLANE_TYPE words4[]; };
+layout(std430, binding = BINDING_POINTS_4) STORE_ACCESS buffer Store4 { STORE_TYPE store4[]; };
 #endif
 #if POINT_CHUNKS > 5
-layout(std430, binding = BINDING_POINTS_5) PLANE_ACCESS buffer Words5 { PLANE_TYPE words5[]; };
+layout(std430, binding = BINDING_POINTS_5) STORE_ACCESS buffer Store5 { STORE_TYPE store5[]; };
 #endif
 #if POINT_CHUNKS > 6
-layout(std430, binding = BINDING_POINTS_6) PLANE_ACCESS buffer Words6 { PLANE_TYPE words6[]; };
+layout(std430, binding = BINDING_POINTS_6) STORE_ACCESS buffer Store6 { STORE_TYPE store6[]; };
 #endif
 #if POINT_CHUNKS > 7
-layout(std430, binding = BINDING_POINTS_7) PLANE_ACCESS buffer Words7 { PLANE_TYPE words7[]; };
+layout(std430, binding = BINDING_POINTS_7) STORE_ACCESS buffer Store7 { STORE_TYPE store7[]; };
 #endif
 
+// STATEMENT(a) on buffer c's array a (the store's buffers are bound by index, so a
+// buffer is chosen by a switch).
+#define SWITCH_CHUNK(c, STATEMENT) switch (c) { \
+    case 0u: STATEMENT(store0); break; \
+    CHUNK_CASES(STATEMENT) }
+#if POINT_CHUNKS > 7
+#define CHUNK_CASES(S) case 1u: S(store1); break; case 2u: S(store2); break; case 3u: S(store3); break; \
+    case 4u: S(store4); break; case 5u: S(store5); break; case 6u: S(store6); break; case 7u: S(store7); break;
+#elif POINT_CHUNKS > 6
+#define CHUNK_CASES(S) case 1u: S(store1); break; case 2u: S(store2); break; case 3u: S(store3); break; \
+    case 4u: S(store4); break; case 5u: S(store5); break; case 6u: S(store6); break;
+#elif POINT_CHUNKS > 5
+#define CHUNK_CASES(S) case 1u: S(store1); break; case 2u: S(store2); break; case 3u: S(store3); break; \
+    case 4u: S(store4); break; case 5u: S(store5); break;
+#elif POINT_CHUNKS > 4
+#define CHUNK_CASES(S) case 1u: S(store1); break; case 2u: S(store2); break; case 3u: S(store3); break; \
+    case 4u: S(store4); break;
+#elif POINT_CHUNKS > 3
+#define CHUNK_CASES(S) case 1u: S(store1); break; case 2u: S(store2); break; case 3u: S(store3); break;
+#elif POINT_CHUNKS > 2
+#define CHUNK_CASES(S) case 1u: S(store1); break; case 2u: S(store2); break;
+#elif POINT_CHUNKS > 1
+#define CHUNK_CASES(S) case 1u: S(store1); break;
+#else
+#define CHUNK_CASES(S)
+#endif
+
+#if WORD_PLANES
 const uint BLOCKS_A_CHUNK = uint(CHUNK_POINTS) / uint(BLOCK_RECORDS);
 
 // The buffer of record `index` and the word of its plane `plane` in it.
@@ -54,31 +86,6 @@ uvec2 word_place(uint plane, uint index) {
     uint c = block / BLOCKS_A_CHUNK;
     return uvec2(c, ((block - c * BLOCKS_A_CHUNK) * 4u + plane) * uint(BLOCK_RECORDS) + (index - block * uint(BLOCK_RECORDS)));
 }
-
-#define SWITCH_CHUNK(c, STATEMENT) switch (c) { \
-    case 0u: STATEMENT(words0); break; \
-    CHUNK_CASES(STATEMENT) }
-#if POINT_CHUNKS > 7
-#define CHUNK_CASES(S) case 1u: S(words1); break; case 2u: S(words2); break; case 3u: S(words3); break; \
-    case 4u: S(words4); break; case 5u: S(words5); break; case 6u: S(words6); break; case 7u: S(words7); break;
-#elif POINT_CHUNKS > 6
-#define CHUNK_CASES(S) case 1u: S(words1); break; case 2u: S(words2); break; case 3u: S(words3); break; \
-    case 4u: S(words4); break; case 5u: S(words5); break; case 6u: S(words6); break;
-#elif POINT_CHUNKS > 5
-#define CHUNK_CASES(S) case 1u: S(words1); break; case 2u: S(words2); break; case 3u: S(words3); break; \
-    case 4u: S(words4); break; case 5u: S(words5); break;
-#elif POINT_CHUNKS > 4
-#define CHUNK_CASES(S) case 1u: S(words1); break; case 2u: S(words2); break; case 3u: S(words3); break; \
-    case 4u: S(words4); break;
-#elif POINT_CHUNKS > 3
-#define CHUNK_CASES(S) case 1u: S(words1); break; case 2u: S(words2); break; case 3u: S(words3); break;
-#elif POINT_CHUNKS > 2
-#define CHUNK_CASES(S) case 1u: S(words1); break; case 2u: S(words2); break;
-#elif POINT_CHUNKS > 1
-#define CHUNK_CASES(S) case 1u: S(words1); break;
-#else
-#define CHUNK_CASES(S)
-#endif
 
 // Word w of buffer c (a place from word_place; plane p + k of a record is k·BLOCK_RECORDS on).
 uint word_in(uint c, uint w) {
@@ -186,57 +193,14 @@ void store_point(uint slot, uvec4 words, int component) {
 }
 #endif
 #else
-layout(std430, binding = BINDING_POINTS_0) buffer Points0 { uvec4 points0[]; };
-#if POINT_CHUNKS > 1
-layout(std430, binding = BINDING_POINTS_1) buffer Points1 { uvec4 points1[]; };
-#endif
-#if POINT_CHUNKS > 2
-layout(std430, binding = BINDING_POINTS_2) buffer Points2 { uvec4 points2[]; };
-#endif
-#if POINT_CHUNKS > 3
-layout(std430, binding = BINDING_POINTS_3) buffer Points3 { uvec4 points3[]; };
-#endif
-#if POINT_CHUNKS > 4
-layout(std430, binding = BINDING_POINTS_4) buffer Points4 { uvec4 points4[]; };
-#endif
-#if POINT_CHUNKS > 5
-layout(std430, binding = BINDING_POINTS_5) buffer Points5 { uvec4 points5[]; };
-#endif
-#if POINT_CHUNKS > 6
-layout(std430, binding = BINDING_POINTS_6) buffer Points6 { uvec4 points6[]; };
-#endif
-#if POINT_CHUNKS > 7
-layout(std430, binding = BINDING_POINTS_7) buffer Points7 { uvec4 points7[]; };
-#endif
-
 uvec4 load_record(uint index) {
     uint c = index / uint(CHUNK_POINTS);
     uint j = index - c * uint(CHUNK_POINTS);
-    switch (c) {
-    case 0u: return points0[j];
-#if POINT_CHUNKS > 1
-    case 1u: return points1[j];
-#endif
-#if POINT_CHUNKS > 2
-    case 2u: return points2[j];
-#endif
-#if POINT_CHUNKS > 3
-    case 3u: return points3[j];
-#endif
-#if POINT_CHUNKS > 4
-    case 4u: return points4[j];
-#endif
-#if POINT_CHUNKS > 5
-    case 5u: return points5[j];
-#endif
-#if POINT_CHUNKS > 6
-    case 6u: return points6[j];
-#endif
-#if POINT_CHUNKS > 7
-    case 7u: return points7[j];
-#endif
-    }
-    return uvec4(EMPTY);
+    uvec4 r = uvec4(EMPTY);
+#define READ_RECORD(a) r = a[j]
+    SWITCH_CHUNK(c, READ_RECORD)
+#undef READ_RECORD
+    return r;
 }
 
 uvec4 load_point(uint slot) {
@@ -249,30 +213,7 @@ void store_point(uint slot, uvec4 record, int component) {
     uint c = index / uint(CHUNK_POINTS);
     uint j = index - c * uint(CHUNK_POINTS);
 #define STORE(buf) if (component < 0) buf[j] = record; else buf[j][component] = record[component]
-    switch (c) {
-    case 0u: STORE(points0); break;
-#if POINT_CHUNKS > 1
-    case 1u: STORE(points1); break;
-#endif
-#if POINT_CHUNKS > 2
-    case 2u: STORE(points2); break;
-#endif
-#if POINT_CHUNKS > 3
-    case 3u: STORE(points3); break;
-#endif
-#if POINT_CHUNKS > 4
-    case 4u: STORE(points4); break;
-#endif
-#if POINT_CHUNKS > 5
-    case 5u: STORE(points5); break;
-#endif
-#if POINT_CHUNKS > 6
-    case 6u: STORE(points6); break;
-#endif
-#if POINT_CHUNKS > 7
-    case 7u: STORE(points7); break;
-#endif
-    }
+    SWITCH_CHUNK(c, STORE)
 #undef STORE
 }
 #endif
