@@ -134,10 +134,10 @@ def measure(state: BudgetState, prev: LastFill | None, first_points: int, first_
     reference rate and, with its first part, that part's fixed cost (none when the
     first part was quicker than its points at the reference rate). An adaptive part
     smaller than the first (none, where the frame had no time left) has fixed costs of
-    its own: then the whole fill is the reference and the cost kept stands. Without a previous fill, the kept rate and cost
-    stand in. This frame's first fill less that cost is the view's rate now: it
-    replaces the reference where it is slower, or where there is none (then the first
-    fill's time in full)."""
+    its own: then the whole fill is the reference and the cost kept stands. Without a
+    previous fill, the kept rate and cost stand in. This frame's first fill less that
+    cost is the view's rate now: it replaces the reference where it is slower, or where
+    there is none (then the first fill's time in full)."""
     if prev is not None and prev.points > 0 and prev.ns > 0:
         adaptive, adaptive_ns = prev.points - prev.first, prev.ns - prev.first_ns
         if adaptive >= prev.first and adaptive_ns > 0:
