@@ -34,8 +34,9 @@ class GPUMemoryError(ProgressiveError):
     """An allocation the driver refused (GL_OUT_OF_MEMORY)."""
 
 
-def chunk_capacity(max_ssbo_bytes: int, item_bytes: int = RECORD_BYTES) -> int:
-    return min(max_ssbo_bytes, 2**31 - 1) // item_bytes
+def chunk_capacity(max_ssbo_bytes: int) -> int:
+    """Records of 16 bytes one buffer holds (both stores take 16 bytes a record a buffer)."""
+    return min(max_ssbo_bytes, 2**31 - 1) // RECORD_BYTES
 
 
 BLOCK_RECORDS = 4096

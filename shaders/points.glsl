@@ -27,55 +27,56 @@
 #define STORE_ACCESS
 #define STORE_TYPE uvec4
 #endif
+// The store's buffers, and for each beyond the first its case of SWITCH_CHUNK (bound by
+// index, so a buffer is chosen by a switch).
 layout(std430, binding = BINDING_POINTS_0) STORE_ACCESS buffer Store0 { STORE_TYPE store0[]; };
 #if POINT_CHUNKS > 1
 layout(std430, binding = BINDING_POINTS_1) STORE_ACCESS buffer Store1 { STORE_TYPE store1[]; };
+#define CHUNK_CASE_1(S) case 1u: S(store1); break;
+#else
+#define CHUNK_CASE_1(S)
 #endif
 #if POINT_CHUNKS > 2
 layout(std430, binding = BINDING_POINTS_2) STORE_ACCESS buffer Store2 { STORE_TYPE store2[]; };
+#define CHUNK_CASE_2(S) case 2u: S(store2); break;
+#else
+#define CHUNK_CASE_2(S)
 #endif
 #if POINT_CHUNKS > 3
 layout(std430, binding = BINDING_POINTS_3) STORE_ACCESS buffer Store3 { STORE_TYPE store3[]; };
+#define CHUNK_CASE_3(S) case 3u: S(store3); break;
+#else
+#define CHUNK_CASE_3(S)
 #endif
 #if POINT_CHUNKS > 4
 layout(std430, binding = BINDING_POINTS_4) STORE_ACCESS buffer Store4 { STORE_TYPE store4[]; };
+#define CHUNK_CASE_4(S) case 4u: S(store4); break;
+#else
+#define CHUNK_CASE_4(S)
 #endif
 #if POINT_CHUNKS > 5
 layout(std430, binding = BINDING_POINTS_5) STORE_ACCESS buffer Store5 { STORE_TYPE store5[]; };
+#define CHUNK_CASE_5(S) case 5u: S(store5); break;
+#else
+#define CHUNK_CASE_5(S)
 #endif
 #if POINT_CHUNKS > 6
 layout(std430, binding = BINDING_POINTS_6) STORE_ACCESS buffer Store6 { STORE_TYPE store6[]; };
+#define CHUNK_CASE_6(S) case 6u: S(store6); break;
+#else
+#define CHUNK_CASE_6(S)
 #endif
 #if POINT_CHUNKS > 7
 layout(std430, binding = BINDING_POINTS_7) STORE_ACCESS buffer Store7 { STORE_TYPE store7[]; };
+#define CHUNK_CASE_7(S) case 7u: S(store7); break;
+#else
+#define CHUNK_CASE_7(S)
 #endif
 
-// STATEMENT(a) on buffer c's array a (the store's buffers are bound by index, so a
-// buffer is chosen by a switch).
-#define SWITCH_CHUNK(c, STATEMENT) switch (c) { \
-    case 0u: STATEMENT(store0); break; \
-    CHUNK_CASES(STATEMENT) }
-#if POINT_CHUNKS > 7
-#define CHUNK_CASES(S) case 1u: S(store1); break; case 2u: S(store2); break; case 3u: S(store3); break; \
-    case 4u: S(store4); break; case 5u: S(store5); break; case 6u: S(store6); break; case 7u: S(store7); break;
-#elif POINT_CHUNKS > 6
-#define CHUNK_CASES(S) case 1u: S(store1); break; case 2u: S(store2); break; case 3u: S(store3); break; \
-    case 4u: S(store4); break; case 5u: S(store5); break; case 6u: S(store6); break;
-#elif POINT_CHUNKS > 5
-#define CHUNK_CASES(S) case 1u: S(store1); break; case 2u: S(store2); break; case 3u: S(store3); break; \
-    case 4u: S(store4); break; case 5u: S(store5); break;
-#elif POINT_CHUNKS > 4
-#define CHUNK_CASES(S) case 1u: S(store1); break; case 2u: S(store2); break; case 3u: S(store3); break; \
-    case 4u: S(store4); break;
-#elif POINT_CHUNKS > 3
-#define CHUNK_CASES(S) case 1u: S(store1); break; case 2u: S(store2); break; case 3u: S(store3); break;
-#elif POINT_CHUNKS > 2
-#define CHUNK_CASES(S) case 1u: S(store1); break; case 2u: S(store2); break;
-#elif POINT_CHUNKS > 1
-#define CHUNK_CASES(S) case 1u: S(store1); break;
-#else
-#define CHUNK_CASES(S)
-#endif
+// STATEMENT(a) on buffer c's array a.
+#define SWITCH_CHUNK(c, STATEMENT) switch (c) { case 0u: STATEMENT(store0); break; \
+    CHUNK_CASE_1(STATEMENT) CHUNK_CASE_2(STATEMENT) CHUNK_CASE_3(STATEMENT) CHUNK_CASE_4(STATEMENT) \
+    CHUNK_CASE_5(STATEMENT) CHUNK_CASE_6(STATEMENT) CHUNK_CASE_7(STATEMENT) }
 
 #if WORD_PLANES
 const uint BLOCKS_A_CHUNK = uint(CHUNK_POINTS) / uint(BLOCK_RECORDS);
