@@ -14,7 +14,7 @@
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
-CHUNKS=(files-100M load-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B accuracy attributes)
+CHUNKS=(files-100M load-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B winners-1B accuracy attributes)
 chunk="${1:-list}"
 if [ "$chunk" = list ]; then
     printf '%s\n' "${CHUNKS[@]}"
@@ -49,6 +49,10 @@ case "$chunk" in
     # every progressive case at 1B on the word store and on float records in turn, one run (3 min on the H200)
     stores-1B)        "${PYTHON:-python3}" -m bench.progressive --points 1000000000 --size 1920x1080 --fixed 10000000 \
                           --targets-ms 16.6 --motion-frames 60 --max-frames 600 --stores words "float records" --out "$OUT/$(machine)" "${@:2}" ;;
+    # every progressive case at 1B with prepare's records from the winners pass and gathered, side by side
+    winners-1B)       "${PYTHON:-python3}" -m bench.progressive --points 1000000000 --size 1920x1080 --fixed 10000000 \
+                          --targets-ms 16.6 --motion-frames 60 --max-frames 600 --records "winners pass" gathered \
+                          --out "$OUT/$(machine)" "${@:2}" ;;
     accuracy)         "${bench[@]}" --sections accuracy "${@:2}" ;;
     attributes)       "${bench[@]}" --sections attributes "${@:2}" ;;
     *) echo "unknown chunk '$chunk'; one of: ${CHUNKS[*]}" >&2; exit 2 ;;

@@ -155,7 +155,8 @@ def progressive_lines(prog: dict) -> list[str]:
     brute = prog["raw"]["brute_ms"]
     for r in prog["raw"]["rows"]:
         store = r.get("store", "words")
-        if r["target_ms"] and r["path"] == "still" and r.get("batch_groups", True) and store == "words":
+        if (r["target_ms"] and r["path"] == "still" and r.get("batch_groups", True) and store == "words"
+                and r.get("winners", True)):
             conv = (f"exact after {r['frames_to_converge']} frames ({r['ms_to_converge']:.1f} ms of GPU time)"
                     if r["frames_to_converge"] else "not converged within the run")
             brute_ms = brute[store] if isinstance(brute, dict) else brute

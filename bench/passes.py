@@ -57,7 +57,10 @@ def main(argv=None) -> int:
         timed("stamp", lambda: b.stamp(Stamp.FILL))
         timed("budget adapt", b.adapt)
         timed("fill rest", lambda: [raster.draw_piece(view, b.pieces, k, p) for p in range(raster.passes) for k in (2, 3)])
-        timed("prepare", r.prepare.run)
+        if raster.winners is not None:
+            timed("winners", lambda: [raster.draw_list(view, r.prepare.reprojection, raster.passes)]
+                  + [raster.draw_piece(view, b.pieces, k, raster.passes) for k in range(4)])
+        timed("prepare", lambda: r.prepare.run(winners=raster.winners))
         timed("resolve", lambda: r.shading.resolve.run(style, r.prepare.pixel_words))
         for name, fx in EFFECTS.items():
             timed(f"resolve with {name}", lambda fx=fx: r.shading.run(style, fx, r.prepare.pixel_words))

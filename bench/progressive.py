@@ -92,6 +92,7 @@ def summarize(stats: list[FrameStats], points: int, target_ms: float | None, mot
                            for k in ("reproject", "fill", "prepare", "resolve")},
         "fill_share_median": float(np.median([s.gpu_ms["fill"] / s.gpu_ms["frame"] for s in timed])),
         "points_per_frame_median": float(np.median([s.first_fill + s.budget for s in timed])),
+        "gathered_median": float(np.median([s.gathered for s in timed])),
         "converged_frame": converged,
         "frames_to_converge": converged - motion + 1 if converged is not None else None,
         "ms_to_converge": float(sum(s.gpu_ms["frame"] for s in after)) if converged is not None else None,
@@ -119,7 +120,8 @@ def run_case(glc: GLContext, scene: Scene, cloud: TiledCloud, size: tuple[int, i
     summary = summarize(stats, cloud.points, budget.target_ms, motion)
     summary.update(budget=budget.label, target_ms=budget.target_ms, path=path.value, motion_frames=motion,
                    cpu_frame_ms_median=float(np.median(cpu_ms)), pacing_waits=r.pacing_waits,
-                   batch_groups=r.raster.batch_groups if hasattr(r.raster, "batch_groups") else False)
+                   batch_groups=r.raster.batch_groups if hasattr(r.raster, "batch_groups") else False,
+                   winners=r.raster.winners is not None)
     r.release()
     return summary, [s.as_dict() for s in stats]
 
@@ -155,14 +157,20 @@ def warm_up(glc: GLContext, scene: Scene, cloud: TiledCloud, size: tuple[int, in
 
 STORE_LABELS = {Encoding.WORDS: "words", Encoding.FLOAT: "float records"}
 """The store column: the renderer's word planes, or float32 records (the baseline)."""
+RECORDS_LABELS = {True: "winners pass", False: "gathered"}
+"""The records column: where prepare takes new winners' records (ComputeTuning.winners)."""
 
 
 def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], targets_ms: list[float],
         paths: list[CameraPath], motion: int, max_frames: int, compare_walk: bool = False,
-        encodings: tuple[Encoding, ...] = (Encoding.WORDS,)) -> Table:
+        encodings: tuple[Encoding, ...] = (Encoding.WORDS,), winners: tuple[bool | None, ...] = (None,)) -> Table:
     """compare_walk: also run every case with fill pieces walked one invocation a slot
     (ComputeTuning.batch_groups off), side by side with the renderer's batch walk;
-    encodings: the stores to run every case on, one after the other in this run."""
+    encodings: the stores to run every case on, one after the other in this run;
+    winners: with and/or without the winners pass, each case side by side (None: the
+    renderer's choice for the store)."""
+    walks = (True, False) if compare_walk else (True,)
+    tunings = [ComputeTuning(batch_groups=g, winners=w) for g in walks for w in winners]
     cloud = tiled(str(SAMPLE), points)
     rows, frames, brute = [], {}, {}
     for position_encoding in encodings:
@@ -172,25 +180,26 @@ def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], ta
         brute[store] = brute_ms(glc, scene, cloud, size)
         for budget in budgets(fixed, targets_ms):
             for path in paths:
-                for tuning in (DEFAULT_TUNING, ComputeTuning(batch_groups=False)) if compare_walk else (DEFAULT_TUNING,):
+                for tuning in tunings:
                     summary, stats = run_case(glc, scene, cloud, size, budget, path, motion, max_frames, tuning)
                     summary.update(store=store, upload_s=upload_s)
                     rows.append(summary)
-                    walk = "" if tuning == DEFAULT_TUNING else ", one invocation a slot"
-                    frames[f"{store}, {budget.label}, {path.value}{walk}"] = stats
+                    walk = "" if tuning.batch_groups else ", one invocation a slot"
+                    frames[f"{store}, {budget.label}, {path.value}{walk}, {RECORDS_LABELS[summary['winners']]}"] = stats
         scene.release()
     table = Table(f"progressive_{points}", f"Progressive frames, {size[0]}x{size[1]}",
                   f"{SAMPLE.name} tiled on a grid", f"{points:,}", (
-                      "store", "budget", "camera", "fill work group", "frame ms median", "p95", "max", "target ms", "frames over target",
-                      "reproject", "fill", "prepare", "resolve", "fill share", "points/frame",
-                      "frames to converge", "ms to converge"))
+                      "store", "budget", "camera", "fill work group", "records", "frame ms median", "p95", "max", "target ms",
+                      "frames over target", "reproject", "fill", "prepare", "resolve", "fill share", "points/frame",
+                      "gathered/frame", "frames to converge", "ms to converge"))
     for r in rows:
         p = r["pass_ms_median"]
-        table.rows.append((r["store"], r["budget"], r["path"], "batch" if r["batch_groups"] else "256 slots", r["frame_ms_median"], r["frame_ms_p95"], r["frame_ms_max"],
+        table.rows.append((r["store"], r["budget"], r["path"], "batch" if r["batch_groups"] else "256 slots",
+                           RECORDS_LABELS[r["winners"]], r["frame_ms_median"], r["frame_ms_p95"], r["frame_ms_max"],
                            r["target_ms"], f"{r['over_target']:.0%}" if r["over_target"] is not None else None,
                            p["reproject"], p["fill"], p["prepare"], p["resolve"], f"{r['fill_share_median']:.0%}",
-                           round(r["points_per_frame_median"]), r["frames_to_converge"] or "no",
-                           r["ms_to_converge"]))
+                           round(r["points_per_frame_median"]), round(r["gathered_median"]),
+                           r["frames_to_converge"] or "no", r["ms_to_converge"]))
     table.notes = [
         "One brute-force frame (compute, every point) takes " + ", ".join(
             f"{ms:.2f} ms ({store})" for store, ms in brute.items()) + " here, same camera.",
@@ -202,7 +211,11 @@ def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], ta
          f"Two frames in flight, as a swap chain paces a window. Fill work group: batch = fill pieces walked "
          f"one work group a batch (the renderer's), 256 slots = one invocation a slot. Store: words = the "
          f"renderer's (three 10-bit position words and the attribute word, each in its plane), float records = "
-         f"float32 xyz and the attribute word together; each store loaded and run in turn.")]
+         f"float32 xyz and the attribute word together; each store loaded and run in turn. Records: where "
+         f"prepare takes the records of the points visible now, for the next frame's reprojection and resolve: "
+         f"winners pass = the raster's last pass over the frame's points leaves each pixel's record (its time "
+         f"is in the fill column), gathered = from the last list where a hint finds it, else from the store at "
+         f"random; gathered/frame = median records a frame read from the store that way.")]
     table.raw = {"brute_ms": brute, "rows": rows, "frames": frames}
     return table
 
@@ -218,13 +231,16 @@ def main(argv=None) -> int:
     ap.add_argument("--compare-walk", action="store_true", help="also run each case with one invocation a slot")
     ap.add_argument("--stores", nargs="+", choices=list(STORE_LABELS.values()), default=["words"],
                     help="run every case on each store in turn")
+    ap.add_argument("--records", nargs="+", choices=list(RECORDS_LABELS.values()),
+                    help="run every case with prepare's records from each source in turn (default: the renderer's choice)")
     ap.add_argument("--out", default="bench/results/local")
     args = ap.parse_args(argv)
     glc = create_context()
     size = tuple(int(v) for v in args.size.split("x"))
     table = run(glc, args.points, size, args.fixed, args.targets_ms, list(CameraPath), args.motion_frames,
                 args.max_frames, args.compare_walk,
-                tuple(e for e, label in STORE_LABELS.items() if label in args.stores))
+                tuple(e for e, label in STORE_LABELS.items() if label in args.stores),
+                tuple(w for w, label in RECORDS_LABELS.items() if label in args.records) if args.records else (None,))
     info = RunInfo.from_caps(glc.caps, "progressive only")
     table.write(Path(args.out), info)
     print(table.markdown(info))

@@ -27,11 +27,13 @@ class Binding(enum.IntEnum):
     FILL_ARGS = 13
     TIMESTAMPS = 14
     SLOT_LIST = 15          # reprojection input: meta words (count, indirect args, gathers), then slots
+    WINNERS = 16            # per pixel: the record and slot of the point the winners pass found there
     REFERENCE = 17
     COUNTERS = 18
     LIST_RECORDS = 19       # reprojection input: record copies
     OUT_SLOTS = 20          # prepare output, laid out as SLOT_LIST
     OUT_RECORDS = 21
+    IMPROVED = 22           # per batch: a point of it improved a pixel this frame (passes/raster_compute.py)
     HINT = 23               # per pixel: list index of the reprojected point that last improved it
     PIXEL_WORDS = 24        # per pixel: attribute word of the visible point
     DILATED = 25            # point-size pass output, laid out as VISIBILITY

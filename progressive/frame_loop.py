@@ -122,7 +122,7 @@ class ProgressiveRenderer:
         self.vis = VisibilityBuffer(glc, options.width, options.height)
         self.raster = make_raster(glc, self.store, self.vis, options.raster, options.tuning)
         self.budget = BudgetPass(glc, self.store.capacity, options.budget, self.store.permutation.batches)
-        self.prepare = PreparePass(glc, self.store, self.vis)
+        self.prepare = PreparePass(glc, self.store, self.vis, winners=self.raster.winners is not None)
         self.shading = Shading(glc, self.store, self.vis, pixel_words=True)
         self.compare = ReferenceCheck(glc, self.store, self.vis) if options.reference else None
         self.stats_ring = StatsRing(glc)
@@ -229,7 +229,7 @@ class ProgressiveRenderer:
         elif self.converged and not passes:
             regather, self._regather = self._regather, False
             if regather:
-                self.prepare.run(regather=True)
+                self.prepare.run(regather=True, winners=self.raster.winners)
                 passes.append("prepare")
             if restyled or regather:
                 passes += self.shading.run(style, effects, self.prepare.pixel_words)
@@ -265,12 +265,12 @@ class ProgressiveRenderer:
             passes.append("reproject")
         b.stamp(Stamp.FRAME)
         if self._refresh and self._has_visible:
-            self.prepare.run(regather=True)     # from the last frame's visibility, before it is cleared
+            self.prepare.run(regather=True, winners=self.raster.winners)     # from the last frame's visibility, before it is cleared
             reprojection = self.prepare.reprojection
         self._refresh = False
         self.vis.clear()
         raster.begin_frame(view)
-        for p in range(raster.passes):
+        for p in range(raster.frame_passes):
             if self._has_visible:
                 raster.draw_list(view, reprojection, p)
             if p == 0:
@@ -288,7 +288,7 @@ class ProgressiveRenderer:
         self._fresh.clear()
         raster.end_frame(view)
         b.stamp(Stamp.FILL_END)
-        self.prepare.run(regather=self._regather)
+        self.prepare.run(regather=self._regather, winners=raster.winners)
         self._regather = False
         self._has_visible = True
         b.stamp(Stamp.PREPARE_END)

@@ -14,7 +14,7 @@ from progressive.loaders.records import RECORD_BYTES
 from progressive.loaders.types import BATCH_POINTS
 from progressive.pointstore import BLOCK_RECORDS
 
-PIXEL_BYTES = 8 + 8 + 2 * (4 + 16) + 4 + 4 + 4     # visibility, reference, two lists, hint, words, image
+PIXEL_BYTES = 8 + 8 + 2 * (4 + 16) + 4 + 4 + 4 + 16 + 4   # visibility, reference, two lists, hint, words, image, winners
 HEADROOM = 0.9                                     # of the free memory the driver reports
 
 

@@ -4,11 +4,12 @@ layout(local_size_x = 256) in;
 #include "common.glsl"
 
 layout(std430, binding = BINDING_COUNTERS) writeonly buffer Target { uvec4 target[]; };
-uniform uint u_count;     // uvec4 elements
+uniform uint u_first;     // uvec4 elements: where to start,
+uniform uint u_count;     // ... and how many
 uniform uint u_value;
 
 void main() {
     uint i;
     if (!range_index(u_count, i)) return;
-    target[i] = uvec4(u_value);
+    target[u_first + i] = uvec4(u_value);
 }

@@ -1,10 +1,13 @@
 // Prepare (paper 3.4): every covered pixel's point becomes a record copy in the list
 // the next frame reprojects, and its attribute word goes to the per-pixel words that
-// resolve reads. The record comes from the current list when the pixel's hint points
-// at the winning slot (a reprojected point), else it is gathered from the shuffled
-// store (a point filled this frame; every point with REGATHER, after the store's
-// attribute words were rewritten): random lookups into gigabytes are what a frame
-// pays for most, so only new winners make them. One global atomicAdd per work group.
+// resolve reads. With WINNERS the record comes from the raster's winners pass, which
+// left each pixel's record where its point was drawn this frame (reprojected or
+// filled); else from the current list when the pixel's hint points at the winning
+// slot (a reprojected point). Any other point is gathered from the shuffled store (a
+// point filled this frame without winners pass, a record the pass did not write; every
+// point with REGATHER, after the store's attribute words were rewritten): random
+// lookups into gigabytes cost a frame most, so as few as can be make them. One global
+// atomicAdd per work group.
 // With ARGS, a 1x1x1 dispatch turns the count into indirect arguments for the next
 // reprojection (dispatch at word 1, draw at word 4). A list's meta words head its
 // slot buffer: NVIDIA allows 16 storage blocks a shader and 8 hold the store.
@@ -34,9 +37,14 @@ void main() {
 #include "points.glsl"
 #define VISIBILITY_ACCESS readonly
 #include "visibility.glsl"
+#if WINNERS
+#define WINNERS_ACCESS readonly
+#include "winners.glsl"
+#else
 layout(std430, binding = BINDING_SLOT_LIST) readonly buffer PrevSlots { uint prev_meta[META_WORDS]; uint prev_slots[]; };
 layout(std430, binding = BINDING_LIST_RECORDS) readonly buffer PrevRecords { uvec4 prev_records[]; };
 layout(std430, binding = BINDING_HINT) readonly buffer Hint { uint hint[]; };
+#endif
 layout(std430, binding = BINDING_OUT_RECORDS) writeonly buffer OutRecords { uvec4 out_records[]; };
 layout(std430, binding = BINDING_PIXEL_WORDS) writeonly buffer PixelWords { uint pixel_words[]; };
 uniform uvec2 u_size;
@@ -61,10 +69,16 @@ void main() {
         slot = visibility[2u * pixel];
     }
     if (slot != EMPTY) {
+#if WINNERS
+        if (u_regather == 0u && WINNER_SLOT(pixel) == slot) {
+            record = winners[pixel];
+        } else {
+#else
         uint h = hint[pixel];
         if (u_regather == 0u && h < min(prev_meta[META_COUNT], u_capacity) && prev_slots[h] == slot) {
             record = prev_records[h];
         } else {
+#endif
             record = load_point(slot);
             atomicAdd(group_gathers, 1u);
         }

@@ -2,7 +2,10 @@
 // Each pixel keeps the point of least depth, ties to the least slot, as the 64-bit
 // key (depth bits << 32 | slot): with ATOMIC64 one atomicMin per point, otherwise
 // DEPTH_PASS (atomicMin of depth bits) then the index pass (least slot among points
-// at exactly that depth). Positive float bits sort like the floats.
+// at exactly that depth). Positive float bits sort like the floats. WINNERS: the
+// frame's last pass over the same points, after the visibility is final: the point
+// its pixel kept writes its record there (winners.glsl), read while its batch is in
+// cache, so prepare need not gather it from the store.
 layout(local_size_x = 256) in;
 #include "common.glsl"
 #include "points.glsl"
@@ -10,14 +13,26 @@ layout(local_size_x = 256) in;
 #include "sources.glsl"
 #include "classes.glsl"
 
+#ifdef WINNERS
+#define VISIBILITY_ACCESS readonly
+#define WINNERS_ACCESS writeonly
+#include "winners.glsl"
+#else
 #if ATOMIC64
 #define VISIBILITY_64
 #endif
 #define VISIBILITY_ACCESS
+#endif
 #include "visibility.glsl"
 
 #if CULL || BATCH_GROUPS
 #include "batches.glsl"
+#endif
+
+#ifdef IMPROVED
+// Batches with a point that improved a pixel this frame: the winners pass walks only
+// those, so a batch that no longer changes the image costs it one read.
+layout(std430, binding = BINDING_IMPROVED) buffer Improved { uint improved[]; };
 #endif
 
 uniform uint u_filtering;    // 0: no filter can leave a point out (progressive/gpu.py filters_apply)
@@ -30,6 +45,16 @@ void raster(uint i, uint slot, uvec4 record) {
     uint pixel;
     float depth;
     if (!project(uintBitsToFloat(record.xyz), pixel, depth)) return;
+#ifdef WINNERS
+    if (visibility[2u * pixel] == slot) {
+#if SOURCE == SOURCE_LIST
+        winners[pixel] = record;
+#else
+        winners[pixel] = load_point(slot);      // all its words, as prepare would gather them
+#endif
+        WINNER_SLOT(pixel) = slot;
+    }
+#else
     uint depth_bits = floatBitsToUint(depth);
 #if PARTITIONED
     // Points of one subgroup that hit one pixel (many, in a compact batch) meet first:
@@ -51,6 +76,9 @@ void raster(uint i, uint slot, uvec4 record) {
 #ifdef WRITE_HINT
         hint[pixel] = i;
 #endif
+#ifdef IMPROVED
+        improved[slot_batch_of(slot)] = 1u;
+#endif
     }
 #elif DEPTH_PASS
     if (depth_bits < visibility[2u * pixel + 1u]) atomicMin(visibility[2u * pixel + 1u], depth_bits);
@@ -60,7 +88,11 @@ void raster(uint i, uint slot, uvec4 record) {
 #ifdef WRITE_HINT
         hint[pixel] = i;
 #endif
+#ifdef IMPROVED
+        improved[slot_batch_of(slot)] = 1u;
+#endif
     }
+#endif
 #endif
 }
 
@@ -90,6 +122,9 @@ void main() {
     if (levels == 0u) return;
 #else
     uint levels = 3u;
+#endif
+#if defined(IMPROVED) && defined(WINNERS)
+    if (improved[b] == 0u) return;
 #endif
 #if WORD_PLANES
     vec3 frame_base = batch_frames[2u * b].xyz, frame_step = batch_frames[2u * b + 1u].xyz;
@@ -173,6 +208,9 @@ void main() {
     uint slot = source_slot(i);
 #if CULL
     if (!slot_in_view(slot)) return;
+#endif
+#if defined(IMPROVED) && defined(WINNERS)
+    if (improved[slot_batch_of(slot)] == 0u) return;
 #endif
     raster(i, slot, source_record(i, slot));
 }

@@ -21,10 +21,12 @@ uvec4 source_record(uint i, uint slot) { return load_point(slot); }
 #else
 layout(std430, binding = BINDING_SLOT_LIST) readonly buffer SlotList { uint list_meta[META_WORDS]; uint slot_list[]; };
 layout(std430, binding = BINDING_LIST_RECORDS) readonly buffer ListRecords { uvec4 list_records[]; };
-layout(std430, binding = BINDING_HINT) writeonly buffer Hint { uint hint[]; };
 uniform uint u_capacity;
 uint source_count() { return min(list_meta[META_COUNT], u_capacity); }
 uint source_slot(uint i) { return slot_list[i]; }
 uvec4 source_record(uint i, uint slot) { return list_records[i]; }
+#ifndef WINNERS
+layout(std430, binding = BINDING_HINT) writeonly buffer Hint { uint hint[]; };
 #define WRITE_HINT 1
+#endif
 #endif

@@ -12,6 +12,10 @@ REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(os.environ.get("PROGRESSIVE_SHARED_DATA", REPO.parent / "shared" / "data"))
 SAMPLE = REPO / "progressive" / "data" / "autzen_trim.las"
 LAS_SUFFIXES = (".las", ".laz")
+RECORDS = pytest.mark.parametrize("winners", [False, True], ids=["gathered", "winners pass"])
+"""Prepare's records from hints and gathers, or from the raster's winners pass
+(ComputeTuning.winners): the tests' small stores default to the first, a store of a
+few hundred MiB to the second, so each test that takes `winners` runs both."""
 
 
 def shared_files() -> list[Path]:

@@ -15,6 +15,7 @@ import moderngl
 import numpy as np
 import pytest
 
+from conftest import SAMPLE
 from progressive import shaderlib
 from progressive.attributes import default_attribute
 from progressive.bindings import Binding
@@ -223,7 +224,7 @@ def exercise(gl, cloud, raster: Raster, tuning: ComputeTuning = DEFAULT_TUNING) 
     pr = ProgressiveRenderer(gl, info, default_attribute(info),
                              ProgressiveOptions(W, H, raster=raster, budget=BudgetParams(fixed=30_000),
                                                 batches_per_frame=100, reference=True, keep_batches=True,
-                                                class_filter=True))
+                                                class_filter=True, tuning=tuning))
     for b in batches:
         pr.add_batch(b)
     style = pr.scene.style()
@@ -240,12 +241,43 @@ def exercise(gl, cloud, raster: Raster, tuning: ComputeTuning = DEFAULT_TUNING) 
     pr.flush()
     gl.check()
     pr.release()
+    streamed(gl, cam, raster, tuning)
+
+
+def streamed(gl, cam, raster: Raster, tuning: ComputeTuning) -> None:
+    """A streamed store whose second half of batches arrives in a still view: those
+    batches are drawn whole (ComputeRaster.draw_batches) in the next frame."""
+    from progressive.loaders import CloudLoader
+    from progressive.permutation import BATCH_POINTS
+    from progressive.scene import Scene
+
+    with CloudLoader([SAMPLE], batch_points=BATCH_POINTS) as loader:
+        info = loader.info
+        loader.start()
+        parts = sorted(loader, key=lambda b: b.start)
+    scene = Scene(gl, info, default_attribute(info), streamed=True)
+    options = ProgressiveOptions(W, H, raster=raster, budget=BudgetParams(fixed=30_000), tuning=tuning)
+    pr = ProgressiveRenderer(gl, info, scene.attribute, options, scene=scene)
+    half = len(parts) // 2
+    for b, part in enumerate(parts):
+        scene.write_store_batch(part, b)
+        if b + 1 in (half, len(parts)):
+            pr.nodes_changed(False, range(half) if b + 1 == half else range(half, len(parts)))
+            scene.settled = True
+            for _ in range(2):
+                pr.frame(cam, scene.style())
+    pr.flush()
+    gl.check()
+    pr.release()
+    scene.release()
 
 
 def test_each_program_finds_its_storage_blocks_bound_by_its_own_pass(gl, sample_batches, spy, monkeypatch):
     for raster in (Raster.COMPUTE, Raster.COMPUTE32, Raster.POINTS):
         exercise(gl, sample_batches, raster)
     exercise(gl, sample_batches, Raster.COMPUTE32, ComputeTuning(batch_groups=False))
+    for raster in (Raster.COMPUTE, Raster.COMPUTE32):
+        exercise(gl, sample_batches, raster, ComputeTuning(winners=True))
     perm = Permutation.for_count(1000)
     assert np.array_equal(gpu_permute(gl, perm, np.arange(1000), int64=gl.caps.shader_int64),
                           perm.forward(np.arange(1000)))

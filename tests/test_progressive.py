@@ -8,11 +8,12 @@ import math
 import numpy as np
 import pytest
 
-from conftest import SAMPLE
+from conftest import RECORDS, SAMPLE
 from progressive.attributes import default_attribute
 from progressive.budget import BudgetParams
 from progressive.camera import Camera, auto_camera
 from progressive.frame_loop import ProgressiveOptions, ProgressiveRenderer
+from progressive.passes.raster_compute import DEFAULT_TUNING, ComputeTuning
 from progressive.permutation import LAYOUT, Permutation
 from progressive.reference import EMPTY
 from progressive.renderer import Renderer
@@ -36,10 +37,12 @@ def brute(gl, cloud):
     r.release()
 
 
-def make(gl, cloud, *, budget=BudgetParams(fixed=B), batches_per_frame=100, reference=False, load=True):
+def make(gl, cloud, *, budget=BudgetParams(fixed=B), batches_per_frame=100, reference=False, load=True,
+         tuning=DEFAULT_TUNING):
     info, batches = cloud
     pr = ProgressiveRenderer(gl, info, default_attribute(info),
-                             ProgressiveOptions(W, H, budget=budget, batches_per_frame=batches_per_frame, reference=reference))
+                             ProgressiveOptions(W, H, budget=budget, batches_per_frame=batches_per_frame, reference=reference,
+                                                tuning=tuning))
     if load:
         for b in batches:
             pr.add_batch(b)
@@ -74,10 +77,11 @@ def test_still_camera_converges_exactly_when_every_point_was_filled(gl, cloud, b
     pr.release()
 
 
-def test_converges_while_loading(gl, cloud, brute):
+@RECORDS
+def test_converges_while_loading(gl, cloud, brute, winners):
     info, batches = cloud
     cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
-    pr = make(gl, cloud, batches_per_frame=1)
+    pr = make(gl, cloud, batches_per_frame=1, tuning=ComputeTuning(winners=winners))
     style = pr.scene.style()
     first = pr.frame(cam, style)
     assert "distribute" in first and pr.scene.loaded == batches[0].count
@@ -89,10 +93,11 @@ def test_converges_while_loading(gl, cloud, brute):
     pr.release()
 
 
-def test_motion_keeps_most_of_the_image_and_converges_again(gl, cloud, brute):
+@RECORDS
+def test_motion_keeps_most_of_the_image_and_converges_again(gl, cloud, brute, winners):
     info, _ = cloud
     cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
-    pr = make(gl, cloud)
+    pr = make(gl, cloud, tuning=ComputeTuning(winners=winners))
     style = pr.scene.style()
     need = math.ceil(info.points / B)
     assert frames_until_equal(gl, pr, cam, style, brute(cam), need + 1)
@@ -173,12 +178,16 @@ def test_gpu_equal_fraction_matches_cpu(gl, cloud, brute):
     pr.release()
 
 
-def test_reprojection_list_holds_record_copies_and_avoids_gathers(gl, cloud):
-    """Prepare copies visible records into the list (read sequentially by reprojection);
-    with a still camera, winners that were reprojected come from the list, not the store."""
+@pytest.mark.parametrize("winners", [True, False], ids=["winners pass", "hints"])
+def test_reprojection_list_holds_record_copies_and_avoids_gathers(gl, cloud, winners):
+    """Prepare copies visible records into the list (read sequentially by reprojection).
+    With the winners pass, every record comes from it: none is gathered from the store.
+    With hints, the first frame gathers every record and, with a still camera, winners
+    that were reprojected come from the list, not the store."""
     info, _ = cloud
     cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
-    pr = make(gl, cloud, budget=BudgetParams(fixed=2000))
+    pr = make(gl, cloud, budget=BudgetParams(fixed=2000), tuning=ComputeTuning(winners=winners))
+    assert (pr.raster.winners is not None) == winners
     style = pr.scene.style()
     for _ in range(6):
         pr.frame(cam, style)
@@ -187,6 +196,10 @@ def test_reprojection_list_holds_record_copies_and_avoids_gathers(gl, cloud):
     store = pr.store.read_records()
     assert np.array_equal(records, store[slots])
     stats = [s for s in pr.flush() if s.gpu_ms]
+    if winners:
+        assert [s.gathered for s in stats] == [0] * len(stats) and stats[0].covered_pixels > 0
+        pr.release()
+        return
     assert stats[0].gathered == stats[0].covered_pixels, "first frame: every record comes from the store"
     later = stats[-1]
     assert later.gathered < 0.2 * later.covered_pixels, (later.gathered, later.covered_pixels)
@@ -259,11 +272,10 @@ def test_file_fill_order_stores_file_order_and_converges(gl, cloud):
 @pytest.mark.parametrize("view", ["overview", "corner"])
 def test_fill_pieces_walk_batches_frame_for_frame(gl, cloud, brute, view):
     """Fill pieces walked by one work group a batch (culled batches skipped whole), with
-    one word a load or four, give every frame the ids of one invocation a slot, and
-    converge to brute force."""
+    one word a load or four, and records from the winners pass or gathered after hints,
+    give every frame the ids of one invocation a slot, and converge to brute force."""
     from progressive.batches import in_view as batches_in_view
     from progressive.camera import view_uniforms
-    from progressive.passes.raster_compute import ComputeTuning
 
     info, batches = cloud
     lo, hi = info.bounds_min, info.bounds_max
@@ -271,13 +283,15 @@ def test_fill_pieces_walk_batches_frame_for_frame(gl, cloud, brute, view):
         position=tuple(lo + (hi - lo) * [0.15, 0.15, 0.0] + [0, 0, 0.4 * (hi - lo)[0]]),
         target=tuple(lo + (hi - lo) * [0.15, 0.15, 0.0]), up=(0, 1, 0), near=1.0, far=1e4)
     runs = {}
-    for tuning in (ComputeTuning(vector_loads=True), ComputeTuning(vector_loads=False), ComputeTuning(batch_groups=False)):
+    for tuning in (ComputeTuning(vector_loads=True), ComputeTuning(vector_loads=False), ComputeTuning(winners=False),
+                   ComputeTuning(batch_groups=False)):
         pr = ProgressiveRenderer(gl, info, default_attribute(info), ProgressiveOptions(
             W, H, budget=BudgetParams(fixed=B), batches_per_frame=100, tuning=tuning))
         for b in batches:
             pr.add_batch(b)
         assert pr.raster.batch_groups == tuning.batch_groups
-        assert pr.raster.vector_loads == bool(tuning.vector_loads and tuning.batch_groups and pr.store.words)
+        vector = pr.raster.atomic64 if tuning.vector_loads is None else tuning.vector_loads
+        assert pr.raster.vector_loads == bool(vector and tuning.batch_groups and pr.store.words)
         style = pr.scene.style()
         runs[tuning] = []
         for _ in range(math.ceil(info.points / B) + 1):
@@ -294,7 +308,8 @@ def test_fill_pieces_walk_batches_frame_for_frame(gl, cloud, brute, view):
     assert np.array_equal(reference[-1], brute(cam))
 
 
-def test_batches_written_into_a_still_view_are_drawn_whole(gl, brute):
+@RECORDS
+def test_batches_written_into_a_still_view_are_drawn_whole(gl, brute, winners):
     """A streamed store (progressive/streaming.py) whose nodes arrive while the camera
     holds still: batches written into empty ones are drawn whole in the next frame and
     the fill goes on, so a view whose fill had gone round is exact in that frame. Told
@@ -317,8 +332,8 @@ def test_batches_written_into_a_still_view_are_drawn_whole(gl, brute):
     frames = {}
     for told in (True, False):
         scene = Scene(gl, info, default_attribute(info), streamed=True)
-        pr = ProgressiveRenderer(gl, info, scene.attribute, ProgressiveOptions(W, H, budget=BudgetParams(fixed=B)),
-                                 scene=scene)
+        pr = ProgressiveRenderer(gl, info, scene.attribute, ProgressiveOptions(
+            W, H, budget=BudgetParams(fixed=B), tuning=ComputeTuning(winners=winners)), scene=scene)
         style = pr.scene.style()
         try:
             for b in range(half):

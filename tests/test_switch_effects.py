@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from conftest import RECORDS
 from progressive.attributes import default_attribute
 from progressive.budget import BudgetParams
 from progressive.camera import auto_camera
@@ -15,6 +16,7 @@ from progressive.effects import Effects, EyeDome, footprint
 from progressive.errors import ProgressiveError
 from progressive.frame_loop import ProgressiveOptions, ProgressiveRenderer
 from progressive.loaders.records import attribute_word
+from progressive.passes.raster_compute import ComputeTuning
 from progressive.reference import EMPTY
 from progressive.renderer import Renderer
 
@@ -80,11 +82,12 @@ def test_switched_words_equal_the_permuted_numpy_values(gl, cloud):
     pr.release()
 
 
-def test_converged_image_is_exact_right_after_a_switch(gl, cloud):
+@RECORDS
+def test_converged_image_is_exact_right_after_a_switch(gl, cloud, winners):
     """The visible set does not change with the colouring: the first frame after the
     stream regathers the visible words and equals a brute render by intensity."""
     info, _ = cloud
-    pr = progressive_renderer(gl, cloud)
+    pr = progressive_renderer(gl, cloud, tuning=ComputeTuning(winners=winners))
     cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
     converge(pr, cam, pr.scene.style())
     ids_before = pr.read_ids()
@@ -171,12 +174,13 @@ def test_point_size_dilation_matches_numpy(gl, cloud, size):
     r.release()
 
 
-def test_progressive_dilated_image_equals_brute_dilated_image(gl, cloud):
+@RECORDS
+def test_progressive_dilated_image_equals_brute_dilated_image(gl, cloud, winners):
     """Point size changes only the resolve: convergence is still exact."""
     info, _ = cloud
     cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
     effects = Effects(point_size=3, eye_dome=EyeDome())
-    pr = progressive_renderer(gl, cloud)
+    pr = progressive_renderer(gl, cloud, tuning=ComputeTuning(winners=winners))
     converge(pr, cam, pr.scene.style(), effects)
     pr.frame(cam, pr.scene.style(), effects)
     expected = brute_frame(gl, cloud, default_attribute(info), cam, effects)
@@ -239,7 +243,8 @@ def test_bad_effects_are_refused(make):
         make()
 
 
-def test_hidden_classes_are_left_out_and_show_what_is_behind(gl, cloud):
+@RECORDS
+def test_hidden_classes_are_left_out_and_show_what_is_behind(gl, cloud, winners):
     """Hiding a class removes its points from the raster (not just the colour): the
     converged image equals a brute render with the same classes hidden, none of its
     points is visible, and points that were behind them now are."""
@@ -256,7 +261,7 @@ def test_hidden_classes_are_left_out_and_show_what_is_behind(gl, cloud):
     assert visible.size and not np.any(classes[visible] == common)
     newly = set(visible.tolist()) - set(shown.ids[shown.ids != EMPTY].tolist())
     assert newly, "nothing behind the hidden class became visible"
-    pr = progressive_renderer(gl, cloud)
+    pr = progressive_renderer(gl, cloud, tuning=ComputeTuning(winners=winners))
     pr.switch_attribute(attr)
     style = pr.scene.style()
     for _ in range(60):

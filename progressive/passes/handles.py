@@ -151,11 +151,29 @@ class Reprojection:
     dispatch_offset: ClassVar[int] = Meta.DISPATCH * 4
     draw_offset: ClassVar[int] = Meta.DRAW * 4
 
-    def bind(self) -> None:
-        """What a raster program of Source.LIST, and prepare, read (shaders/sources.glsl)."""
+    def bind(self, hint: bool = True) -> None:
+        """What a raster program of Source.LIST, and prepare, read (shaders/sources.glsl);
+        hint: also the hints (not for the winners pass, which writes none)."""
         self.meta.bind_to_storage_buffer(Binding.SLOT_LIST)
         self.records.bind_to_storage_buffer(Binding.LIST_RECORDS)
-        self.hint.bind_to_storage_buffer(Binding.HINT)
+        if hint:
+            self.hint.bind_to_storage_buffer(Binding.HINT)
+
+
+@dataclass(frozen=True)
+class Winners:
+    """The compute raster's last pass of a frame (its winners pass): each pixel whose
+    point was drawn this frame (reprojected from the list or filled from the store)
+    holds that point's record at uvec4 `pixel`, and its slot at word `pixel` after them
+    (shaders/winners.glsl), so prepare reads new winners in pixel order instead of
+    gathering them from the store. Slots are cleared each frame; a pixel whose slot
+    differs from its visible one (a record not written) is gathered as before."""
+
+    buffer: moderngl.Buffer
+    pixels: int
+
+    def bind(self) -> None:
+        self.buffer.bind_to_storage_buffer(Binding.WINNERS)
 
 
 @dataclass(frozen=True)

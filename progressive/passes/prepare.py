@@ -10,7 +10,7 @@ from progressive.bindings import Binding
 from progressive.context import GLContext
 from progressive.gpu import dispatch_defines, grid_2d
 from progressive.loaders.records import RECORD_BYTES
-from progressive.passes.handles import Meta, Reprojection, Visibility
+from progressive.passes.handles import Meta, Reprojection, Visibility, Winners
 from progressive.pointstore import PointStore
 
 
@@ -49,10 +49,14 @@ class SlotList:
 
 
 class PreparePass:
-    def __init__(self, glc: GLContext, store: PointStore, vis: Visibility):
+    def __init__(self, glc: GLContext, store: PointStore, vis: Visibility, winners: bool = False):
+        """winners: the raster leaves each pixel's record (Winners, given to each run)
+        in place of the hints into the last list."""
         self.glc, self.store, self.vis = glc, store, vis
+        self.winners = winners
         defines = dict(store.defines, **Meta.defines(), **dispatch_defines())
-        self.append = shaderlib.compute(glc.ctx, "prepare.comp", dict(defines, ARGS=0), label="prepare")
+        self.append = shaderlib.compute(glc.ctx, "prepare.comp", dict(defines, ARGS=0, WINNERS=int(winners)),
+                                        label="prepare")
         self.args = shaderlib.compute(glc.ctx, "prepare.comp", dict(defines, ARGS=1), label="prepare args")
         self.lists: list[SlotList] = []
         self.hint = self.pixel_words = None
@@ -88,11 +92,19 @@ class PreparePass:
         for lst in self.lists:
             lst.reset()
 
-    def run(self, regather: bool = False) -> None:
-        """regather: read every visible record from the store (its words were rewritten)."""
+    def run(self, regather: bool = False, winners: Winners | None = None) -> None:
+        """regather: read every visible record from the store (its words were rewritten).
+        winners: the raster's records of this frame, where the pass was built for them."""
+        if (winners is not None) != self.winners:
+            raise ValueError("prepare was built for the winners pass" if self.winners else
+                             "prepare was built for hints, not the winners pass")
         out = self.lists[1 - self.current]
         out.reset()
-        self.reprojection.bind()
+        if winners is not None:
+            winners.bind()
+            self.append["u_winner_pixels"] = winners.pixels
+        else:
+            self.reprojection.bind()
         out.bind_output()
         self.vis.bind()
         self.store.bind()

@@ -6,11 +6,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from progressive import shaderlib
+from progressive.bindings import Binding
 from progressive.camera import ViewUniforms
 from progressive.context import GLContext
 from progressive.encoding import Precision
 from progressive.gpu import grid, set_view
-from progressive.passes.handles import Culling, FillPieces, Meta, Reprojection, Source, StateWord, Visibility
+from progressive.loaders.records import RECORD_BYTES
+from progressive.passes.handles import EMPTY, Culling, FillPieces, Meta, Reprojection, Source, StateWord, Visibility, Winners
 from progressive.permutation import SLICE_POINTS
 from progressive.pointstore import PointStore
 
@@ -44,20 +46,31 @@ class ComputeTuning:
     batch's records are aligned), instead of `prefetch` records a slice apart. None: on
     the 64-bit path only; the 32-bit two-pass path measured slower with it on the H200
     (bench/results/nvidia-h200/raster_100000000.md), where the 64-bit walk gained.
-    prefetch: records each invocation of a one-word walk loads before it draws them."""
+    prefetch: records each invocation of a one-word walk loads before it draws them.
+    winners: a progressive frame ends with the winners pass over its points, which
+    leaves each pixel's record for prepare (Winners), instead of prepare gathering each
+    new winner from the store at random. None: for a store of WINNERS_MIN_BYTES or more."""
 
     batch_groups: bool = True
     subgroup_reduction: bool = False
     vector_loads: bool | None = None
     prefetch: int = PREFETCH
+    winners: bool | None = None
 
 
 DEFAULT_TUNING = ComputeTuning()
+WINNERS_MIN_BYTES = 256 << 20
+"""The store size from which the winners pass is the default: on the H200, 400,000
+random 16-byte lookups take 0.10 ms within 256 MiB but 6.4 ms over 2 GiB
+(../shared/gpu/README.md); on a store of 1 M points llvmpipe gathers for less than the
+pass costs (bench/results/llvmpipe/winners/progressive_1000000.md)."""
 
 
 class ComputeRaster:
     """`passes` is 1 (64-bit) or 2 (depth, then index): a frame runs pass 0 over all
-    its sources before pass 1, so the index pass sees the final depths."""
+    its sources before pass 1, so the index pass sees the final depths. A progressive
+    frame runs `frame_passes`: those and, with ComputeTuning.winners, the winners pass
+    last, over the same sources."""
 
     def __init__(self, glc: GLContext, store: PointStore, vis: Visibility, *, atomic64: bool,
                  culling: Culling | None = None, tuning: ComputeTuning = DEFAULT_TUNING,
@@ -80,11 +93,55 @@ class ComputeRaster:
         self.prefetch = tuning.prefetch
         self.culling = culling if store.batched else None
         self.passes = 1 if atomic64 else 2
+        winners = store.capacity * RECORD_BYTES >= WINNERS_MIN_BYTES if tuning.winners is None else tuning.winners
+        self.frame_passes = self.passes + int(winners)
         self.precision = precision
+        self._winners: Winners | None = None
+        self._clear = shaderlib.compute(glc.ctx, "clear.comp", label="clear winners") if winners else None
+        self._improved = None
+        if winners and store.batched:
+            self._improved = glc.ctx.buffer(reserve=-(-store.permutation.batches // 4) * 16)
+            self._improved.label = "improved batches"
+            self._clear_improved()
         self._programs: dict[tuple[Source, int], object] = {}
         for source in Source:
-            for pass_index in range(self.passes):
+            for pass_index in range(self.frame_passes):
                 self.program(source, pass_index)
+
+    @property
+    def winners(self) -> Winners | None:
+        """The winners pass's records of the last frame (None without the pass)."""
+        if self.frame_passes == self.passes:
+            return None
+        if self._winners is None or self._winners.pixels != self.vis.pixels:
+            if self._winners is not None:
+                self._winners.buffer.release()
+            pixels = self.vis.pixels
+            buffer = self.glc.ctx.buffer(reserve=(pixels + -(-pixels // 4)) * RECORD_BYTES)
+            buffer.label = "winners"
+            self._winners = Winners(buffer, pixels)
+            self._clear_winners()
+        return self._winners
+
+    def _clear_winners(self) -> None:
+        """Every slot word empty (a compute clear: glClearBufferSubData took 0.27 ms for
+        a 1080p frame's 8 MB on the H200)."""
+        w = self._winners
+        self._fill(w.buffer, w.pixels, -(-w.pixels // 4), EMPTY)
+        self.glc.ctx.memory_barrier()
+
+    def _clear_improved(self) -> None:
+        self._fill(self._improved, 0, self._improved.size // 16, 0)
+        self.glc.ctx.memory_barrier()
+
+    def _fill(self, buffer, first: int, count: int, value: int) -> None:
+        """uvec4s [first, first+count) of `buffer` to `value`."""
+        program = self._clear
+        program["u_first"] = first
+        program["u_count"] = count
+        program["u_value"] = value
+        buffer.bind_to_storage_buffer(Binding.COUNTERS)
+        program.run(*grid(count))
 
     def program(self, source: Source, pass_index: int):
         """Compiled at construction, so no frame pays for a compile."""
@@ -93,7 +150,11 @@ class ComputeRaster:
             defines = dict(self.store.defines, **Source.defines(source), **StateWord.defines(), **Meta.defines(),
                            CULL=int(self._culls(source)), BATCH_GROUPS=int(self._walks_batches(source)),
                            PREFETCH=self.prefetch)
-            if self.atomic64:
+            if pass_index == self.passes:
+                defines.update(ATOMIC64=0, DEPTH_PASS=0, WINNERS=1)
+                ext = ()
+                label = f"raster winners {source.name.lower()}"
+            elif self.atomic64:
                 defines["ATOMIC64"] = 1
                 ext = ("GL_ARB_gpu_shader_int64", "GL_NV_shader_atomic_int64")
                 label = f"raster64 {source.name.lower()}"
@@ -103,15 +164,22 @@ class ComputeRaster:
                 label = f"raster32 {('depth', 'index')[pass_index]} {source.name.lower()}"
             if self.vector_loads and self._walks_batches(source):
                 defines["VECTOR_WORDS"] = 1
+            if self._marks(source):
+                defines["IMPROVED"] = 1
             defines["PARTITIONED"] = int(self.partitioned)
             ext += SUBGROUP_PARTITIONED if self.partitioned else ()
             self._programs[key] = shaderlib.compute(self.glc.ctx, "raster_compute.comp", defines, ext, label)
         return self._programs[key]
 
     def begin_frame(self, view: ViewUniforms) -> None:
-        """Flag the batches in view (the frame loop clears the visibility buffer)."""
+        """Flag the batches in view (the frame loop clears the visibility buffer) and
+        forget the last frame's winners."""
         if self.culling is not None:
             self.culling.run(view, self.precision)
+        if self._winners is not None:
+            self._clear_winners()
+        if self._improved is not None:
+            self._clear_improved()
 
     def end_frame(self, view: ViewUniforms) -> None:
         """Nothing to gather: atomics wrote the visibility buffer directly."""
@@ -126,6 +194,11 @@ class ComputeRaster:
     def _walks_batches(self, source: Source) -> bool:
         return self.batch_groups and source is not Source.LIST
 
+    def _marks(self, source: Source) -> bool:
+        """Whether the passes over `source` flag improved batches: the store's slots, not
+        the list, whose winners the winners pass finds from the list itself."""
+        return self._improved is not None and source is not Source.LIST
+
     def _prepare(self, source: Source, pass_index: int, view: ViewUniforms):
         program = self.program(source, pass_index)
         set_view(program, view)
@@ -133,6 +206,11 @@ class ComputeRaster:
             program["u_batches"] = self.store.permutation.batches
         if self._culls(source):
             self.culling.batch_flags.bind()
+        if pass_index == self.passes:
+            program["u_winner_pixels"] = self.vis.pixels
+            self.winners.bind()
+        if self._marks(source):
+            self._improved.bind_to_storage_buffer(Binding.IMPROVED)
         self.store.bind()
         self.vis.bind()
         return program
@@ -180,7 +258,7 @@ class ComputeRaster:
         """Reproject the record copies of the points visible last frame."""
         program = self._prepare(Source.LIST, pass_index, view)
         program["u_capacity"] = reprojection.capacity
-        reprojection.bind()
+        reprojection.bind(hint=pass_index < self.passes)
         program.run_indirect(reprojection.meta, offset=reprojection.dispatch_offset)
         self.glc.ctx.memory_barrier()
 
@@ -188,6 +266,13 @@ class ComputeRaster:
         for p in self._programs.values():
             p.release()
         self._programs = {}
+        if self._winners is not None:
+            self._winners.buffer.release()
+            self._winners = None
+        for obj in (self._clear, self._improved):
+            if obj is not None:
+                obj.release()
+        self._clear = self._improved = None
         if self.culling is not None:
             self.culling.release()
             self.culling = None

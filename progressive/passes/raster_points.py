@@ -22,9 +22,11 @@ class PointsRaster:
     its points from the store by gl_VertexID in slot order, so the depth test keeps the
     least slot among equal depths (the render contract's tie rule)."""
 
-    passes = 1
+    passes = frame_passes = 1
     draws_batches = False
     """Slots in order only: batches written anew start the fill again (frame_loop.py)."""
+    winners = None
+    """No winners pass: prepare follows the hints and gathers new winners."""
 
     def __init__(self, glc: GLContext, store: PointStore, vis: Visibility):
         self.glc, self.store, self.vis = glc, store, vis

@@ -40,6 +40,7 @@ class VisibilityBuffer:
     def clear(self) -> None:
         """Every pixel empty, on the GPU (8 bytes a pixel: one uvec4 clears two)."""
         count = -(-self.pixels // 2)
+        self.clear_program["u_first"] = 0
         self.clear_program["u_count"] = count
         self.clear_program["u_value"] = EMPTY
         self.buffer.bind_to_storage_buffer(Binding.COUNTERS)
