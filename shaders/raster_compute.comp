@@ -31,8 +31,16 @@ layout(local_size_x = 256) in;
 
 #ifdef IMPROVED
 // Batches with a point that improved a pixel this frame: the winners pass walks only
-// those, so a batch that no longer changes the image costs it one read.
+// those, so a batch that no longer changes the image costs it one read. u_mark: 0 for
+// brute force, which has no winners pass. Read before written, as the atomics are:
+// the points of a batch's work group mostly find their batch marked already.
 layout(std430, binding = BINDING_IMPROVED) buffer Improved { uint improved[]; };
+uniform uint u_mark;
+
+void mark_improved(uint slot) {
+    uint b = slot_batch_of(slot);
+    if (u_mark != 0u && improved[b] == 0u) improved[b] = 1u;
+}
 #endif
 
 uniform uint u_filtering;    // 0: no filter can leave a point out (progressive/gpu.py filters_apply)
@@ -77,7 +85,7 @@ void raster(uint i, uint slot, uvec4 record) {
         hint[pixel] = i;
 #endif
 #ifdef IMPROVED
-        improved[slot_batch_of(slot)] = 1u;
+        mark_improved(slot);
 #endif
     }
 #elif DEPTH_PASS
@@ -89,7 +97,7 @@ void raster(uint i, uint slot, uvec4 record) {
         hint[pixel] = i;
 #endif
 #ifdef IMPROVED
-        improved[slot_batch_of(slot)] = 1u;
+        mark_improved(slot);
 #endif
     }
 #endif

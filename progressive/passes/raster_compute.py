@@ -210,6 +210,8 @@ class ComputeRaster:
             program["u_winner_pixels"] = self.vis.pixels
             self.winners.bind()
         if self._marks(source):
+            if pass_index == self.passes - 1:       # the pass whose atomics decide (64-bit, or the index pass)
+                program["u_mark"] = 1
             self._improved.bind_to_storage_buffer(Binding.IMPROVED)
         self.store.bind()
         self.vis.bind()
@@ -224,6 +226,8 @@ class ComputeRaster:
             program = self._prepare(Source.RANGE, pass_index, view)
             program["u_first"] = first
             program["u_count"] = count
+            if self._marks(Source.RANGE) and pass_index == self.passes - 1:
+                program["u_mark"] = 0       # no winners pass follows
             if self.batch_groups:
                 program.run(*grid(self.store.permutation.batches, local_size=1))
             else:
