@@ -17,7 +17,7 @@ The time after the fill is reserved as the previous frame took it, but it grows 
 the fill where prepare gathers the new winners from a store of gigabytes (during
 motion on the H200 at 1 B points, 2 ms after a fill of a million points and 20 ms
 after one of a billion): a budget of the time left then alternated between the whole
-cloud and nothing (bench/results/nvidia-h200/progressive_1000000000.md). So a frame
+cloud and nothing (bench/results/nvidia-h200/before_cap/progressive_1000000000.md). So a frame
 also fills at most the previous frame's points scaled by the goal over its time (each
 less the time known to be fixed): the points it would fill were the rest of its time
 proportional to them, which approaches the goal from below without overshooting it,

@@ -44,8 +44,8 @@ BLOCK_RECORDS = 4096
 of their own put a point's words gigabytes apart, each an address translation of its
 own: on the H200 at 1 B points, prepare took 3.7 times and a fill of 10 M points (a
 slice of each batch) 1.8 times as long as on float records, side by side in one run
-(bench/results/nvidia-h200/progressive_1000000000_planes.md); in blocks, as long
-(progressive_1000000000.md). A multiple of 4, so a batch walk's 16-byte loads of four
+(bench/results/nvidia-h200/planes/progressive_1000000000.md); in blocks, as long
+(stores/progressive_1000000000.md). A multiple of 4, so a batch walk's 16-byte loads of four
 words (ComputeTuning.vector_loads) never leave a block."""
 
 

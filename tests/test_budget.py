@@ -296,7 +296,7 @@ def test_a_dearer_view_is_seen_by_the_first_fill(slower):
 @pytest.mark.parametrize("slope", [0.5, 2.0, 3.5])
 def test_time_after_the_fill_that_grows_with_it_does_not_make_frames_alternate(slope):
     """During motion on the H200 at 1 B points prepare took 2 ms after a fill of a million
-    points and 20 ms after one of a billion (bench/results/nvidia-h200/
+    points and 20 ms after one of a billion (bench/results/nvidia-h200/before_cap/
     progressive_1000000000.md): `slope` ms after the fill for each ms of fill. Reserving
     the last frame's time alone then alternated between filling everything and nothing
     (frames of 2 and 29 ms there); with the scaled points the frames approach the target
