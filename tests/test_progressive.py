@@ -206,6 +206,28 @@ def test_reprojection_list_holds_record_copies_and_avoids_gathers(gl, cloud, win
     pr.release()
 
 
+def test_winners_follow_a_resize(gl, cloud):
+    """The winners pass's records are per pixel: after the frame grows and shrinks, the
+    pass writes every visible record at the new size (none gathered) and the image
+    converges to brute force at that size."""
+    info, batches = cloud
+    pr = make(gl, cloud, tuning=ComputeTuning(winners=True))
+    r = Renderer(gl, info, default_attribute(info), width=W, height=H)
+    for b in batches:
+        r.add_batch(b)
+    style = pr.scene.style()
+    for width, height in ((W, H), (W + 37, H + 11), (W // 2, H // 3)):
+        pr.resize(width, height)
+        cam = auto_camera(info.bounds_min, info.bounds_max, width / height)
+        expected = r.render(cam, width, height, r.style()).ids
+        assert frames_until_equal(gl, pr, cam, style, expected, math.ceil(info.points / B) + 1) is not None
+        assert pr.raster.winners.pixels == width * height
+    stats = [s for s in pr.flush() if s.gpu_ms]
+    assert stats and all(s.gathered == 0 for s in stats)
+    r.release()
+    pr.release()
+
+
 def test_eight_chunk_store_converges(gl, cloud, brute):
     """The largest store (8 buffers: four word planes of two) must fit every pass within
     16 storage blocks."""
