@@ -270,6 +270,8 @@ class ProgressiveRenderer:
         self._refresh = False
         self.vis.clear()
         raster.begin_frame(view)
+        fresh = runs(sorted(self._fresh))
+        self._fresh.clear()
         for p in range(raster.frame_passes):
             if self._has_visible:
                 raster.draw_list(view, reprojection, p)
@@ -283,9 +285,8 @@ class ProgressiveRenderer:
                 b.adapt()
             raster.draw_piece(view, pieces, 2, p)
             raster.draw_piece(view, pieces, 3, p)
-            for first, end in runs(sorted(self._fresh)):
+            for first, end in fresh:
                 raster.draw_batches(view, first, end - first, p)
-        self._fresh.clear()
         raster.end_frame(view)
         b.stamp(Stamp.FILL_END)
         self.prepare.run(regather=self._regather, winners=raster.winners)

@@ -279,9 +279,14 @@ class PointStore:
             cloud = back[cloud]
         return self.permutation.forward(cloud)
 
+    def _held(self, c: int) -> int:
+        """Records buffer c holds (none past the capacity)."""
+        return max(0, min(self.chunk_points, self.capacity - c * self.chunk_points))
+
     def _chunk_records(self, c: int) -> int:
-        """Records buffer c has room for: those it holds, the word store's in whole blocks."""
-        n = max(1, min(self.chunk_points, self.capacity - c * self.chunk_points))
+        """Records buffer c has room for: those it holds (at least one), the word store's
+        in whole blocks."""
+        n = max(1, self._held(c))
         return n + (-n) % BLOCK_RECORDS if self.words else n
 
     def _record_bytes(self, first: int, end: int):
@@ -309,7 +314,7 @@ class PointStore:
             words = np.frombuffer(buf.read(size=self._chunk_records(c) * RECORD_BYTES), dtype=np.uint32)
             if self.words:
                 words = words.reshape(-1, encoding.PLANES, BLOCK_RECORDS).transpose(0, 2, 1)
-            chunks.append(words.reshape(-1, 4)[: max(0, min(self.chunk_points, self.capacity - c * self.chunk_points))])
+            chunks.append(words.reshape(-1, 4)[: self._held(c)])
         return np.concatenate(chunks)
 
     def read_words(self) -> np.ndarray:
