@@ -311,13 +311,16 @@ class CloudLoader(BatchQueue):
 
     def close(self) -> None:
         """Stop the threads; they notice within WAIT_S or after the chunk being decoded
-        (fetches in flight fail at once)."""
+        (fetches in flight fail at once). Only those that started are waited for: a signal
+        may interrupt start() before the last (each start waits for its thread to run, and
+        lazrs holds the GIL while the reader decodes), and joining one that never started
+        raises."""
         self._stop.set()
         close_sources(self._sources)
         if self._decoders is not None:
             self._decoders.close()
         for thread in self._threads:
-            if thread is not threading.current_thread():
+            if thread.is_alive() and thread is not threading.current_thread():
                 thread.join(JOIN_S)
 
     def __enter__(self) -> CloudLoader:

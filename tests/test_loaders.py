@@ -213,6 +213,27 @@ def test_close_mid_file_stops_threads():
     assert list(loader) == []
 
 
+def test_close_after_an_interrupted_start_stops_the_started_threads(monkeypatch):
+    """A signal during start() (the CLI's Interrupted, or Ctrl+C, raised while it waits
+    for a parser thread to run: on 16 cores it starts 17 threads while the reader decodes
+    holding the GIL): close() stops those that started and raises nothing of its own about
+    those that did not, so the interrupt is what reaches the caller."""
+    before = set(threading.enumerate())
+    start = threading.Thread.start
+    started = []
+
+    def interrupted_third(thread):
+        if len(started) == 2:
+            raise KeyboardInterrupt
+        started.append(thread)
+        start(thread)
+    monkeypatch.setattr(threading.Thread, "start", interrupted_third)
+    with pytest.raises(KeyboardInterrupt), CloudLoader([SAMPLE], batch_points=1_000, parser_threads=4) as loader:
+        loader.start()
+    monkeypatch.undo()
+    assert len(started) == 2 and not [t for t in set(threading.enumerate()) - before if t.is_alive()]
+
+
 def test_parser_exception_reaches_consumer(monkeypatch):
     def boom(self, *args):
         raise RuntimeError("boom\nsecond line")
