@@ -164,27 +164,18 @@ PHASES_LABELS = {True: "in phases", False: "one after another"}
 buffer (ComputeTuning.phased)."""
 
 
-def fill_group_label(row: dict) -> str:
-    """The fill work group column."""
-    if not row["batch_groups"]:
-        return "256 slots"
-    return "batch" if row["walk_groups"] is None else f"batch, {row['walk_groups']:,} groups"
-
-
 def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], targets_ms: list[float],
         paths: list[CameraPath], motion: int, max_frames: int, compare_walk: bool = False,
         encodings: tuple[Encoding, ...] = (Encoding.WORDS,), winners: tuple[bool | None, ...] = (None,),
-        phases: tuple[bool, ...] = (True,), walk_groups: tuple[int | None, ...] = (None,)) -> Table:
+        phases: tuple[bool, ...] = (True,)) -> Table:
     """compare_walk: also run every case with fill pieces walked one invocation a slot
     (ComputeTuning.batch_groups off), side by side with the renderer's batch walk;
     encodings: the stores to run every case on, one after the other in this run;
     winners: with and/or without the winners pass, each case side by side (None: the
     renderer's choice for the store); phases: with the raster's points in phases and/or
-    one after another, each case side by side; walk_groups: the batch walk's most work
-    groups (None: one a batch), each case side by side."""
+    one after another, each case side by side."""
     walks = (True, False) if compare_walk else (True,)
-    tunings = [ComputeTuning(batch_groups=g, winners=w, phased=f, walk_groups=k)
-               for g in walks for w in winners for f in phases for k in walk_groups]
+    tunings = [ComputeTuning(batch_groups=g, winners=w, phased=f) for g in walks for w in winners for f in phases]
     cloud = tiled(str(SAMPLE), points)
     rows, frames, brute = [], {}, {}
     for position_encoding in encodings:
@@ -196,10 +187,11 @@ def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], ta
             for path in paths:
                 for tuning in tunings:
                     summary, stats = run_case(glc, scene, cloud, size, budget, path, motion, max_frames, tuning)
-                    summary.update(store=store, upload_s=upload_s, walk_groups=tuning.walk_groups)
+                    summary.update(store=store, upload_s=upload_s)
                     rows.append(summary)
-                    frames[f"{store}, {budget.label}, {path.value}, {fill_group_label(summary)}, "
-                           f"{RECORDS_LABELS[summary['winners']]}, {PHASES_LABELS[summary['phased']]}"] = stats
+                    walk = "" if tuning.batch_groups else ", one invocation a slot"
+                    frames[f"{store}, {budget.label}, {path.value}{walk}, {RECORDS_LABELS[summary['winners']]}, "
+                           f"{PHASES_LABELS[summary['phased']]}"] = stats
         scene.release()
     table = Table(f"progressive_{points}", f"Progressive frames, {size[0]}x{size[1]}",
                   f"{SAMPLE.name} tiled on a grid", f"{points:,}", (
@@ -208,7 +200,7 @@ def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], ta
                       "gathered/frame", "frames to converge", "ms to converge"))
     for r in rows:
         p = r["pass_ms_median"]
-        table.rows.append((r["store"], r["budget"], r["path"], fill_group_label(r),
+        table.rows.append((r["store"], r["budget"], r["path"], "batch" if r["batch_groups"] else "256 slots",
                            RECORDS_LABELS[r["winners"]], PHASES_LABELS[r["phased"]], r["frame_ms_median"], r["frame_ms_p95"], r["frame_ms_max"],
                            r["target_ms"], f"{r['over_target']:.0%}" if r["over_target"] is not None else None,
                            p["reproject"], p["fill"], p["prepare"], p["resolve"], f"{r['fill_share_median']:.0%}",
@@ -223,8 +215,7 @@ def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], ta
          f"frame by which every point was filled since the last change (exact: the image then equals brute "
          f"force); ms to converge sums their GPU frame times. Runs stop there or at {max_frames} frames. "
          f"Two frames in flight, as a swap chain paces a window. Fill work group: batch = fill pieces walked "
-         f"one work group a batch (the renderer's), N groups = at most N work groups, each walking batches in "
-         f"turn (ComputeTuning.walk_groups), 256 slots = one invocation a slot. Store: words = the "
+         f"one work group a batch (the renderer's), 256 slots = one invocation a slot. Store: words = the "
          f"renderer's (three 10-bit position words and the attribute word, each in its plane), float records = "
          f"float32 xyz and the attribute word together; each store loaded and run in turn. Records: where "
          f"prepare takes the records of the points visible now, for the next frame's reprojection and resolve: "
@@ -252,8 +243,6 @@ def main(argv=None) -> int:
                     help="run every case with prepare's records from each source in turn (default: the renderer's choice)")
     ap.add_argument("--phases", nargs="+", choices=list(PHASES_LABELS.values()), default=[PHASES_LABELS[True]],
                     help="run every case with the raster's points in phases and/or one after another")
-    ap.add_argument("--walk-groups", type=int, nargs="+", default=[0],
-                    help="run every case with the batch walk's most work groups (0: one a batch)")
     ap.add_argument("--out", default="bench/results/local")
     args = ap.parse_args(argv)
     glc = create_context()
@@ -262,8 +251,7 @@ def main(argv=None) -> int:
                 args.max_frames, args.compare_walk,
                 tuple(e for e, label in STORE_LABELS.items() if label in args.stores),
                 tuple(w for w, label in RECORDS_LABELS.items() if label in args.records) if args.records else (None,),
-                tuple(f for f, label in PHASES_LABELS.items() if label in args.phases),
-                tuple(k or None for k in args.walk_groups))
+                tuple(f for f, label in PHASES_LABELS.items() if label in args.phases))
     info = RunInfo.from_caps(glc.caps, "progressive only")
     table.write(Path(args.out), info)
     print(table.markdown(info))

@@ -98,14 +98,12 @@ def rasters(glc: GLContext) -> list[Raster]:
     return ([Raster.COMPUTE] if glc.caps.atomic_int64 else []) + [Raster.COMPUTE32, Raster.POINTS]
 
 
-def variants(glc: GLContext, batched: bool, words: bool,
-             walk_groups: tuple[int, ...] = ()) -> list[tuple[Raster, ComputeTuning, Precision]]:
+def variants(glc: GLContext, batched: bool, words: bool) -> list[tuple[Raster, ComputeTuning, Precision]]:
     """Each rasterizer; the compute ones on the batched layout also one invocation a slot
     (against one work group a batch) and, where the GPU has it, with the subgroup
     reduction, and on the word store a batch walk with four-word loads and with adaptive
-    precision (each also with its points one after another, not in phases, and with
-    each of `walk_groups` work groups taking the batches in turn), so each choice is
-    measured side by side."""
+    precision (each also with its points one after another, not in phases), so each
+    choice is measured side by side."""
     reduce = subgroup_reduction_available(glc)
     tunings = [ComputeTuning(batch_groups=g, subgroup_reduction=s, vector_loads=False)
                for g in ((False, True) if batched else (False,)) for s in ((False, True) if reduce else (False,))]
@@ -117,10 +115,8 @@ def variants(glc: GLContext, batched: bool, words: bool,
         out += [(r, t, Precision.EXACT) for t in tunings]
         one, four = ComputeTuning(vector_loads=False), ComputeTuning(vector_loads=True)
         serial = replace(four, phased=False)
-        capped = [replace(four, walk_groups=k) for k in walk_groups]
-        out += [(r, t, precision) for precision in Precision
-                for t in ((four, serial, *capped) if precision is Precision.EXACT else (one, four, serial, *capped))
-                ] if words else []
+        out += [(r, four, Precision.EXACT), (r, serial, Precision.EXACT), (r, one, Precision.ADAPTIVE),
+                (r, four, Precision.ADAPTIVE), (r, serial, Precision.ADAPTIVE)] if words else []
     return out
 
 
@@ -166,8 +162,7 @@ def wall_ms(glc: GLContext, r: Renderer, view, repeats: int) -> float:
     return (time.perf_counter() - t0) / repeats * 1e3
 
 
-def measure(glc: GLContext, cloud: TiledCloud, layouts, sizes, repeats: int,
-            walk_groups: tuple[int, ...] = ()) -> list[dict]:
+def measure(glc: GLContext, cloud: TiledCloud, layouts, sizes, repeats: int) -> list[dict]:
     """Every variant of a layout, size and view is timed in turn, round after round
     (after one warm-up round), so a clock or cache that drifts during the run is shared
     by all of them instead of favouring whichever ran last."""
@@ -179,7 +174,7 @@ def measure(glc: GLContext, cloud: TiledCloud, layouts, sizes, repeats: int,
                 uniforms = view_uniforms(cam, cloud.info.origin, width, height)
                 culled = (1.0 - float(np.mean(batches.in_view(scene.store.boxes, uniforms)))) if scene.store.batched else 0.0
                 variant = [(raster, tuning, precision)
-                           for raster, tuning, precision in variants(glc, scene.store.batched, scene.store.words, walk_groups)
+                           for raster, tuning, precision in variants(glc, scene.store.batched, scene.store.words)
                            if raster is not Raster.POINTS or view == "overview"]
                 renderers = [Renderer(glc, cloud.info, cloud.attribute, raster=raster, width=width, height=height,
                                       scene=scene, tuning=tuning) for raster, tuning, _ in variant]
@@ -201,7 +196,6 @@ def measure(glc: GLContext, cloud: TiledCloud, layouts, sizes, repeats: int,
                                  "batch_groups": getattr(r.raster, "batch_groups", False),
                                  "vector_loads": getattr(r.raster, "vector_loads", False),
                                  "phased": getattr(r.raster, "phased", True),
-                                 "walk_groups": getattr(r.raster, "walk_groups", None),
                                  "precision": precision.value, "wall_ms": wall,
                                  "passes": r.raster.passes, "points_per_s": cloud.points / (ms / 1e3),
                                  "bytes_per_point": read / cloud.points, "bytes_per_s": read / (ms / 1e3),
@@ -219,18 +213,16 @@ def work_group(row: dict) -> str:
     if not row["batch_groups"]:
         return "256 slots"
     walk = "batch, 4-word loads" if row["vector_loads"] else "batch"
-    if row["walk_groups"] is not None:
-        walk += f", {row['walk_groups']:,} groups"
     return walk if row["phased"] else f"{walk}, one point after another"
 
 
 def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats: int,
-        copy_bytes: int, layouts=LAYOUTS, walk_groups: tuple[int, ...] = ()) -> Table:
+        copy_bytes: int, layouts=LAYOUTS) -> Table:
     copies, read_rate = copy_bandwidth(glc, copy_bytes, repeats)
     copy = max(copies.values())
     rows = []
     for n in points:
-        rows += measure(glc, tiled(str(SAMPLE), n), layouts, sizes, repeats, walk_groups)
+        rows += measure(glc, tiled(str(SAMPLE), n), layouts, sizes, repeats)
     table = Table(f"raster_{max(points)}", "Brute-force rasterization of every point", f"{SAMPLE.name} tiled on a grid",
                   ", ".join(f"{n:,}" for n in points), (
                       "points", "size", "store order", "view", "rasterizer", "work group", "subgroup reduction",
@@ -246,7 +238,6 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
         base = twin(r, view="overview", raster="GL_POINTS")
         overview = twin(r, view="overview", raster=r["raster"], subgroup_reduction=r["subgroup_reduction"],
                         batch_groups=r["batch_groups"], vector_loads=r["vector_loads"], phased=r["phased"],
-                        walk_groups=r["walk_groups"],
                         precision=r["precision"])
         r["vs_points"] = base / r["ms"] if r["view"] == "overview" else None
         r["vs_overview"] = overview / r["ms"]
@@ -285,8 +276,7 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
         "the store's batches the culling test leaves out (batched layouts only); × overview = overview ms / this "
         "ms, same rasterizer. Work group: batch = one work group walks one batch's slices (ComputeTuning.batch_groups), "
         "256 slots = one invocation a slot; one point after another = each invocation's loaded points read, "
-        "atomic and mark in turn, not phase by phase (ComputeTuning.phased); N groups = a dispatch of at most N "
-        "work groups, each walking batches in turn (ComputeTuning.walk_groups). Mpoints/s and GB/s count every point of the cloud, culled ones included.")]
+        "atomic and mark in turn, not phase by phase (ComputeTuning.phased). Mpoints/s and GB/s count every point of the cloud, culled ones included.")]
     table.raw = {"copy_bytes": copy_bytes, "copy_bytes_per_s": copy, "copy_methods": copies,
                  "read_bytes_per_s": read_rate, "rows": rows}
     return table
@@ -299,14 +289,12 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--layouts", nargs="+", choices=[layout.label for layout in LAYOUTS])
     ap.add_argument("--copy-mib", type=int, default=64, help="bytes for the copy-bandwidth reference")
-    ap.add_argument("--walk-groups", type=int, nargs="*", default=[],
-                    help="also run the four-word walk with at most each of these many work groups")
     ap.add_argument("--out", default="bench/results/local")
     args = ap.parse_args(argv)
     glc = create_context()
     sizes = [tuple(int(v) for v in s.split("x")) for s in args.size]
     layouts = [x for x in LAYOUTS if not args.layouts or x.label in args.layouts]
-    table = run(glc, args.points, sizes, args.repeats, args.copy_mib << 20, layouts, tuple(args.walk_groups))
+    table = run(glc, args.points, sizes, args.repeats, args.copy_mib << 20, layouts)
     table.write(Path(args.out), RunInfo.from_caps(glc.caps, "raster only"))
     print(table.markdown(RunInfo.from_caps(glc.caps, "raster only")))
     return 0

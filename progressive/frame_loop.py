@@ -121,8 +121,7 @@ class ProgressiveRenderer:
         self.store = self.scene.store
         self.vis = VisibilityBuffer(glc, options.width, options.height)
         self.raster = make_raster(glc, self.store, self.vis, options.raster, options.tuning)
-        self.budget = BudgetPass(glc, self.store.capacity, options.budget, self.store.permutation.batches,
-                                 options.tuning.walk_groups)
+        self.budget = BudgetPass(glc, self.store.capacity, options.budget, self.store.permutation.batches)
         self.prepare = PreparePass(glc, self.store, self.vis, winners=self.raster.winners is not None)
         self.shading = Shading(glc, self.store, self.vis, pixel_words=True)
         self.compare = ReferenceCheck(glc, self.store, self.vis) if options.reference else None

@@ -20,7 +20,6 @@ uniform uint u_goal_ns;
 uniform uint u_min_budget;
 uniform uint u_max_budget;
 uniform uint u_batches;       // batches of the batched layout (0: none)
-uniform uint u_walk_groups;   // the most groups a batch walk dispatches (ComputeTuning.walk_groups)
 
 const uint64_t VALID_NS = 4294967296ul;
 
@@ -42,10 +41,9 @@ void write_piece(uint piece, uint first, uint count) {
     args[DRAW_ARGS_WORD + 4u * piece + 2u] = 0u;
     args[DRAW_ARGS_WORD + 4u * piece + 3u] = 0u;
     // the batch walk (raster_compute.comp BATCH_GROUPS): a group for each batch whose
-    // slices meet the piece, consecutive slice indices modulo the batches, at most
-    // u_walk_groups (each then takes several in turn)
+    // slices meet the piece, consecutive slice indices modulo the batches
     uint walk = count == 0u || u_batches == 0u ? 0u
-        : min(min(u_batches, u_walk_groups), (first + (count - 1u)) / SLICE_POINTS - first / SLICE_POINTS + 1u);
+        : min(u_batches, (first + (count - 1u)) / SLICE_POINTS - first / SLICE_POINTS + 1u);
     uvec3 groups = dispatch_groups(walk);
     args[WALK_ARGS_WORD + 3u * piece] = groups.x;
     args[WALK_ARGS_WORD + 3u * piece + 1u] = groups.y;

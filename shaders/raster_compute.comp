@@ -161,8 +161,8 @@ void note(Hit h) {
 #endif
 
 #if BATCH_GROUPS
-// One work group per batch (or a batch at a time, see main) over a contiguous slot
-// range (brute force or a fill piece): the batch's slices are SLICE_POINTS consecutive slots every
+// One work group per batch over a contiguous slot range (brute force or a fill
+// piece): the batch's slices are SLICE_POINTS consecutive slots every
 // u_batches·SLICE_POINTS (progressive/permutation.py), and the group walks those in
 // the range in turn, so the few pixels a compact batch covers stay in cache while
 // its points go through (from one contiguous block of records where the store keeps
@@ -171,8 +171,16 @@ void note(Hit h) {
 // flight while the atomics wait.
 const uint ROUNDS = BATCH_SLOTS / SLICE_POINTS;
 
-// The slots of batch b in [first, first + count).
-void walk(uint b, uint first, uint count) {
+void main() {
+    uint g = gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x;
+    uint first = source_first(), count = source_count();
+    if (count == 0u) return;
+    // Group g takes the g-th batch whose slices meet the range: slice indices
+    // first/SLICE_POINTS, ... belong to consecutive batches modulo u_batches (the
+    // dispatch has one group for each, at most u_batches; budget.comp counts them).
+    uint slice = first / SLICE_POINTS;
+    if (g >= min(u_batches, (first + (count - 1u)) / SLICE_POINTS - slice + 1u)) return;
+    uint b = (slice % u_batches + g) % u_batches;
 #if CULL
     uint levels = batch_flags[b];   // 0: culled; else the position words to read (cull.comp)
     if (levels == 0u) return;
@@ -260,20 +268,6 @@ void walk(uint b, uint first, uint count) {
         }
         RASTER_HITS(hits, PREFETCH)
     }
-}
-
-// The g-th batch whose slices meet the range goes to group g: slice indices
-// first/SLICE_POINTS, ... belong to consecutive batches modulo u_batches (at most
-// u_batches of them; budget.comp counts them). A dispatch of fewer groups
-// (ComputeTuning.walk_groups) has each take every groups-th of those batches in turn.
-void main() {
-    uint first = source_first(), count = source_count();
-    if (count == 0u) return;
-    uint slice = first / SLICE_POINTS;
-    uint walked = min(u_batches, (first + (count - 1u)) / SLICE_POINTS - slice + 1u);
-    uint groups = gl_NumWorkGroups.x * gl_NumWorkGroups.y;
-    for (uint g = gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x; g < walked; g += groups)
-        walk((slice % u_batches + g) % u_batches, first, count);
 }
 #else
 void main() {

@@ -159,11 +159,10 @@ def test_stats_report_batches_culled(tmp_path, sample):
 
 TUNINGS = [ComputeTuning(vector_loads=False, prefetch=k) for k in (1, 3)] + [
     ComputeTuning(vector_loads=v, phased=False) for v in (True, False)] + [
-    ComputeTuning(vector_loads=v, walk_groups=k) for v, k in ((True, 3), (False, 7))] + [
     ComputeTuning(batch_groups=g, vector_loads=v, subgroup_reduction=s)
     for g, v in ((True, True), (True, False), (False, False)) for s in (True, False)]
 """Every way the compute raster walks the store, its loads' points in phases or one
-after another, a group a batch or a few groups taking the batches in turn; the last (one invocation a slot, an atomic a point) is the plain
+after another; the last (one invocation a slot, an atomic a point) is the plain
 reference the others must equal."""
 
 

@@ -204,14 +204,13 @@ CASES = [
 
 @pytest.mark.parametrize("case", CASES)
 @pytest.mark.parametrize("points", [1, 1000, 3_000_000, 2**32 - 1])
-@pytest.mark.parametrize("walk_groups", [None, 5])
-def test_gpu_budget_equals_pure_function(gl, case, points, walk_groups):
+def test_gpu_budget_equals_pure_function(gl, case, points):
     from progressive.passes.budget import TIMESTAMP_SLOTS, BudgetPass, Stamp, StateWord
 
     t_frame, t_fill, t_first, prev, first, (rp, rn, gain, fixed_ns) = case
     params = BudgetParams(target_ns=16_666_667, first_fill=first, min_budget=100, max_budget=50_000_000)
     batches = max(1, points // 10_240)
-    bp = BudgetPass(gl, points, params, batches, walk_groups)
+    bp = BudgetPass(gl, points, params, batches)
     offset = points // 3
     st = np.zeros(StateWord.WORDS, dtype=np.uint32)
     st[[StateWord.OFFSET, StateWord.RATE_POINTS, StateWord.RATE_NS, StateWord.GAIN, StateWord.FIXED_NS]] = \
@@ -258,13 +257,11 @@ def test_gpu_budget_equals_pure_function(gl, case, points, walk_groups):
     for (start, count), (gx, gy, gz), draw, walk in zip([piece0, piece1, piece2, piece3], dispatch, draws, walks):
         assert gx * gy * 256 >= count and gz == 1 and gx <= 65535
         assert draw.tolist() == [count, 1, 0, 0]
-        # the batch walk: at least one group for each batch a slice of the piece belongs to,
-        # or walk_groups where that is fewer
+        # the batch walk: at least one group for each batch a slice of the piece belongs to
         slices = np.arange(start // 256, (start + count - 1) // 256 + 1) if count else np.arange(0)
         met = np.unique(slices % batches).size
-        want = met if walk_groups is None else min(met, walk_groups)
         groups = int(walk[0]) * int(walk[1])
-        assert want <= groups < want + max(int(walk[0]), 1) and (groups == 0) == (want == 0) and walk[2] == 1
+        assert met <= groups < met + max(int(walk[0]), 1) and (groups == 0) == (met == 0) and walk[2] == 1
     bp.release()
 
 

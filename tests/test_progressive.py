@@ -294,10 +294,9 @@ def test_file_fill_order_stores_file_order_and_converges(gl, cloud):
 @pytest.mark.parametrize("view", ["overview", "corner"])
 def test_fill_pieces_walk_batches_frame_for_frame(gl, cloud, brute, view):
     """Fill pieces walked by one work group a batch (culled batches skipped whole), with
-    one word a load or four, their points in phases or one after another, a group a
-    batch or three groups taking the batches in turn, and records from the winners
-    pass or gathered after hints, give every frame the ids of one invocation a slot,
-    and converge to brute force."""
+    one word a load or four, their points in phases or one after another, and records
+    from the winners pass or gathered after hints, give every frame the ids of one
+    invocation a slot, and converge to brute force."""
     from progressive.batches import in_view as batches_in_view
     from progressive.camera import view_uniforms
 
@@ -308,7 +307,7 @@ def test_fill_pieces_walk_batches_frame_for_frame(gl, cloud, brute, view):
         target=tuple(lo + (hi - lo) * [0.15, 0.15, 0.0]), up=(0, 1, 0), near=1.0, far=1e4)
     runs = {}
     for tuning in (ComputeTuning(vector_loads=True), ComputeTuning(vector_loads=False), ComputeTuning(winners=False),
-                   ComputeTuning(phased=False), ComputeTuning(walk_groups=3), ComputeTuning(batch_groups=False)):
+                   ComputeTuning(phased=False), ComputeTuning(batch_groups=False)):
         pr = ProgressiveRenderer(gl, info, default_attribute(info), ProgressiveOptions(
             W, H, budget=BudgetParams(fixed=B), batches_per_frame=100, tuning=tuning))
         for b in batches:
@@ -333,16 +332,14 @@ def test_fill_pieces_walk_batches_frame_for_frame(gl, cloud, brute, view):
 
 
 @RECORDS
-@pytest.mark.parametrize("walk_groups", [None, 2])
-def test_batches_written_into_a_still_view_are_drawn_whole(gl, brute, winners, walk_groups):
+def test_batches_written_into_a_still_view_are_drawn_whole(gl, brute, winners):
     """A streamed store (progressive/streaming.py) whose nodes arrive while the camera
     holds still: batches written into empty ones are drawn whole in the next frame and
     the fill goes on, so a view whose fill had gone round is exact in that frame. Told
     nothing of which batches (as before), the fill starts again and its image is exact
     only frames later. Both converge to brute force. Frames count until the image read
     back is exact: the converged flag comes frames late where the GPU runs ahead (the
-    H200 told it a frame later than llvmpipe). The same with two work groups taking
-    the batches in turn (ComputeTuning.walk_groups)."""
+    H200 told it a frame later than llvmpipe)."""
     from progressive.loaders import CloudLoader
     from progressive.permutation import BATCH_POINTS
     from progressive.scene import Scene
@@ -359,8 +356,7 @@ def test_batches_written_into_a_still_view_are_drawn_whole(gl, brute, winners, w
     for told in (True, False):
         scene = Scene(gl, info, default_attribute(info), streamed=True)
         pr = ProgressiveRenderer(gl, info, scene.attribute, ProgressiveOptions(
-            W, H, budget=BudgetParams(fixed=B), tuning=ComputeTuning(winners=winners, walk_groups=walk_groups)),
-            scene=scene)
+            W, H, budget=BudgetParams(fixed=B), tuning=ComputeTuning(winners=winners)), scene=scene)
         style = pr.scene.style()
         try:
             for b in range(half):

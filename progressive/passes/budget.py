@@ -59,15 +59,11 @@ def layout_defines() -> dict[str, int]:
 
 
 class BudgetPass:
-    def __init__(self, glc: GLContext, points: int, params: BudgetParams, batches: int = 0,
-                 walk_groups: int | None = None):
-        """batches: the store's batches (batched layout), for the batch walk's dispatch;
-        walk_groups: the most work groups that dispatch holds (ComputeTuning.walk_groups;
-        None: one a batch)."""
+    def __init__(self, glc: GLContext, points: int, params: BudgetParams, batches: int = 0):
+        """batches: the store's batches (batched layout), for the batch walk's dispatch."""
         if not glc.caps.shader_int64:
             raise ValueError("the GPU budget needs GL_ARB_gpu_shader_int64")
         self.glc, self.points, self.params, self.batches = glc, points, params, batches
-        self.walk_groups = walk_groups
         ctx = glc.ctx
         initial = np.zeros(StateWord.WORDS, dtype=np.uint32)
         initial[StateWord.GAIN] = GAIN_ONE
@@ -111,7 +107,6 @@ class BudgetPass:
         p["u_min_budget"] = params.min_budget
         p["u_max_budget"] = min(params.max_budget, 2**32 - 1)
         p["u_batches"] = self.batches
-        p["u_walk_groups"] = self.batches if self.walk_groups is None else self.walk_groups
         self.glc.ctx.memory_barrier()
         self.bind()
         p.run(1, 1, 1)

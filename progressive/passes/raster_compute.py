@@ -53,11 +53,7 @@ class ComputeTuning:
     phased: the records an invocation loaded go through in phases (every visibility
     read, then every atomic, then what waits on their results) instead of one point
     after another, so that a fill of a few points a batch is not a chain of round trips
-    per point.
-    walk_groups: the most work groups a batch walk dispatches, each taking every
-    walk_groups-th batch of the range in turn, instead of one group a batch: a fill of a
-    few points in each of 97,656 batches (1 B points) otherwise pays a group's launch
-    and its chain of reads for each. None: one group a batch."""
+    per point."""
 
     batch_groups: bool = True
     subgroup_reduction: bool = False
@@ -65,7 +61,6 @@ class ComputeTuning:
     prefetch: int = PREFETCH
     winners: bool | None = None
     phased: bool = True
-    walk_groups: int | None = None
 
 
 DEFAULT_TUNING = ComputeTuning()
@@ -102,9 +97,6 @@ class ComputeRaster:
             raise ValueError(f"a walk prefetches at least one record, not {tuning.prefetch}")
         self.prefetch = tuning.prefetch
         self.phased = tuning.phased
-        if tuning.walk_groups is not None and tuning.walk_groups < 1:
-            raise ValueError(f"a batch walk dispatches at least one work group, not {tuning.walk_groups}")
-        self.walk_groups = tuning.walk_groups
         self.culling = culling if store.batched else None
         self.passes = 1 if atomic64 else 2
         winners = store.capacity * RECORD_BYTES >= WINNERS_MIN_BYTES if tuning.winners is None else tuning.winners
@@ -243,7 +235,7 @@ class ComputeRaster:
             if self._marks(Source.RANGE) and pass_index == self.passes - 1:
                 program["u_mark"] = 0       # no winners pass follows
             if self.batch_groups:
-                program.run(*grid(self._groups(self.store.permutation.batches), local_size=1))
+                program.run(*grid(self.store.permutation.batches, local_size=1))
             else:
                 program.run(*grid(count))
             self.glc.ctx.memory_barrier()
@@ -261,12 +253,8 @@ class ComputeRaster:
         start = first * SLICE_POINTS
         program["u_first"] = start
         program["u_count"] = self.store.capacity - start
-        program.run(*grid(self._groups(count), local_size=1))
+        program.run(*grid(count, local_size=1))
         self.glc.ctx.memory_barrier()
-
-    def _groups(self, batches: int) -> int:
-        """Work groups for a walk of `batches` batches (budget.comp caps a piece's alike)."""
-        return batches if self.walk_groups is None else min(batches, self.walk_groups)
 
     def draw_piece(self, view: ViewUniforms, pieces: FillPieces, piece: int, pass_index: int) -> None:
         program = self._prepare(Source.PIECE, pass_index, view)
