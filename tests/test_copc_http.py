@@ -64,6 +64,16 @@ def files(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
+def six_samples(tmp_path_factory):
+    """The sample six times over as one COPC file (660,000 points, 27 nodes): opening it
+    fetches the nodes of its first BATCH_POINTS points (the colour probe's), which hold
+    all of the sample's, and loading it fetches the rest."""
+    out = tmp_path_factory.mktemp("http") / "six.copc.laz"
+    assert main(["convert", *[str(SAMPLE)] * 6, str(out)]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
 def served(files):
     with RangeServer(files) as server:
         yield server
@@ -171,22 +181,26 @@ def test_stats_count_what_the_server_sent(server, files, tmp_path, capsys):
     assert len(lines) == 4
 
 
-def test_requests_in_flight_are_bounded(files):
+def test_requests_in_flight_are_bounded(files, six_samples):
     """Nodes are fetched a few at a time: with every node's answer slowed, the server (one
-    of this test's own) holds exactly `in_flight` requests at once, never more, and the
-    status (and the panel's line) says so while it does (the answers are held until the
-    status is read: on a slow machine the first could otherwise come back before)."""
+    of this test's own) holds exactly `in_flight` requests at once while the cloud loads,
+    never more, and the status (and the panel's line) says so while it does (the answers
+    are held until the status is read: on a slow machine the first could otherwise come
+    back before). The file's load must fetch more nodes than that, beyond those opening it
+    fetched: the sample alone is fetched whole by then (where ../shared/data is absent)."""
     from progressive.viewer.status import copc_lines
 
-    name = "lone-star.copc.laz" if "lone-star.copc.laz" in files else "sample.copc.laz"
-    nodes = open_copc(files[name]).hierarchy.nodes
+    name, path = ("lone-star.copc.laz", files["lone-star.copc.laz"]) if "lone-star.copc.laz" in files else \
+        ("six.copc.laz", six_samples)
+    nodes = open_copc(path).hierarchy.nodes
     in_flight = 3
-    assert nodes.size > in_flight
-    with RangeServer({name: files[name]}) as own:
+    with RangeServer({name: path}) as own:
         loader = CloudLoader([own.url(name)], http=HttpOptions(in_flight=in_flight))
         own.faults.delays = {int(offset): 0.2 for offset in nodes["offset"]}
         own.faults.hold = held = threading.Event()
         with loader:
+            assert nodes.size - len(loader.sources[0].held) > in_flight, "the load should fetch more nodes than that"
+            own.reset()
             loader.start()
             try:
                 deadline = time.monotonic() + BOUND_S
