@@ -55,7 +55,7 @@ def raster_lines(raster: dict) -> list[str]:
         groups = walks and layout.startswith("batched") if groups is None else groups
         return next((r for r in rows if r["layout"] == layout and r["raster"] == raster_path
                      and r.get("view", "overview") == view and r.get("subgroup_reduction", False) == reduced
-                     and r.get("precision", "exact") == precision and r.get("phased", True)
+                     and r.get("precision", "exact") == precision
                      and (raster_path == "GL_POINTS" or r.get("batch_groups", False) == groups)), None)
 
     points = row(layout, "GL_POINTS")
@@ -156,7 +156,7 @@ def progressive_lines(prog: dict) -> list[str]:
     for r in prog["raw"]["rows"]:
         store = r.get("store", "words")
         if (r["target_ms"] and r["path"] == "still" and r.get("batch_groups", True) and store == "words"
-                and r.get("winners", True) and r.get("phased", True)):
+                and r.get("winners", True)):
             conv = (f"exact after {r['frames_to_converge']} frames ({r['ms_to_converge']:.1f} ms of GPU time)"
                     if r["frames_to_converge"] else "not converged within the run")
             brute_ms = brute[store] if isinstance(brute, dict) else brute

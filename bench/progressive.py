@@ -121,7 +121,7 @@ def run_case(glc: GLContext, scene: Scene, cloud: TiledCloud, size: tuple[int, i
     summary.update(budget=budget.label, target_ms=budget.target_ms, path=path.value, motion_frames=motion,
                    cpu_frame_ms_median=float(np.median(cpu_ms)), pacing_waits=r.pacing_waits,
                    batch_groups=r.raster.batch_groups if hasattr(r.raster, "batch_groups") else False,
-                   winners=r.raster.winners is not None, phased=getattr(r.raster, "phased", True))
+                   winners=r.raster.winners is not None)
     r.release()
     return summary, [s.as_dict() for s in stats]
 
@@ -159,23 +159,18 @@ STORE_LABELS = {Encoding.WORDS: "words", Encoding.FLOAT: "float records"}
 """The store column: the renderer's word planes, or float32 records (the baseline)."""
 RECORDS_LABELS = {True: "winners pass", False: "gathered"}
 """The records column: where prepare takes new winners' records (ComputeTuning.winners)."""
-PHASES_LABELS = {True: "in phases", False: "one after another"}
-"""The raster points column: how an invocation's loaded points meet the visibility
-buffer (ComputeTuning.phased)."""
 
 
 def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], targets_ms: list[float],
         paths: list[CameraPath], motion: int, max_frames: int, compare_walk: bool = False,
-        encodings: tuple[Encoding, ...] = (Encoding.WORDS,), winners: tuple[bool | None, ...] = (None,),
-        phases: tuple[bool, ...] = (True,)) -> Table:
+        encodings: tuple[Encoding, ...] = (Encoding.WORDS,), winners: tuple[bool | None, ...] = (None,)) -> Table:
     """compare_walk: also run every case with fill pieces walked one invocation a slot
     (ComputeTuning.batch_groups off), side by side with the renderer's batch walk;
     encodings: the stores to run every case on, one after the other in this run;
     winners: with and/or without the winners pass, each case side by side (None: the
-    renderer's choice for the store); phases: with the raster's points in phases and/or
-    one after another, each case side by side."""
+    renderer's choice for the store)."""
     walks = (True, False) if compare_walk else (True,)
-    tunings = [ComputeTuning(batch_groups=g, winners=w, phased=f) for g in walks for w in winners for f in phases]
+    tunings = [ComputeTuning(batch_groups=g, winners=w) for g in walks for w in winners]
     cloud = tiled(str(SAMPLE), points)
     rows, frames, brute = [], {}, {}
     for position_encoding in encodings:
@@ -190,18 +185,17 @@ def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], ta
                     summary.update(store=store, upload_s=upload_s)
                     rows.append(summary)
                     walk = "" if tuning.batch_groups else ", one invocation a slot"
-                    frames[f"{store}, {budget.label}, {path.value}{walk}, {RECORDS_LABELS[summary['winners']]}, "
-                           f"{PHASES_LABELS[summary['phased']]}"] = stats
+                    frames[f"{store}, {budget.label}, {path.value}{walk}, {RECORDS_LABELS[summary['winners']]}"] = stats
         scene.release()
     table = Table(f"progressive_{points}", f"Progressive frames, {size[0]}x{size[1]}",
                   f"{SAMPLE.name} tiled on a grid", f"{points:,}", (
-                      "store", "budget", "camera", "fill work group", "records", "raster points", "frame ms median", "p95", "max", "target ms",
+                      "store", "budget", "camera", "fill work group", "records", "frame ms median", "p95", "max", "target ms",
                       "frames over target", "reproject", "fill", "prepare", "resolve", "fill share", "points/frame",
                       "gathered/frame", "frames to converge", "ms to converge"))
     for r in rows:
         p = r["pass_ms_median"]
         table.rows.append((r["store"], r["budget"], r["path"], "batch" if r["batch_groups"] else "256 slots",
-                           RECORDS_LABELS[r["winners"]], PHASES_LABELS[r["phased"]], r["frame_ms_median"], r["frame_ms_p95"], r["frame_ms_max"],
+                           RECORDS_LABELS[r["winners"]], r["frame_ms_median"], r["frame_ms_p95"], r["frame_ms_max"],
                            r["target_ms"], f"{r['over_target']:.0%}" if r["over_target"] is not None else None,
                            p["reproject"], p["fill"], p["prepare"], p["resolve"], f"{r['fill_share_median']:.0%}",
                            round(r["points_per_frame_median"]), round(r["gathered_median"]),
@@ -221,9 +215,7 @@ def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], ta
          f"prepare takes the records of the points visible now, for the next frame's reprojection and resolve: "
          f"winners pass = the raster's last pass over the frame's points leaves each pixel's record (its time "
          f"is in the fill column), gathered = from the last list where a hint finds it, else from the store at "
-         f"random; gathered/frame = median records a frame read from the store that way. Raster points: the "
-         f"records an invocation loaded meet the visibility buffer in phases (every read, then every atomic, "
-         f"then what waits on their results) or one after another (ComputeTuning.phased).")]
+         f"random; gathered/frame = median records a frame read from the store that way.")]
     table.raw = {"brute_ms": brute, "rows": rows, "frames": frames}
     return table
 
@@ -241,8 +233,6 @@ def main(argv=None) -> int:
                     help="run every case on each store in turn")
     ap.add_argument("--records", nargs="+", choices=list(RECORDS_LABELS.values()),
                     help="run every case with prepare's records from each source in turn (default: the renderer's choice)")
-    ap.add_argument("--phases", nargs="+", choices=list(PHASES_LABELS.values()), default=[PHASES_LABELS[True]],
-                    help="run every case with the raster's points in phases and/or one after another")
     ap.add_argument("--out", default="bench/results/local")
     args = ap.parse_args(argv)
     glc = create_context()
@@ -250,8 +240,7 @@ def main(argv=None) -> int:
     table = run(glc, args.points, size, args.fixed, args.targets_ms, list(CameraPath), args.motion_frames,
                 args.max_frames, args.compare_walk,
                 tuple(e for e, label in STORE_LABELS.items() if label in args.stores),
-                tuple(w for w, label in RECORDS_LABELS.items() if label in args.records) if args.records else (None,),
-                tuple(f for f, label in PHASES_LABELS.items() if label in args.phases))
+                tuple(w for w, label in RECORDS_LABELS.items() if label in args.records) if args.records else (None,))
     info = RunInfo.from_caps(glc.caps, "progressive only")
     table.write(Path(args.out), info)
     print(table.markdown(info))

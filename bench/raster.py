@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 import statistics
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -102,8 +102,7 @@ def variants(glc: GLContext, batched: bool, words: bool) -> list[tuple[Raster, C
     """Each rasterizer; the compute ones on the batched layout also one invocation a slot
     (against one work group a batch) and, where the GPU has it, with the subgroup
     reduction, and on the word store a batch walk with four-word loads and with adaptive
-    precision (each also with its points one after another, not in phases), so each
-    choice is measured side by side."""
+    precision, so each choice is measured side by side."""
     reduce = subgroup_reduction_available(glc)
     tunings = [ComputeTuning(batch_groups=g, subgroup_reduction=s, vector_loads=False)
                for g in ((False, True) if batched else (False,)) for s in ((False, True) if reduce else (False,))]
@@ -114,9 +113,7 @@ def variants(glc: GLContext, batched: bool, words: bool) -> list[tuple[Raster, C
             continue
         out += [(r, t, Precision.EXACT) for t in tunings]
         one, four = ComputeTuning(vector_loads=False), ComputeTuning(vector_loads=True)
-        serial = replace(four, phased=False)
-        out += [(r, four, Precision.EXACT), (r, serial, Precision.EXACT), (r, one, Precision.ADAPTIVE),
-                (r, four, Precision.ADAPTIVE), (r, serial, Precision.ADAPTIVE)] if words else []
+        out += [(r, four, Precision.EXACT), (r, one, Precision.ADAPTIVE), (r, four, Precision.ADAPTIVE)] if words else []
     return out
 
 
@@ -195,7 +192,6 @@ def measure(glc: GLContext, cloud: TiledCloud, layouts, sizes, repeats: int) -> 
                                  "subgroup_reduction": getattr(r.raster, "partitioned", False),
                                  "batch_groups": getattr(r.raster, "batch_groups", False),
                                  "vector_loads": getattr(r.raster, "vector_loads", False),
-                                 "phased": getattr(r.raster, "phased", True),
                                  "precision": precision.value, "wall_ms": wall,
                                  "passes": r.raster.passes, "points_per_s": cloud.points / (ms / 1e3),
                                  "bytes_per_point": read / cloud.points, "bytes_per_s": read / (ms / 1e3),
@@ -206,14 +202,6 @@ def measure(glc: GLContext, cloud: TiledCloud, layouts, sizes, repeats: int) -> 
                     r.release()
         scene.release()
     return rows
-
-
-def work_group(row: dict) -> str:
-    """The work group column: how the compute raster walked the store."""
-    if not row["batch_groups"]:
-        return "256 slots"
-    walk = "batch, 4-word loads" if row["vector_loads"] else "batch"
-    return walk if row["phased"] else f"{walk}, one point after another"
 
 
 def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats: int,
@@ -237,14 +225,13 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
     for r in rows:
         base = twin(r, view="overview", raster="GL_POINTS")
         overview = twin(r, view="overview", raster=r["raster"], subgroup_reduction=r["subgroup_reduction"],
-                        batch_groups=r["batch_groups"], vector_loads=r["vector_loads"], phased=r["phased"],
-                        precision=r["precision"])
+                        batch_groups=r["batch_groups"], vector_loads=r["vector_loads"], precision=r["precision"])
         r["vs_points"] = base / r["ms"] if r["view"] == "overview" else None
         r["vs_overview"] = overview / r["ms"]
         r["share_of_copy"] = r["bytes_per_s"] / copy
         r["share_of_read"] = r["bytes_per_s"] / read_rate
         table.rows.append((r["points"], f"{r['width']}x{r['height']}", r["layout"], r["view"], r["raster"],
-                           work_group(r), "yes" if r["subgroup_reduction"] else "no",
+                           ("batch, 4-word loads" if r["vector_loads"] else "batch") if r["batch_groups"] else "256 slots", "yes" if r["subgroup_reduction"] else "no",
                            r["precision"], r["ms"], r["wall_ms"], r["points_per_s"] / 1e6, r["bytes_per_point"], r["bytes_per_s"] / 1e9,
                            r["share_of_copy"], r["share_of_read"], r["vs_points"], r["batches_culled"], r["vs_overview"], r["covered_pixels"],
                            r["pixels_differing"]))
@@ -275,8 +262,7 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
         "whole cloud; close-up = one corner tile from above at 45° (GL_POINTS not run); batches culled = share of "
         "the store's batches the culling test leaves out (batched layouts only); × overview = overview ms / this "
         "ms, same rasterizer. Work group: batch = one work group walks one batch's slices (ComputeTuning.batch_groups), "
-        "256 slots = one invocation a slot; one point after another = each invocation's loaded points read, "
-        "atomic and mark in turn, not phase by phase (ComputeTuning.phased). Mpoints/s and GB/s count every point of the cloud, culled ones included.")]
+        "256 slots = one invocation a slot. Mpoints/s and GB/s count every point of the cloud, culled ones included.")]
     table.raw = {"copy_bytes": copy_bytes, "copy_bytes_per_s": copy, "copy_methods": copies,
                  "read_bytes_per_s": read_rate, "rows": rows}
     return table

@@ -45,120 +45,64 @@ void mark_improved(uint slot) {
 
 uniform uint u_filtering;    // 0: no filter can leave a point out (progressive/gpu.py filters_apply)
 
-// A point on its way into its pixel: what each phase below needs of it.
-struct Hit {
-    uint i;             // source index (the reprojection list's hint)
-    uint slot;
+// One point into its pixel (source index i: the reprojection list's hint).
+void raster(uint i, uint slot, uvec4 record) {
+    if (!finite_position(record)) return;
+    if (u_filtering != 0u && (!flags_shown(point_flags(slot, record.w)) || !clip_keeps(uintBitsToFloat(record.xyz))))
+        return;
     uint pixel;
-    uint depth_bits;
-    bool live;          // still a candidate for its pixel
-#if defined(WINNERS) && SOURCE == SOURCE_LIST
-    uvec4 record;
-#endif
-};
-
-// Its pixel and depth, live where it is finite, shown and in view.
-Hit hit_of(uint i, uint slot, uvec4 record) {
-    Hit h;
-    h.i = i;
-    h.slot = slot;
-    h.pixel = 0u;
-#if defined(WINNERS) && SOURCE == SOURCE_LIST
-    h.record = record;
-#endif
-    float depth = 0.0;
-    h.live = finite_position(record)
-        && (u_filtering == 0u || (flags_shown(point_flags(slot, record.w)) && clip_keeps(uintBitsToFloat(record.xyz))))
-        && project(uintBitsToFloat(record.xyz), h.pixel, depth);
-    h.depth_bits = floatBitsToUint(depth);
-    return h;
-}
-
-#if ATOMIC64
-uint64_t key_of(Hit h) {
-    return (uint64_t(h.depth_bits) << 32) | uint64_t(h.slot);
-}
-#endif
-
-// The read: most points lose to what their pixel holds already and need no atomic
-// (read before atomicMin). The winners pass: whether the pixel kept this point.
-void test(inout Hit h) {
-    if (!h.live) return;
+    float depth;
+    if (!project(uintBitsToFloat(record.xyz), pixel, depth)) return;
 #ifdef WINNERS
-    h.live = visibility[2u * h.pixel] == h.slot;
+    if (visibility[2u * pixel] == slot) {
+#if SOURCE == SOURCE_LIST
+        winners[pixel] = record;
 #else
+        winners[pixel] = load_point(slot);      // all its words, as prepare would gather them
+#endif
+        WINNER_SLOT(pixel) = slot;
+    }
+#else
+    uint depth_bits = floatBitsToUint(depth);
 #if PARTITIONED
     // Points of one subgroup that hit one pixel (many, in a compact batch) meet first:
     // only the lane holding their least key (depth, then slot) goes on to the atomic.
 #if ATOMIC64 || DEPTH_PASS
-    uvec4 same = subgroupPartitionNV(h.pixel);
-    uint least = subgroupPartitionedMinNV(h.depth_bits, same);
-    if (subgroupPartitionedMinNV(h.depth_bits == least ? h.slot : EMPTY, same) != h.slot) { h.live = false; return; }
+    uvec4 same = subgroupPartitionNV(pixel);
+    uint least = subgroupPartitionedMinNV(depth_bits, same);
+    if (subgroupPartitionedMinNV(depth_bits == least ? slot : EMPTY, same) != slot) return;
 #else
-    if (h.depth_bits != visibility[2u * h.pixel + 1u]) { h.live = false; return; }
-    if (subgroupPartitionedMinNV(h.slot, subgroupPartitionNV(h.pixel)) != h.slot) { h.live = false; return; }
+    if (depth_bits != visibility[2u * pixel + 1u]) return;
+    if (subgroupPartitionedMinNV(slot, subgroupPartitionNV(pixel)) != slot) return;
 #endif
 #endif
+    // A reprojected point that improves its pixel leaves a hint (its list index), so
+    // prepare can copy its record from the list; prepare validates it, races are harmless.
 #if ATOMIC64
-    h.live = key_of(h) < visibility[h.pixel];
-#elif DEPTH_PASS
-    h.live = h.depth_bits < visibility[2u * h.pixel + 1u];
-#else
-    h.live = h.depth_bits == visibility[2u * h.pixel + 1u] && h.slot < visibility[2u * h.pixel];
-#endif
-#endif
-}
-
-// The write: the atomic, live after it where the point improved its pixel. The
-// winners pass writes the winner's record (all its words, as prepare would gather them).
-void commit(inout Hit h) {
-    if (!h.live) return;
-#ifdef WINNERS
-#if SOURCE == SOURCE_LIST
-    winners[h.pixel] = h.record;
-#else
-    winners[h.pixel] = load_point(h.slot);
-#endif
-    WINNER_SLOT(h.pixel) = h.slot;
-    h.live = false;
-#elif ATOMIC64
-    uint64_t key = key_of(h);
-    h.live = key < atomicMin(visibility[h.pixel], key);
-#elif DEPTH_PASS
-    atomicMin(visibility[2u * h.pixel + 1u], h.depth_bits);
-    h.live = false;
-#else
-    h.live = h.slot < atomicMin(visibility[2u * h.pixel], h.slot);
-#endif
-}
-
-// What waits for the atomic's result. A reprojected point that improved its pixel
-// leaves a hint (its list index), so prepare can copy its record from the list;
-// prepare validates it, races are harmless.
-void note(Hit h) {
-    if (!h.live) return;
+    uint64_t key = (uint64_t(depth_bits) << 32) | uint64_t(slot);
+    if (key < visibility[pixel] && key < atomicMin(visibility[pixel], key)) {
 #ifdef WRITE_HINT
-    hint[h.pixel] = h.i;
+        hint[pixel] = i;
 #endif
-#if defined(IMPROVED) && !defined(WINNERS)
-    mark_improved(h.slot);
+#ifdef IMPROVED
+        mark_improved(slot);
+#endif
+    }
+#elif DEPTH_PASS
+    if (depth_bits < visibility[2u * pixel + 1u]) atomicMin(visibility[2u * pixel + 1u], depth_bits);
+#else
+    if (depth_bits == visibility[2u * pixel + 1u] && slot < visibility[2u * pixel]
+        && slot < atomicMin(visibility[2u * pixel], slot)) {
+#ifdef WRITE_HINT
+        hint[pixel] = i;
+#endif
+#ifdef IMPROVED
+        mark_improved(slot);
+#endif
+    }
+#endif
 #endif
 }
-
-// The points of one load (n of them, in hits) into their pixels. PHASED: phase by
-// phase, every read, then every atomic, then what waits on their results, so that each
-// phase's memory operations are in flight together. One point after another, a
-// point's atomic waits for its read and the next point's read for that atomic (the
-// same buffer, which the compiler cannot reorder).
-#if PHASED
-#define RASTER_HITS(hits, n) \
-    for (uint j_ = 0u; j_ < (n); ++j_) test(hits[j_]); \
-    for (uint j_ = 0u; j_ < (n); ++j_) commit(hits[j_]); \
-    for (uint j_ = 0u; j_ < (n); ++j_) note(hits[j_]);
-#else
-#define RASTER_HITS(hits, n) \
-    for (uint j_ = 0u; j_ < (n); ++j_) { test(hits[j_]); commit(hits[j_]); note(hits[j_]); }
-#endif
 
 #if BATCH_GROUPS
 // One work group per batch over a contiguous slot range (brute force or a fill
@@ -223,10 +167,8 @@ void main() {
                     at[m] = held && u_filtering != 0u ? attribute_word(index + m) : EMPTY;
                 }
             }
-            Hit hits[4];
             for (uint m = 0u; m < 4u; ++m)
-                hits[m] = hit_of(slot + m, slot + m, uvec4(position_bits(uvec3(w0[m], w1[m], w2[m]), levels, frame_base, frame_step), at[m]));
-            RASTER_HITS(hits, 4u)
+                raster(slot + m, slot + m, uvec4(position_bits(uvec3(w0[m], w1[m], w2[m]), levels, frame_base, frame_step), at[m]));
         }
         return;
     }
@@ -258,15 +200,13 @@ void main() {
             loaded[j] = held ? load_record(index) : uvec4(EMPTY);
 #endif
         }
-        Hit hits[PREFETCH];
         for (uint j = 0u; j < PREFETCH; ++j) {
 #if WORD_PLANES
-            hits[j] = hit_of(slots[j], slots[j], uvec4(position_bits(words[j], levels, frame_base, frame_step), attributes[j]));
+            raster(slots[j], slots[j], uvec4(position_bits(words[j], levels, frame_base, frame_step), attributes[j]));
 #else
-            hits[j] = hit_of(slots[j], slots[j], loaded[j]);
+            raster(slots[j], slots[j], loaded[j]);
 #endif
         }
-        RASTER_HITS(hits, PREFETCH)
     }
 }
 #else
@@ -280,7 +220,6 @@ void main() {
 #if defined(IMPROVED) && defined(WINNERS)
     if (improved[slot_batch_of(slot)] == 0u) return;
 #endif
-    Hit hits[1] = Hit[1](hit_of(i, slot, source_record(i, slot)));
-    RASTER_HITS(hits, 1u)
+    raster(i, slot, source_record(i, slot));
 }
 #endif

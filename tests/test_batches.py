@@ -158,12 +158,10 @@ def test_stats_report_batches_culled(tmp_path, sample):
 
 
 TUNINGS = [ComputeTuning(vector_loads=False, prefetch=k) for k in (1, 3)] + [
-    ComputeTuning(vector_loads=v, phased=False) for v in (True, False)] + [
     ComputeTuning(batch_groups=g, vector_loads=v, subgroup_reduction=s)
     for g, v in ((True, True), (True, False), (False, False)) for s in (True, False)]
-"""Every way the compute raster walks the store, its loads' points in phases or one
-after another; the last (one invocation a slot, an atomic a point) is the plain
-reference the others must equal."""
+"""Every way the compute raster walks the store; the last (one invocation a slot, an
+atomic a point) is the plain reference the others must equal."""
 
 
 def slots_of_range(gl, r: Renderer, cam: Camera, first: int, count: int) -> np.ndarray:

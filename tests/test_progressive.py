@@ -294,9 +294,8 @@ def test_file_fill_order_stores_file_order_and_converges(gl, cloud):
 @pytest.mark.parametrize("view", ["overview", "corner"])
 def test_fill_pieces_walk_batches_frame_for_frame(gl, cloud, brute, view):
     """Fill pieces walked by one work group a batch (culled batches skipped whole), with
-    one word a load or four, their points in phases or one after another, and records
-    from the winners pass or gathered after hints, give every frame the ids of one
-    invocation a slot, and converge to brute force."""
+    one word a load or four, and records from the winners pass or gathered after hints,
+    give every frame the ids of one invocation a slot, and converge to brute force."""
     from progressive.batches import in_view as batches_in_view
     from progressive.camera import view_uniforms
 
@@ -307,7 +306,7 @@ def test_fill_pieces_walk_batches_frame_for_frame(gl, cloud, brute, view):
         target=tuple(lo + (hi - lo) * [0.15, 0.15, 0.0]), up=(0, 1, 0), near=1.0, far=1e4)
     runs = {}
     for tuning in (ComputeTuning(vector_loads=True), ComputeTuning(vector_loads=False), ComputeTuning(winners=False),
-                   ComputeTuning(phased=False), ComputeTuning(batch_groups=False)):
+                   ComputeTuning(batch_groups=False)):
         pr = ProgressiveRenderer(gl, info, default_attribute(info), ProgressiveOptions(
             W, H, budget=BudgetParams(fixed=B), batches_per_frame=100, tuning=tuning))
         for b in batches:

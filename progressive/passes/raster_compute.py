@@ -49,18 +49,13 @@ class ComputeTuning:
     prefetch: records each invocation of a one-word walk loads before it draws them.
     winners: a progressive frame ends with the winners pass over its points, which
     leaves each pixel's record for prepare (Winners), instead of prepare gathering each
-    new winner from the store at random. None: for a store of WINNERS_MIN_BYTES or more.
-    phased: the records an invocation loaded go through in phases (every visibility
-    read, then every atomic, then what waits on their results) instead of one point
-    after another, so that a fill of a few points a batch is not a chain of round trips
-    per point."""
+    new winner from the store at random. None: for a store of WINNERS_MIN_BYTES or more."""
 
     batch_groups: bool = True
     subgroup_reduction: bool = False
     vector_loads: bool | None = None
     prefetch: int = PREFETCH
     winners: bool | None = None
-    phased: bool = True
 
 
 DEFAULT_TUNING = ComputeTuning()
@@ -96,7 +91,6 @@ class ComputeRaster:
         if tuning.prefetch < 1:
             raise ValueError(f"a walk prefetches at least one record, not {tuning.prefetch}")
         self.prefetch = tuning.prefetch
-        self.phased = tuning.phased
         self.culling = culling if store.batched else None
         self.passes = 1 if atomic64 else 2
         winners = store.capacity * RECORD_BYTES >= WINNERS_MIN_BYTES if tuning.winners is None else tuning.winners
@@ -155,7 +149,7 @@ class ComputeRaster:
         if key not in self._programs:
             defines = dict(self.store.defines, **Source.defines(source), **StateWord.defines(), **Meta.defines(),
                            CULL=int(self._culls(source)), BATCH_GROUPS=int(self._walks_batches(source)),
-                           PREFETCH=self.prefetch, PHASED=int(self.phased))
+                           PREFETCH=self.prefetch)
             if pass_index == self.passes:
                 defines.update(ATOMIC64=0, DEPTH_PASS=0, WINNERS=1)
                 ext = ()
