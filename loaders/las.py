@@ -20,7 +20,7 @@ import math
 import os
 import re
 import struct
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
 import laspy
@@ -450,10 +450,14 @@ def _reader(stream, path: str, backend: laspy.LazBackend | None, count: int) -> 
     return reader
 
 
-def open_las(path: str | os.PathLike, *, partial: bool = False, keep: bool = False) -> LasSource:
-    """Check and describe one LAS/LAZ file, reading at most its first batch of points;
-    with keep (a loader's first file), a LAZ keeps what of them it decoded for its first
-    batches (KeptRecords, at most KEPT_BYTES)."""
+def open_las(path: str | os.PathLike, *, partial: bool = False, keep: bool = False,
+             check_count: Callable[[str, int], None] | None = None) -> LasSource:
+    """Check and describe one LAS/LAZ file, reading at most its first batch of points
+    (and all of them where the header bounds are wrong); with keep (a loader's first
+    file), a LAZ keeps what of them it decoded for its first batches (KeptRecords, at
+    most KEPT_BYTES). check_count(path, points) is called once the header gives the
+    points, before any is read: it raises to refuse a file too large for the caller (a
+    sparse file of 2^32 - 1 points would otherwise be read whole for its bounds)."""
     path = os.fspath(path)
     warnings: list[str] = []
     with open_binary(path) as stream:
@@ -480,6 +484,8 @@ def open_las(path: str | os.PathLike, *, partial: bool = False, keep: bool = Fal
             count = laz.points
         else:
             count = checked_count(path, raw, size, partial, warnings)
+    if check_count is not None:
+        check_count(path, count)
     pf = header.point_format
     records = Records(pf, header.offset_to_point_data, np.asarray(header.scales, np.float64),
                       np.asarray(header.offsets, np.float64))

@@ -59,19 +59,21 @@ def open_cloud(paths: Iterable[str | os.PathLike] | str | os.PathLike, *, partia
 
 def open_sources(paths, *, partial: bool = False, point_budget: int | None = None,
                  http: HttpOptions = HTTP_DEFAULTS, keep_first: bool = False,
-                 view=None) -> tuple[CloudInfo, tuple[Source, ...]]:
+                 view=None, check_count: Callable[[str, int], None] | None = None) -> tuple[CloudInfo, tuple[Source, ...]]:
     """point_budget: the points that fit on the GPU; a larger cloud's COPC files are read
     down to a level of detail (loaders/copc.py keep_levels: the nodes `view` needs most
     where one is given, a copc_choice.View or a function of the cloud's corners). keep_first: the first file, where it is
     a LAZ, keeps what opening it decoded for its first batches (open_las's keep), which
-    the first image would otherwise wait for a second decode of."""
+    the first image would otherwise wait for a second decode of. check_count: refuses a
+    LAS/LAZ file by its header's point count before its points are read (open_las); the
+    whole cloud's count is the caller's to check (COPC files may be cut to the budget)."""
     paths = [paths] if isinstance(paths, (str, os.PathLike)) else list(paths)
     if not paths:
         raise InputError("no input files given")
     opened: list[Source] = []
     try:
         for i, p in enumerate(paths):
-            opened.append(_open(p, partial, http, keep_first and i == 0))
+            opened.append(_open(p, partial, http, keep_first and i == 0, check_count))
     except BaseException:
         close_sources(opened)
         raise
@@ -117,11 +119,13 @@ def crs_warnings(files) -> list[str]:
     return [f"the files name different coordinate systems ({'; '.join(sorted(labels))}); drawn as one cloud as they are"]
 
 
-def _open(path, partial: bool, http: HttpOptions, keep: bool) -> Source:
+def _open(path, partial: bool, http: HttpOptions, keep: bool, check_count: Callable[[str, int], None] | None) -> Source:
     if is_url(path):
         return open_copc_url(path, partial=partial, http=http)
     opener = next((open_ for is_format, open_ in OPENERS if is_format(path)), None)
-    return open_las(path, partial=partial, keep=keep) if opener is None else opener(path, partial=partial)
+    if opener is None:
+        return open_las(path, partial=partial, keep=keep, check_count=check_count)
+    return opener(path, partial=partial)
 
 
 def close_sources(sources) -> None:
@@ -249,14 +253,15 @@ class CloudLoader(BatchQueue):
     def __init__(self, paths, *, batch_points: int = BATCH_POINTS,
                  parser_threads: int | None = None, partial: bool = False,
                  attributes: tuple[str, ...] | None = None, point_budget: int | None = None,
-                 http: HttpOptions = HTTP_DEFAULTS, view=None, laz: LazOptions = LAZ_DEFAULTS):
-        """view: the first view, whose nodes a COPC cloud larger than point_budget keeps
-        (open_sources)."""
+                 http: HttpOptions = HTTP_DEFAULTS, view=None, laz: LazOptions = LAZ_DEFAULTS,
+                 check_count: Callable[[str, int], None] | None = None):
+        """view: the first view, whose nodes a COPC cloud larger than point_budget keeps;
+        check_count: refuses a LAS/LAZ file too large by its header alone (open_sources)."""
         parser_threads = available_cores() if parser_threads is None else parser_threads
         if batch_points < 1 or parser_threads < 1:
             raise ValueError("batch_points and parser_threads must be at least 1")
         self.info, self._sources = open_sources(paths, partial=partial, point_budget=point_budget, http=http,
-                                                keep_first=True, view=view)
+                                                keep_first=True, view=view, check_count=check_count)
         self.attributes = self._chosen(attributes)
         self.batch_points = batch_points
         self.parser_threads = parser_threads

@@ -133,7 +133,7 @@ class ReprojectingLoader(BatchQueue):
             raise InputError("no input files given")
         try:
             for path in paths:
-                self._loaders.append(CloudLoader([path], partial=partial, http=http))
+                self._loaders.append(CloudLoader([path], partial=partial, http=http, check_count=check_addressable))
             files = tuple(loader.info.files[0] for loader in self._loaders)
             self.transforms = tuple(self._transform(f) for f in files)
             self.info = self._cloud(files)
@@ -280,8 +280,10 @@ class ReprojectingLoader(BatchQueue):
 
 def check_addressable(path: str, points: int) -> None:
     """A cloud must fit the point store's uint32 slots: a header declaring 4.29 G points
-    (a sparse file of that size holds them) failed deep in the renderer. Checked once the
-    headers are read, before any batch is loaded; `path`: the file that made it too large."""
+    (a sparse file of that size holds them) failed deep in the renderer. Checked for a
+    LAS/LAZ file once its header is read, before its points are (the loader's
+    check_count), and for the cloud once every file is open, before any batch is loaded;
+    `path`: the file that made it too large."""
     try:
         Permutation.for_count(points, order=LAYOUT)
     except ValueError as exc:
@@ -296,7 +298,8 @@ def open_loader(paths, *, partial: bool = False, reproject=None, point_budget: i
     with reprojection)."""
     if reproject is not None:
         return ReprojectingLoader(paths, reproject, partial=partial, http=http)
-    loader = CloudLoader(paths, partial=partial, point_budget=point_budget, http=http, view=view)
+    loader = CloudLoader(paths, partial=partial, point_budget=point_budget, http=http, view=view,
+                         check_count=check_addressable)
     try:
         check_addressable(loader.info.files[-1].path, loader.info.points)
     except BaseException:
