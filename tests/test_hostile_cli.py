@@ -294,11 +294,13 @@ def test_signal_mid_run_cleans_up(tmp_path, command, sig):
     else:
         argv = ["render", *TINY, "--method", "progressive", "--budget", 1000, "--frames", 16384,
                 "--out", tmp_path / "out.png", "--ids", tmp_path / "out.npy"]
-    # A shell's background job starts with SIGINT ignored, and a child keeps that: give
-    # it the default disposition, as a terminal would, so what is tested is the CLI's.
+    # A shell's background job starts with SIGINT ignored, and one under nohup with
+    # SIGHUP ignored; a child keeps that (and the CLI, rightly, leaves an ignored signal
+    # ignored): give it the default disposition, as a terminal would, so what is tested
+    # is the CLI's.
     proc = subprocess.Popen([sys.executable, "-m", "progressive", *map(str, argv)], cwd=REPO,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+                            preexec_fn=lambda: signal.signal(sig, signal.SIG_DFL))
     try:
         deadline = time.monotonic() + TIMEOUT_S
         if command == "convert":
