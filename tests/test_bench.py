@@ -65,6 +65,17 @@ def test_passes_bench_runs(tmp_path):
     assert all(f"| {name} |" in table for name in ("reproject", "fill first", "prepare", "resolve with point size 7"))
 
 
+def test_packing_bench_runs(tmp_path):
+    """bench.packing packs every attribute's words at each thread count, checked against
+    the reference words (it raises where they differ)."""
+    from bench import packing
+
+    assert packing.main(["--points", "300000", "--threads", "1", "2", "--repeats", "1", "--out", str(tmp_path)]) == 0
+    rows = json.loads((tmp_path / "local" / "packing.json").read_text())["raw"]["rows"]
+    assert sorted((r["attribute"], r["threads"]) for r in rows) == sorted(
+        (name, k) for name, _ in packing.CASES for k in (1, 2))
+
+
 def test_upload_bench_runs(tmp_path):
     """bench.upload: ring and copy, each for the loads and a headless start whose session
     reports (SessionStatus.staging) the staging it was given."""
