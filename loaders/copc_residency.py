@@ -54,7 +54,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from progressive.loaders.copc_choice import Nodes, View, choose
+from progressive.loaders.copc_choice import Nodes, View, choose, rank_of
 
 
 class Status(enum.IntEnum):
@@ -145,8 +145,7 @@ class Residency:
         self.store_batch_points = store_batch_points
         n = nodes.level.size
         self.parent = nodes.parents()
-        self.rank = np.empty(n, np.int64)
-        self.rank[np.lexsort((nodes.key[:, 2], nodes.key[:, 1], nodes.key[:, 0], nodes.file, nodes.level))] = np.arange(n)
+        self.rank = rank_of(nodes)
         self.children: list[list[int]] = [[] for _ in range(n)]
         for i in np.argsort(self.rank).tolist():
             if self.parent[i] >= 0:
@@ -172,9 +171,14 @@ class Residency:
     def free(self) -> tuple[int, ...]:
         return tuple(sorted(self._free))
 
-    def target(self, view: View, errors: np.ndarray | None = None) -> np.ndarray:
+    def target(self, view: View, errors: np.ndarray | None = None, order: np.ndarray | None = None) -> np.ndarray:
         """Rows of choose's tree cut for `view` in store batches, the lost left out
-        (errors: nodes.errors(view), where the caller has them)."""
+        (errors: nodes.errors(view), order: the rows by decreasing error, ties by rank,
+        where the caller has them)."""
+        errors = self.nodes.errors(view) if errors is None else errors
+        if not self.lost.any():
+            return choose(dataclasses.replace(self.nodes, points=self.cost), view, self.budget, self.parent, errors,
+                          np.lexsort((self.rank, -errors)) if order is None else order)
         rows = np.nonzero(~self.lost)[0]
         columns = {f.name: getattr(self.nodes, f.name)[rows] for f in dataclasses.fields(Nodes)}
         # The lost go with their whole subtrees, so every other row's parent is among the rows.
@@ -182,8 +186,8 @@ class Residency:
         at[rows] = np.arange(rows.size)
         up = self.parent[rows]
         parent = np.where(up >= 0, at[np.maximum(up, 0)], -1)
-        return rows[choose(Nodes(**{**columns, "points": self.cost[rows]}), view, self.budget, parent,
-                           None if errors is None else errors[rows])]
+        return rows[choose(Nodes(**{**columns, "points": self.cost[rows]}), view, self.budget, parent, errors[rows],
+                           np.lexsort((self.rank[rows], -errors[rows])))]
 
     def begin(self, plan: Plan) -> None:
         """Book a plan: its evictions freed, its requests loading in their batches."""
@@ -271,11 +275,11 @@ def plan(state: Residency, view: View, options: PlanOptions = PlanOptions()) -> 
     """What to evict and request for `view` (the module docstring says by which rules).
     It only reads `state`: the same state and view give the same plan."""
     errors = state.nodes.errors(view)
-    target = state.target(view, errors)
+    order = np.lexsort((state.rank, -errors))
+    target = state.target(view, errors, order)
     in_target = np.zeros(errors.size, bool)
     in_target[target] = True
     booked = np.isin(state.status, BOOKED)
-    order = np.lexsort((state.rank, -errors))
     missing = order[in_target[order] & ~booked[order]].tolist()
 
     booked_children = np.bincount(state.parent[booked & (state.parent >= 0)], minlength=errors.size)

@@ -76,6 +76,15 @@ def test_packing_bench_runs(tmp_path):
         (name, k) for name, _ in packing.CASES for k in (1, 2))
 
 
+def test_plan_bench_runs(tmp_path):
+    """bench.plan times residency plans of synthetic hierarchies, their nodes resident."""
+    from bench import plan
+
+    assert plan.main(["--levels", "3", "5", "--rounds", "2", "--repeats", "1", "--out", str(tmp_path)]) == 0
+    rows = json.loads((tmp_path / "local" / "plan.json").read_text())["rows"]
+    assert [r[0] for r in rows] == [21, 341] and all(r[1] > 0 and r[2] > 0 for r in rows)
+
+
 def test_upload_bench_runs(tmp_path):
     """bench.upload: ring and copy, each for the loads and a headless start whose session
     reports (SessionStatus.staging) the staging it was given."""

@@ -136,6 +136,32 @@ def test_choice_equals_the_brute_force_reference(seed, sides):
                 assert d == 0 or (d - 1, f, x >> 1, y >> 1, z >> 1) in kept
 
 
+def errors_of_rows(nodes: Nodes, view: View) -> np.ndarray:
+    """Nodes.errors as it was computed over (n, 3) rows: the cubes' nearest points by
+    np.clip and np.linalg.norm, their farthest corners by the greater of both ends."""
+    eye = np.asarray(view.position, np.float64)
+    hi = nodes.lo + nodes.side[:, None]
+    nearest = np.linalg.norm(np.clip(eye, nodes.lo, hi) - eye, axis=1)
+    forward = np.asarray(view.forward, np.float64)
+    ahead = np.maximum((nodes.lo - eye) * forward, (hi - eye) * forward).sum(axis=1) >= 0
+    for n, c in view.side_planes() or ():
+        ahead &= np.maximum((nodes.lo - eye) * n, (hi - eye) * n).sum(axis=1) + c >= 0
+    with np.errstate(invalid="ignore"):
+        return np.where(ahead & (nodes.spacing > 0), nodes.spacing * view.pixels_per_unit(nearest), 0.0)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_errors_axis_by_axis_equal_those_of_rows(seed):
+    """Nodes.errors works axis by axis over contiguous columns (3x faster over 87,000
+    nodes); its errors equal, bit for bit, those of the same arithmetic over (n, 3) rows,
+    so the choice and its ties are as they were."""
+    rng = np.random.default_rng(seed)
+    nodes, described = octree(rng, levels=5, keep=0.7, files=2)
+    for ortho, sides in itertools.product((False, True), repeat=2):
+        view = random_view(rng, described, ortho, sides)
+        assert np.array_equal(nodes.errors(view), errors_of_rows(nodes, view))
+
+
 def test_choice_is_the_same_for_the_same_inputs_in_any_order():
     """Same keys for the same view and budget, whatever the rows' order (ties, such as
     an orthographic view's equal errors within a level, go by key, not by row)."""
