@@ -380,9 +380,11 @@ class CopcSource(LasSource):
         node's range, for itself). A local file's node is decoded by `decoders`' process
         `lane` where given (lazrs holds the GIL while it decodes: in this process a node
         stalls the frame loop), else here, as where the processes fail. InputError where
-        the node cannot be read or decoded."""
+        the node cannot be read or decoded. A fetched node's bytes go to the process with
+        its job."""
         node = self.hierarchy.nodes[k]
         count, size = int(node["point_count"]), int(node["byte_size"])
+        elsewhere = None
         if decoders is not None and self.remote is None:
             try:
                 records = decoders.decode_run(lane, self.info.path, int(node["offset"]), ((count, size),),
@@ -392,7 +394,15 @@ class CopcSource(LasSource):
             else:
                 self.info.reads.read(1, count, size)
                 return self.parse(records, start, origin, names)
-        pieces = list(self._node_chunks(np.array([k]), max(1, count), selection(names), salvage=False))
+        elif decoders is not None:
+            def elsewhere(compressed: bytes, records: np.ndarray, table: list) -> bool:
+                try:
+                    decoders.decode_bytes(lane, compressed, tuple(table), self.laz.vlr_data, las.layers(names), records)
+                except DecodeFailed:
+                    return False        # decoded here, which names what is wrong with it
+                return True
+        pieces = list(self._node_chunks(np.array([k]), max(1, count), selection(names), salvage=False,
+                                        elsewhere=elsewhere))
         return self.parse(pieces[0] if len(pieces) == 1 else np.concatenate(pieces), start, origin, names)
 
     def kept_nodes(self) -> np.ndarray:
@@ -403,12 +413,13 @@ class CopcSource(LasSource):
         return np.arange(level.size) if self.depth is None else np.nonzero(level <= self.depth)[0]
 
     def _node_chunks(self, kept: np.ndarray, batch_points: int, chosen,
-                     salvage: bool) -> Iterator[np.ndarray | AfterGap]:
+                     salvage: bool, elsewhere: Callable[[bytes, np.ndarray, list], bool] | None = None
+                     ) -> Iterator[np.ndarray | AfterGap]:
         """The records of the nodes `kept` in file order, in pieces of at most
         batch_points; up to READ_POINTS at a time (FIRST_READ_POINTS first) are read and
-        decoded by lazrs on every core. With salvage, damaged nodes are skipped (the next
-        piece is an AfterGap) and named at the end by a TruncatedInput (the loader's
-        warning)."""
+        decoded by lazrs on every core (or by `elsewhere`: see _decoded). With salvage,
+        damaged nodes are skipped (the next piece is an AfterGap) and named at the end by
+        a TruncatedInput (the loader's warning)."""
         nodes = self.hierarchy.nodes
         dtype = self.records.dtype
         gap, read = 0, 0
@@ -421,7 +432,8 @@ class CopcSource(LasSource):
                     group.append(kept[end])
                     total += int(nodes["point_count"][kept[end]])
                     end += 1
-                for records, skipped in self._decode(fetch, range(at, end), nodes[group], dtype, chosen, salvage):
+                for records, skipped in self._decode(fetch, range(at, end), nodes[group], dtype, chosen, salvage,
+                                                     elsewhere):
                     gap += skipped
                     for first in range(0, len(records), batch_points):
                         piece = records[first:first + batch_points]
@@ -458,7 +470,7 @@ class CopcSource(LasSource):
             yield read
 
     def _decode(self, fetch, positions: range, group: np.ndarray, dtype: np.dtype, chosen,
-                salvage: bool) -> Iterator[tuple[np.ndarray, int]]:
+                salvage: bool, elsewhere=None) -> Iterator[tuple[np.ndarray, int]]:
         """(records, damaged points skipped before them) of the group's nodes, whose
         compressed bytes fetch(k) gives for k in `positions`: decoded in one call,
         or where a node cannot be fetched or that call fails node by node to find the
@@ -478,7 +490,7 @@ class CopcSource(LasSource):
         self.info.reads.read(len(fetched), sum(counts[i] for i in fetched), sum(sizes[i] for i in fetched))
         if len(fetched) == len(parts):
             records = np.empty(sum(counts), dtype)
-            if self._decoded(b"".join(parts), records, list(zip(counts, sizes)), chosen) is None:
+            if self._decoded(b"".join(parts), records, list(zip(counts, sizes)), chosen, elsewhere) is None:
                 yield records, 0
                 return
         skipped = 0
@@ -498,8 +510,12 @@ class CopcSource(LasSource):
         if skipped:
             yield np.empty(0, dtype), skipped
 
-    def _decoded(self, compressed, records: np.ndarray, table: list, chosen) -> str | None:
-        """Decode chunks into records; None, or the decoder's error in one line."""
+    def _decoded(self, compressed, records: np.ndarray, table: list, chosen, elsewhere=None) -> str | None:
+        """Decode chunks into records; None, or the decoder's error in one line.
+        elsewhere(compressed, records, table): decodes them in a decoder process, False
+        where it could not (then they are decoded here)."""
+        if elsewhere is not None and elsewhere(compressed, records, table):
+            return None
         try:
             lazrs.decompress_points_with_chunk_table(compressed, self.laz.vlr_data, memoryview(records).cast("B"),
                                                      table, chosen)

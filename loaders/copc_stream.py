@@ -43,8 +43,9 @@ class NodeReader:
     """Reads nodes of COPC sources (every one usable: `streamable`) on `threads` threads.
     request(row) queues a read; arrivals() gives (row, Batch) or (row, reason) for each
     read finished since, without waiting. Reads may finish in any order. `decoders`:
-    decoder processes for the nodes of local files, one read at a time each (their
-    decoding then leaves the GIL to the frame loop); the reader closes them."""
+    decoder processes for the nodes, one read at a time each (their decoding then leaves
+    the GIL to the frame loop; a URL's node goes to its process once fetched); the
+    reader closes them."""
 
     def __init__(self, sources: tuple[CopcSource, ...], origin: np.ndarray, names: tuple[str, ...], threads: int,
                  decoders: DecoderPool | None = None):
@@ -83,7 +84,7 @@ class NodeReader:
 
     def _read(self, row: int) -> None:
         source = self.sources[int(self._file[row])]
-        ready = self.decoders is not None and self.decoders.ready and source.remote is None
+        ready = self.decoders is not None and self.decoders.ready
         lane = self._lanes.get() if ready else None
         try:
             got: Batch | str = source.node_batch(int(self._local[row]), self.first_index(row), self.origin, self.names,

@@ -284,6 +284,16 @@ class DecoderPool:
         that decode on several threads at once, each on a lane of its own (a streaming
         reader's nodes). DecodeFailed where the workers cannot start or one is lost (the
         caller decodes in its own process then), PoolClosed once closed."""
+        return self._run(lane, (path, offset), table, vlr, layers, np.empty(sum(n for n, _ in table), dtype))
+
+    def decode_bytes(self, lane: int, compressed: bytes, table: tuple[Chunk, ...], vlr: bytes,
+                     layers: laspy.DecompressionSelection | None, out: np.ndarray) -> None:
+        """decode_run of chunks held in memory (a node fetched over HTTP: the worker reads
+        them from a memfd sent with the job), into the records `out`."""
+        self._run(lane, compressed, table, vlr, layers, out)
+
+    def _run(self, lane: int, source: tuple[str, int] | bytes, table: tuple[Chunk, ...], vlr: bytes,
+             layers: laspy.DecompressionSelection | None, out: np.ndarray) -> np.ndarray:
         with self._start_lock:
             workers = self._current()
         if not workers:
@@ -291,7 +301,11 @@ class DecoderPool:
         bits = None if layers is None else lazrs_bits(layers)
         worker = workers[lane % len(workers)]
         try:
-            return self._take(self._send(worker, path, offset, table, vlr, bits, dtype.itemsize), dtype)
+            if isinstance(source, bytes):
+                job = self._send(worker, None, 0, table, vlr, bits, out.dtype.itemsize, source)
+            else:
+                job = self._send(worker, *source, table, vlr, bits, out.dtype.itemsize)
+            return self._take(job, out.dtype, out)
         except OSError as exc:        # its socket reset: the worker is gone
             self._check_open()
             raise self._lost(worker) from exc
@@ -319,31 +333,45 @@ class DecoderPool:
             self._check_open()
         return started
 
-    def _send(self, worker: _Worker, path: str, offset: int, table: tuple[Chunk, ...], vlr: bytes,
-              layers: int | None, itemsize: int) -> _Job:
+    def _send(self, worker: _Worker, path: str | None, offset: int, table: tuple[Chunk, ...], vlr: bytes,
+              layers: int | None, itemsize: int, compressed: bytes | None = None) -> _Job:
+        """The job to `worker`; with `compressed` (path None) its chunks go along in a
+        second memfd, which the worker reads instead of a file."""
         points = sum(n for n, _ in table)
         job = _Job(next(self._ids), worker, os.memfd_create("progressive-laz", os.MFD_CLOEXEC), points,
                    points * itemsize)
+        given = -1
         try:
             os.ftruncate(job.fd, job.nbytes)
+            fds = [job.fd]
+            if compressed is not None:
+                given = os.memfd_create("progressive-laz-in", os.MFD_CLOEXEC)
+                view, put = memoryview(compressed), 0
+                while put < len(view):
+                    put += os.write(given, view[put:])
+                fds.append(given)
             message = pickle.dumps((job.id, path, offset, list(table), vlr, layers, job.nbytes))
             try:
-                socket.send_fds(worker.sock, [message], [job.fd])
+                socket.send_fds(worker.sock, [message], fds)
             except OSError as exc:
                 self._check_open()
                 raise self._lost(worker) from exc
         except BaseException:
             os.close(job.fd)
             raise
+        finally:
+            if given >= 0:
+                os.close(given)         # the worker holds its own descriptor of it now
         return job
 
-    def _take(self, job: _Job, dtype: np.dtype) -> np.ndarray:
-        """The job's records once its worker answers; its error, raised, if it failed."""
+    def _take(self, job: _Job, dtype: np.dtype, out: np.ndarray | None = None) -> np.ndarray:
+        """The job's records once its worker answers (into `out` where given); its
+        error, raised, if it failed."""
         try:
             _, error, text = self._answer(job)
             if error is not None:
                 raise DecodeFailed(text or error)
-            records = np.empty(job.points, dtype)
+            records = np.empty(job.points, dtype) if out is None else out
             view, got = memoryview(records).cast("B"), 0
             while got < job.nbytes:
                 n = os.preadv(job.fd, [view[got:]], got)

@@ -4,7 +4,8 @@ lazrs takes to import and shares no state (no GL context, no threads) with the l
 
 It says READY on the socket whose descriptor is its argument, then reads jobs from it,
 one message each with the memfd to decode into attached: it reads the job's compressed
-chunks from the file itself and decodes them on one core (RAYON_NUM_THREADS=1), then
+chunks from the file itself (or, for chunks fetched over HTTP, from a second memfd sent
+with the job) and decodes them on one core (RAYON_NUM_THREADS=1), then
 answers with the job's id and, where decoding failed, the exception's name and message.
 It ends when the socket closes; Ctrl+C reaches the whole process group and is the
 loader's to handle.
@@ -59,9 +60,11 @@ def _read(fd: int, size: int, offset: int) -> bytes:
     return b"".join(parts)
 
 
-def _decode(files: _Files, job: tuple, out_fd: int) -> None:
+def _decode(files: _Files, job: tuple, fds: list[int]) -> None:
+    """Path None: the chunks are in the second memfd sent (a node fetched over HTTP)."""
     _, path, offset, table, vlr, layers, nbytes = job
-    compressed = _read(files.get(path), sum(n for _, n in table), offset)
+    out_fd = fds[0]
+    compressed = _read(files.get(path) if path is not None else fds[1], sum(n for _, n in table), offset)
     selection = None if layers is None else lazrs.DecompressionSelection(layers)
     with mmap.mmap(out_fd, nbytes) as out:
         view = memoryview(out)
@@ -78,14 +81,14 @@ def main(fd: int) -> None:
     files = _Files()
     while True:
         try:
-            message, fds, _, _ = socket.recv_fds(sock, MESSAGE_BYTES, 1)
+            message, fds, _, _ = socket.recv_fds(sock, MESSAGE_BYTES, 2)
         except OSError:
             return
         if not message:
             return
         job = pickle.loads(message)
         try:
-            _decode(files, job, fds[0])
+            _decode(files, job, fds)
             answer = (job[0], None, None)
         except BaseException as exc:        # lazrs panics are BaseExceptions
             answer = (job[0], type(exc).__name__, str(exc))

@@ -37,7 +37,7 @@ from progressive.loaders.copc_residency import batch_cost
 from progressive.loaders.copc_stream import NodeReader, may_stream, streamable
 from progressive.loaders.crs import file_crs
 from progressive.loaders.http import DEFAULTS as HTTP_DEFAULTS
-from progressive.loaders.http import HttpOptions, is_url
+from progressive.loaders.http import HttpOptions
 from progressive.loaders.laz_pool import DecoderPool
 from progressive.loaders.lookup import read_record
 from progressive.loaders.records import attribute_word
@@ -249,10 +249,9 @@ class Session:
         names = tuple(a.name for a in self.info.attributes) if options.switchable else \
             self._needed(self.attribute, class_filter)
         threads = options.http.in_flight
-        local = any(not is_url(f.path) for f in self.info.files)
         cores = available_cores()
         # as the loader's Decoders.AUTO: on fewer cores the processes' start slows the first image
-        processes = local and laz_pool.available() and cores >= laz_pool.MIN_AUTO_PROCESSES
+        processes = laz_pool.available() and cores >= laz_pool.MIN_AUTO_PROCESSES
         decoders = DecoderPool(min(threads, cores)) if processes else None
         reader = NodeReader(self.loader.sources, self.info.origin, names, threads, decoders)
         scene = None

@@ -180,6 +180,40 @@ def test_nodes_read_alone_equal_laspy(name, processes):
 
 
 @pytest.mark.skipif(not laz_pool.available(), reason="decoder processes are for Linux")
+def test_nodes_fetched_over_http_are_decoded_by_the_processes(sample_copc, monkeypatch):
+    """A URL's nodes, once fetched, go to the decoder processes with their jobs (the
+    GIL stays with the frame loop: nothing is decoded in this process, where lazrs is
+    made to fail), and hold laspy's points of their nodes."""
+    from range_server import RangeServer
+
+    from progressive.loaders import copc as copc_module
+    from progressive.loaders.copc import open_copc_url
+
+    las, xyz = las_xyz(sample_copc)
+    pool = ready_pool()
+    pids = pool.pids()
+    with RangeServer({"sample.copc.laz": sample_copc}) as server:
+        source = open_copc_url(server.url("sample.copc.laz"))
+        reader = NodeReader((source,), np.zeros(3), ("intensity",), threads=2, decoders=pool)
+
+        def here(*args):
+            raise AssertionError("a fetched node was decoded in the loader's process")
+        monkeypatch.setattr(copc_module.lazrs, "decompress_points_with_chunk_table", here)
+        try:
+            got = read_all(reader, range(reader.nodes.level.size))
+            for row, batch in got.items():
+                assert not isinstance(batch, str), batch
+                first = reader.first_index(row)
+                np.testing.assert_array_equal(batch.positions, xyz[first:first + batch.count].astype(np.float32))
+                np.testing.assert_array_equal(batch.attributes["intensity"], las.intensity[first:first + batch.count])
+            assert sum(b.count for b in got.values()) == len(las)
+            assert source.info.reads.snapshot()[0] >= reader.nodes.level.size
+        finally:
+            reader.close()
+    assert not any(os.path.exists(f"/proc/{pid}") for pid in pids)
+
+
+@pytest.mark.skipif(not laz_pool.available(), reason="decoder processes are for Linux")
 def test_decoder_processes_lost_or_given_a_damaged_node(tmp_path):
     """A damaged node decoded by a process is that node's failure, the others arrive; a
     process killed under the reader leaves the decoding to this process, every point
