@@ -11,10 +11,8 @@ size against the cloud's box, and what the rasterizer's frustum cull
 from __future__ import annotations
 
 import argparse
-import datetime
 import enum
 import os
-import platform
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -420,23 +418,6 @@ def notes(cost: dict | None, skipped: tuple[str, ...]) -> list[str]:
     return lines
 
 
-def cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
-
-
-def run_info(mode: str) -> RunInfo:
-    """GPU-free: the CPU stands where the other tables name the GL device."""
-    return RunInfo(device=f"CPU only: {cpu_name()}", driver=f"numpy {np.__version__}, laspy {laspy.__version__}",
-                   machine="cpu", date=datetime.datetime.now().isoformat(timespec="seconds"), host=platform.node(),
-                   mode=mode)
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench.compactness", description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=SHARED, help="folder of real LAS/LAZ files")
@@ -452,7 +433,7 @@ def main(argv=None) -> int:
     cost = {**sort_cost(source.xyz[:args.cost_points], args.repeats), "repeats": args.repeats,
             "data": f"{source.name} ({source.kind})"}
     table = run(clouds, ORDERINGS, cost, tuple(skipped))
-    info = run_info(f"cap {args.cap:,} points a file, synthetic {args.synthetic_points:,}")
+    info = RunInfo.cpu_only(f"cap {args.cap:,} points a file, synthetic {args.synthetic_points:,}")
     table.write(args.out, info)
     print(table.markdown(info))
     return 0

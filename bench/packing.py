@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import platform
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -90,17 +89,6 @@ def run(points: int, threads: list[int], repeats: int) -> Table:
     return table
 
 
-def cpu_name() -> str:
-    """The CPU's model name (Linux), for the table's device line."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "CPU"
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--points", type=int, default=20_000_000)
@@ -112,10 +100,7 @@ def main(argv=None) -> int:
     cores = available_cores()
     threads = args.threads or sorted({1, 2, 4, 8, cores} & set(range(1, cores + 1)))
     table = run(args.points, threads, args.repeats)
-    info = RunInfo(device=cpu_name(), driver="", machine=args.machine, date=time.strftime("%Y-%m-%dT%H:%M:%S"),
-                   host="", mode="packing only")
-    table.write(Path(args.out) / args.machine, info)
-    print(table.markdown(info))
+    table.publish(RunInfo.cpu_only("packing only", args.machine), None, Path(args.out))
     return 0
 
 

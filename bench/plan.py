@@ -13,7 +13,6 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.packing import cpu_name
 from bench.report import RunInfo, Table
 from progressive.loaders.copc_choice import Nodes, View
 from progressive.loaders.copc_residency import PlanOptions, Residency, plan
@@ -72,10 +71,7 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default="bench/results")
     args = ap.parse_args(argv)
     table = run(args.levels, args.budget_points, args.rounds, args.repeats)
-    info = RunInfo(device=cpu_name(), driver="", machine=args.machine, date=time.strftime("%Y-%m-%dT%H:%M:%S"),
-                   host="", mode="plan only")
-    table.write(Path(args.out) / args.machine, info)
-    print(table.markdown(info))
+    table.publish(RunInfo.cpu_only("plan only", args.machine), None, Path(args.out))
     return 0
 
 

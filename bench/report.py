@@ -39,6 +39,26 @@ class RunInfo:
         return cls(device=caps.renderer, driver=caps.version, machine=machine_name(caps),
                    date=datetime.datetime.now().isoformat(timespec="seconds"), host=platform.node(), mode=mode)
 
+    @classmethod
+    def cpu_only(cls, mode: str, machine: str = "cpu") -> RunInfo:
+        """GPU-free benches: the CPU stands where the other tables name the GL device."""
+        import laspy
+        import numpy as np
+        return cls(device=f"CPU only: {cpu_name()}", driver=f"numpy {np.__version__}, laspy {laspy.__version__}",
+                   machine=machine, date=datetime.datetime.now().isoformat(timespec="seconds"),
+                   host=platform.node(), mode=mode)
+
+
+def cpu_name() -> str:
+    """The CPU's model name (Linux), else what the platform says."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
 
 @dataclass
 class Table:
