@@ -119,7 +119,7 @@ class Nodes:
     def corners(self) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...]]:
         """Each axis's least and greatest cube coordinate, as contiguous columns: errors()
         works axis by axis over them (over the rows of an (n, 3) array numpy loops three
-        elements at a time: 60 ms for 87,000 nodes, most of a plan)."""
+        elements at a time: 33 of a plan's 57 ms for 87,381 nodes on a 2-core Xeon)."""
         lo = tuple(np.ascontiguousarray(self.lo[:, a]) for a in range(3))
         return lo, tuple(least + self.side for least in lo)
 
