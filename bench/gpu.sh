@@ -14,7 +14,7 @@
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
-CHUNKS=(files-100M load-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B winners-1B accuracy attributes packing)
+CHUNKS=(files-100M load-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B winners-1B accuracy attributes packing startup-100M)
 chunk="${1:-list}"
 if [ "$chunk" = list ]; then
     printf '%s\n' "${CHUNKS[@]}"
@@ -58,5 +58,9 @@ case "$chunk" in
     # the host side of an attribute switch: words packed on the CPU at 1, 2, 4, 8 threads and every core,
     # 200M points of their own memory (no GPU; a minute)
     packing)          "${PYTHON:-python3}" -m bench.packing --points 200000000 --machine "$(machine)" --out "$OUT" "${@:2}" ;;
+    # where the time to the first image goes at 100M points (LAS, LAZ, fast; view, both caches warm): what grows
+    # with the cloud (files-100M makes the files, this chunk too if absent)
+    startup-100M)     "${PYTHON:-python3}" -m bench.startup --scaled 100000000 --commands view \
+                          --caches "Mesa + program cache" --out "$OUT/$(machine)" "${@:2}" ;;
     *) echo "unknown chunk '$chunk'; one of: ${CHUNKS[*]}" >&2; exit 2 ;;
 esac

@@ -5,8 +5,11 @@ binary formats), a first run (both caches empty, filled by the run), Mesa's cach
 warm, and Mesa's cache with the program binary cache warm.
 
     python -m bench.startup [--repeats 3] [--width 1280 --height 720]
+    python -m bench.startup --scaled 100000000 --commands view --caches "Mesa + program cache"
 
-writes bench/results/<machine>/startup.{md,json}."""
+writes bench/results/<machine>/startup.{md,json}; with --scaled N, the sample tiled to N
+points as LAS, LAZ and fast format (bench/data.py) instead, to startup_N: what of the
+time to the first image grows with the cloud."""
 
 from __future__ import annotations
 
@@ -100,19 +103,20 @@ def one(command: str, path: Path, size: tuple[int, int], env: dict[str, str]) ->
     return spawn("bench.startup", command, path, size, env)
 
 
-def run(files: list[Path], size: tuple[int, int], repeats: int):
+def run(files: list[Path], size: tuple[int, int], repeats: int, commands=("render", "view"), states=CACHE_STATES,
+        name: str = "startup", points: str = "the files as they are"):
     from bench.report import Table
 
-    table = Table("startup", "Time to first image: the phases, per command and cache state", ", ".join(p.name for p in files),
-                  "the files as they are", ("command", "file", "caches", "process s", "import", "read", "context",
+    table = Table(name, "Time to first image: the phases, per command and cache state", ", ".join(p.name for p in files),
+                  points, ("command", "file", "caches", "process s", "import", "read", "context",
                                             "passes", "of which programs", "upload", "first frame", "glFinish",
                                             "programs loaded / compiled"))
     warm = {"mesa": tempfile.mkdtemp(prefix="mesa-warm-"), "programs": tempfile.mkdtemp(prefix="programs-warm-")}
     rows, device = [], None
-    for command in ("render", "view"):
+    for command in commands:
         for path in files:
             one(command, path, size, environment("Mesa + program cache", warm))      # fills the warm caches
-            for state in CACHE_STATES:
+            for state in states:
                 runs = [one(command, path, size, environment(state, warm)) for _ in range(repeats)]
                 device = runs[0]["device"]
                 med = {k: statistics.median(r[k] for r in runs) for k in (*PHASES, "process", "in_process")}
@@ -141,11 +145,22 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     child_arguments(parser, "COMMAND")
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--scaled", type=int, help="the sample tiled to this many points, as LAS, LAZ and fast format")
+    parser.add_argument("--commands", nargs="+", choices=("render", "view"), default=["render", "view"])
+    parser.add_argument("--caches", nargs="+", choices=CACHE_STATES, default=list(CACHE_STATES))
     args = parser.parse_args(argv)
     if answer_child(args, child):
         return 0
-    files = [SAMPLE] + ([LAZ] if LAZ.is_file() else [])
-    table, device = run(files, (args.width, args.height), args.repeats)
+    extra = {}
+    if args.scaled:
+        from bench import data
+        made = data.scaled(args.scaled)
+        files = [made.las, made.laz, made.fast]
+        extra = {"name": f"startup_{args.scaled}", "points": f"{args.scaled:,}"}
+    else:
+        files = [SAMPLE] + ([LAZ] if LAZ.is_file() else [])
+    table, device = run(files, (args.width, args.height), args.repeats, tuple(args.commands), tuple(args.caches),
+                        **extra)
     from bench.report import RunInfo
     from progressive.context import Capabilities
 

@@ -85,6 +85,20 @@ def test_plan_bench_runs(tmp_path):
     assert [r[0] for r in rows] == [21, 341] and all(r[1] > 0 and r[2] > 0 for r in rows)
 
 
+def test_startup_bench_times_scaled_files(tmp_path, monkeypatch):
+    """bench.startup --scaled: the phases to the first image of the sample tiled as LAS,
+    LAZ and fast format, each in a fresh process (the files made in a cache of the test's)."""
+    from bench import data, startup
+
+    made = data.scaled(30_000, cache=tmp_path / "cache")
+    monkeypatch.setattr(data, "scaled", lambda points: made)
+    assert startup.main(["--scaled", "30000", "--commands", "view", "--caches", "Mesa + program cache",
+                         "--repeats", "1", "--width", "96", "--height", "64", "--out", str(tmp_path / "out")]) == 0
+    rows = json.loads((tmp_path / "out" / "startup_30000.json").read_text())["raw"]["rows"]
+    assert [r["file"] for r in rows] == [p.name for p in (made.las, made.laz, made.fast)]
+    assert all(r["median"]["process"] > r["median"]["first_frame"] > 0 for r in rows)
+
+
 def test_upload_bench_runs(tmp_path):
     """bench.upload: ring and copy, each for the loads and a headless start whose session
     reports (SessionStatus.staging) the staging it was given."""
