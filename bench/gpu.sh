@@ -4,7 +4,7 @@
 # each chunk's files into bench/results/<machine>/ here, then rebuild the headline and
 # the README from them: python -m bench.headline bench/results/<machine>
 #
-# On the GPU machine (checkout carried with .gpu, see ../shared/gpu/README.md):
+# On the GPU machine (checkout carried with .gpu, which bench/carry_gpu.sh prepares here; ../shared/gpu/README.md):
 #   bash bench/gpu.sh raster-100M        # one chunk
 #   bash bench/gpu.sh list               # the chunks, in the order to run them
 #   bash bench/gpu.sh load-100M --max-points 30000   # arguments after the chunk go to its command (a trial run)

@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# Prepares .gpu/ (ignored by git) for carrying to the lent GPU machine, from ../shared/gpu
+# (see its README.md): a writable copy; glvnd's unversioned names as real files (the shared
+# folder keeps libGL.so and libEGL.so as 10-byte files naming their targets, and links do
+# not travel); and wheels for that machine's Python 3.12 of the package's dependencies the
+# shared folder lacks (plyfile, pye57, pyproj: without plyfile nothing imports there).
+# Run here, then `run` with carry [".gpu"] and `source .gpu/env.sh` there.
+#   bash bench/carry_gpu.sh
+set -euo pipefail
+cd "$(dirname "${BASH_SOURCE[0]}")/.."
+SHARED="${SHARED_GPU:-../shared/gpu}"
+PY="${PYTHON:-.venv/bin/python}"
+
+rm -rf .gpu
+cp -r "$SHARED" .gpu
+chmod -R u+w .gpu
+for name in .gpu/glvnd/*; do
+    # a file of a few bytes that names another file of the folder stands for a link to it
+    if [ -f "$name" ] && [ "$(stat -c %s "$name")" -lt 64 ]; then
+        target=".gpu/glvnd/$(tr -d '\n' < "$name")"
+        [ -f "$target" ] && cp "$target" "$name"
+    fi
+done
+for requirement in plyfile pye57 pyproj; do
+    version="$("$PY" -c "import importlib.metadata as m, sys; print(m.version(sys.argv[1]))" "$requirement")"
+    "$PY" -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
+        --platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64 \
+        -d .gpu/wheels "$requirement==$version" 2>&1 | grep -v '^WARNING' || true
+done
+mkdir -p .git/info
+grep -qx '/.gpu/' .git/info/exclude 2>/dev/null || echo '/.gpu/' >> .git/info/exclude
+ls .gpu/wheels
+du -sh .gpu
