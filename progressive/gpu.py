@@ -1,8 +1,9 @@
 """Small GPU helpers shared by passes: dispatch grids within GL's guaranteed limits,
-the camera uniforms of camera.glsl."""
+the camera uniforms of camera.glsl, the fill of shaders/clear.comp."""
 
 from __future__ import annotations
 
+from progressive.bindings import Binding
 from progressive.camera import ViewUniforms
 
 GUARANTEED_GROUPS = 65535
@@ -24,6 +25,16 @@ def grid(count: int, local_size: int = RANGE_GROUP) -> tuple[int, int, int]:
 def dispatch_defines() -> dict[str, str]:
     """What dispatch_grid() in common.glsl needs."""
     return {"RANGE_GROUP": f"{RANGE_GROUP}u", "GUARANTEED_GROUPS": f"{GUARANTEED_GROUPS}u"}
+
+
+def fill_uvec4s(program, buffer, first: int, count: int, value: int) -> None:
+    """uvec4s [first, first + count) of `buffer` set to `value` by `program`, a
+    shaders/clear.comp its pass owns (the caller puts the barrier its readers need)."""
+    program["u_first"] = first
+    program["u_count"] = count
+    program["u_value"] = value
+    buffer.bind_to_storage_buffer(Binding.COUNTERS)
+    program.run(*grid(count))
 
 
 def grid_2d(width: int, height: int, tile: int = 16) -> tuple[int, int, int]:

@@ -10,7 +10,7 @@ from progressive.bindings import Binding
 from progressive.camera import ViewUniforms
 from progressive.context import GLContext
 from progressive.encoding import Precision
-from progressive.gpu import grid, set_view
+from progressive.gpu import fill_uvec4s, grid, set_view
 from progressive.loaders.records import RECORD_BYTES
 from progressive.passes.handles import EMPTY, Culling, FillPieces, Meta, Reprojection, Source, StateWord, Visibility, Winners
 from progressive.permutation import SLICE_POINTS
@@ -127,21 +127,12 @@ class ComputeRaster:
         """Every slot word empty (a compute clear: glClearBufferSubData took 0.27 ms for
         a 1080p frame's 8 MB on the H200)."""
         w = self._winners
-        self._fill(w.buffer, w.pixels, -(-w.pixels // 4), EMPTY)
+        fill_uvec4s(self._clear, w.buffer, w.pixels, -(-w.pixels // 4), EMPTY)
         self.glc.ctx.memory_barrier()
 
     def _clear_improved(self) -> None:
-        self._fill(self._improved, 0, self._improved.size // 16, 0)
+        fill_uvec4s(self._clear, self._improved, 0, self._improved.size // 16, 0)
         self.glc.ctx.memory_barrier()
-
-    def _fill(self, buffer, first: int, count: int, value: int) -> None:
-        """uvec4s [first, first+count) of `buffer` to `value`."""
-        program = self._clear
-        program["u_first"] = first
-        program["u_count"] = count
-        program["u_value"] = value
-        buffer.bind_to_storage_buffer(Binding.COUNTERS)
-        program.run(*grid(count))
 
     def program(self, source: Source, pass_index: int):
         """Compiled at construction, so no frame pays for a compile."""

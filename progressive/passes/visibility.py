@@ -9,7 +9,7 @@ import numpy as np
 from progressive import shaderlib
 from progressive.bindings import Binding
 from progressive.context import GLContext
-from progressive.gpu import grid
+from progressive.gpu import fill_uvec4s
 from progressive.passes.handles import EMPTY
 
 
@@ -39,12 +39,7 @@ class VisibilityBuffer:
 
     def clear(self) -> None:
         """Every pixel empty, on the GPU (8 bytes a pixel: one uvec4 clears two)."""
-        count = -(-self.pixels // 2)
-        self.clear_program["u_first"] = 0
-        self.clear_program["u_count"] = count
-        self.clear_program["u_value"] = EMPTY
-        self.buffer.bind_to_storage_buffer(Binding.COUNTERS)
-        self.clear_program.run(*grid(count))
+        fill_uvec4s(self.clear_program, self.buffer, 0, -(-self.pixels // 2), EMPTY)
         self.glc.ctx.memory_barrier()
 
     def bind(self) -> None:
