@@ -144,6 +144,18 @@ def read_all(reader: NodeReader, rows) -> dict:
     return got
 
 
+def assert_every_node_is_laspys(reader: NodeReader, got: dict, las: laspy.LasData, xyz: np.ndarray) -> None:
+    """Each node read (none failed) holds laspy's points of that node, numbered by their
+    index in the file, and together every point of the file."""
+    for row, batch in got.items():
+        assert not isinstance(batch, str), batch
+        first = reader.first_index(row)
+        assert batch.start == first and batch.count == reader.nodes.points[row]
+        np.testing.assert_array_equal(batch.positions, xyz[first:first + batch.count].astype(np.float32))
+        np.testing.assert_array_equal(batch.attributes["intensity"], las.intensity[first:first + batch.count])
+    assert sum(b.count for b in got.values()) == len(las)
+
+
 def ready_pool() -> DecoderPool:
     pool = DecoderPool(2)
     pool.start_soon()
@@ -167,13 +179,7 @@ def test_nodes_read_alone_equal_laspy(name, processes):
     pids = pool.pids() if pool else []
     reader = NodeReader((open_copc(path),), np.zeros(3), ("intensity",), threads=2, decoders=pool)
     try:
-        got = read_all(reader, range(reader.nodes.level.size))
-        for row, batch in got.items():
-            first = reader.first_index(row)
-            assert batch.start == first and batch.count == reader.nodes.points[row]
-            np.testing.assert_array_equal(batch.positions, xyz[first:first + batch.count].astype(np.float32))
-            np.testing.assert_array_equal(batch.attributes["intensity"], las.intensity[first:first + batch.count])
-        assert sum(b.count for b in got.values()) == len(las)
+        assert_every_node_is_laspys(reader, read_all(reader, range(reader.nodes.level.size)), las, xyz)
     finally:
         reader.close()
     assert len(pids) == (2 if processes else 0) and not any(os.path.exists(f"/proc/{pid}") for pid in pids)
@@ -200,13 +206,7 @@ def test_nodes_fetched_over_http_are_decoded_by_the_processes(sample_copc, monke
             raise AssertionError("a fetched node was decoded in the loader's process")
         monkeypatch.setattr(copc_module.lazrs, "decompress_points_with_chunk_table", here)
         try:
-            got = read_all(reader, range(reader.nodes.level.size))
-            for row, batch in got.items():
-                assert not isinstance(batch, str), batch
-                first = reader.first_index(row)
-                np.testing.assert_array_equal(batch.positions, xyz[first:first + batch.count].astype(np.float32))
-                np.testing.assert_array_equal(batch.attributes["intensity"], las.intensity[first:first + batch.count])
-            assert sum(b.count for b in got.values()) == len(las)
+            assert_every_node_is_laspys(reader, read_all(reader, range(reader.nodes.level.size)), las, xyz)
             assert source.info.reads.snapshot()[0] >= reader.nodes.level.size
         finally:
             reader.close()
