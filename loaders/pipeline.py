@@ -198,10 +198,35 @@ def _as_input_error(path: str, exc: BaseException) -> InputError:
     return fail(path, f"cannot be loaded: {type(exc).__name__}: {exc}")
 
 
+class Hold:
+    """How many batches a loader's workers may still start (None: any): a caller that
+    holds them after the first builds what shows it (context, buffers, programs) with
+    the GIL and the cores to itself, then releases them."""
+
+    def __init__(self, first: int | None = None):
+        self._left = first
+        self._changed = threading.Condition()
+
+    def admit(self, stop: threading.Event) -> bool:
+        """Wait until one more batch may start; False once the loader is stopped."""
+        with self._changed:
+            while self._left == 0 and not stop.is_set():
+                self._changed.wait(WAIT_S)
+            if self._left:
+                self._left -= 1
+        return not stop.is_set()
+
+    def release(self) -> None:
+        with self._changed:
+            self._left = None
+            self._changed.notify_all()
+
+
 class BatchQueue:
     """Polling and iterating the batches worker threads put on `_results`: what every
-    loader shares. A subclass sets `_results` and `_stop`, and defines start(), `done`,
-    _take(item, batches) and _raise_failure()."""
+    loader shares. A subclass sets `_results` and `_stop`, and defines start(first),
+    resume(), `done`, _take(item, batches) and _raise_failure(). Iterating resumes a
+    loader started with `first`: it waits for every batch."""
 
     def poll(self, max_batches: int | None = None) -> list[Batch]:
         """The batches ready now, without waiting."""
@@ -219,6 +244,7 @@ class BatchQueue:
 
     def __iter__(self) -> Iterator[Batch]:
         self.start()
+        self.resume()
         while not self.done:
             self._raise_failure()
             if self._stop.is_set():
@@ -276,6 +302,7 @@ class CloudLoader(BatchQueue):
         self._stop = threading.Event()
         self._error: InputError | None = None
         self._threads: list[threading.Thread] = []
+        self._hold = Hold()
         self._decoders = DecoderPool.chosen(laz)
 
     def _chosen(self, attributes: tuple[str, ...] | None) -> tuple[str, ...]:
@@ -305,14 +332,20 @@ class CloudLoader(BatchQueue):
         """Every batch has been handed to the consumer."""
         return self._finished == self.parser_threads
 
-    def start(self) -> CloudLoader:
+    def start(self, first: int | None = None) -> CloudLoader:
+        """first: parse that many batches, then wait for resume() (a first start only)."""
         if not self._threads:
+            self._hold = Hold(first)
             self._threads = [threading.Thread(target=self._read, name="progressive-reader", daemon=True)]
             self._threads += [threading.Thread(target=self._parse, name=f"progressive-parser-{i}", daemon=True)
                               for i in range(self.parser_threads)]
             for thread in self._threads:
                 thread.start()
         return self
+
+    def resume(self) -> None:
+        """Parse the rest (after start(first))."""
+        self._hold.release()
 
     def close(self) -> None:
         """Stop the threads; they notice within WAIT_S or after the chunk being decoded
@@ -402,6 +435,8 @@ class CloudLoader(BatchQueue):
     def _parse(self) -> None:
         try:
             while (task := self._get(self._tasks)) is not _END:
+                if not self._hold.admit(self._stop):
+                    return
                 path, make = task
                 try:
                     batch = make()

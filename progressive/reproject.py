@@ -26,7 +26,7 @@ from progressive.loaders.crs import epsg_code, file_crs
 from progressive.loaders.http import DEFAULTS as HTTP_DEFAULTS
 from progressive.loaders.http import HttpOptions
 from progressive.loaders.lookup import locate, read_point
-from progressive.loaders.pipeline import JOIN_S, WAIT_S, BatchQueue
+from progressive.loaders.pipeline import JOIN_S, WAIT_S, BatchQueue, Hold
 from progressive.loaders.types import AttributeInfo, Batch, CloudInfo, FileInfo, nonfinite_rows
 from progressive.loaders.validate import fail, shown
 from progressive.permutation import LAYOUT, Permutation
@@ -129,6 +129,7 @@ class ReprojectingLoader(BatchQueue):
         self._loaders = []
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._hold = Hold()
         if not paths:
             raise InputError("no input files given")
         try:
@@ -218,19 +219,24 @@ class ReprojectingLoader(BatchQueue):
         for loader in self._loaders:
             loader.keep_only(attributes)
 
-    def start(self) -> ReprojectingLoader:
+    def start(self, first: int | None = None) -> ReprojectingLoader:
         """The files load in turn on one thread that reprojects as they come (pyproj
-        releases the GIL), so a render loop polling batches does not wait for it."""
+        releases the GIL), so a render loop polling batches does not wait for it.
+        first: that many batches are reprojected until resume()."""
         if self._thread is None:
+            self._hold = Hold(first)
             self._thread = threading.Thread(target=self._run, name="progressive-reproject", daemon=True)
             self._thread.start()
         return self
+
+    def resume(self) -> None:
+        self._hold.release()
 
     def _run(self) -> None:
         try:
             for k, loader in enumerate(self._loaders):
                 for batch in loader:
-                    if not self._put(self._reprojected(k, batch)):
+                    if not (self._hold.admit(self._stop) and self._put(self._reprojected(k, batch))):
                         return
                 if self._stop.is_set():
                     return

@@ -53,6 +53,11 @@ from progressive.streaming import PLAN, StoreChange, Streamer, StreamStatus
 
 PICK_RADIUS = 7
 """Pixels around a picked pixel searched for the nearest point shown."""
+FIRST_HELD = 1
+"""Batches the loader parses before the first frame is issued: until then the context,
+the renderer's buffers and programs and the first upload have the GIL and the cores to
+themselves (at 100 M points on the H200 machine's 16 cores the first frame was issued
+in 0.12-0.13 s instead of 0.16-0.33 s: bench/results/nvidia-h200/startup_hold/)."""
 
 
 class Method(enum.Enum):
@@ -208,9 +213,9 @@ class Session:
                 self.attribute = find_attribute(self.info, options.color_by)
                 if not options.switchable:
                     self.loader.keep_only(self._needed(self.attribute, options.class_filter))
-                self.loader.start()
+                self.loader.start(FIRST_HELD)
             else:
-                self.loader.start()
+                self.loader.start(FIRST_HELD)
                 self._early = self._first_batches()
                 self.attribute, note = default_choice(self.info, self._early[0] if self._early else None)
                 self._notes += [note] if note else []
@@ -524,6 +529,7 @@ class Session:
             if self.streamer is not None and (change := self.streamer.update(node_view(camera, *self.size))):
                 self.renderer.nodes_changed(StoreChange.EMPTIED in change, self.streamer.written)
             passes = self.renderer.frame(camera, style, effects, hidden, clip, returns)
+            self.loader.resume()
         if self.first_image_seconds is None and self.renderer.scene.loaded > 0:
             now = time.perf_counter()
             self.first_image_seconds = now - self.opened

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import io
 import os
+import time
 
 import laspy
 import lazrs
@@ -379,3 +380,41 @@ def test_kept_records_stay_within_their_bound(synthetic, monkeypatch):
     assert_equals_laspy(loader, batches, las)
     assert decoded[0] == len(las.points) + 500_000 - 100_000     # the probe's points but its first read's
     assert loader._sources[0].kept.nbytes == 0
+
+
+def test_a_held_loader_parses_its_first_batches_until_resumed():
+    """start(first=2): two batches come, then none however long the caller waits (the
+    session builds its renderer meanwhile); resume() brings the rest, equal to an
+    unheld load."""
+    _, expected = load([SAMPLE], batch_points=9_000, parser_threads=4)
+    with CloudLoader([SAMPLE], batch_points=9_000, parser_threads=4) as loader:
+        loader.start(first=2)
+        got, deadline = [], time.monotonic() + 10
+        while len(got) < 2 and time.monotonic() < deadline:
+            got += loader.poll()
+            time.sleep(0.01)
+        time.sleep(0.3)
+        got += loader.poll()
+        assert len(got) == 2 and not loader.done
+        loader.resume()
+        got += list(loader)
+    got.sort(key=lambda b: b.start)
+    assert_covers(got, loader.total, 9_000)
+    np.testing.assert_array_equal(joined(got), joined(expected))
+
+
+def test_a_held_loader_of_fewer_batches_finishes_and_iterating_resumes():
+    """A loader held at as many batches as the cloud has is done without resume();
+    iterating a held loader resumes it (a blocking consumer wants every batch)."""
+    _, expected = load([SAMPLE], parser_threads=3)
+    with CloudLoader([SAMPLE], parser_threads=3) as loader:
+        loader.start(first=len(expected))
+        got, deadline = [], time.monotonic() + 10
+        while not loader.done and time.monotonic() < deadline:
+            got += loader.poll()
+            time.sleep(0.01)
+        assert loader.done and len(got) == len(expected)
+    with CloudLoader([SAMPLE], batch_points=9_000, parser_threads=3) as loader:
+        loader.start(first=1)
+        batches = list(loader)
+    assert_covers(sorted(batches, key=lambda b: b.start), loader.total, 9_000)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import time
 
 import laspy
 import numpy as np
@@ -245,3 +246,31 @@ def test_a_session_colouring_by_one_attribute_reads_only_it(gl, name, color_by, 
             shown[switchable] = (s.ids().copy(), s.image().copy())
     assert np.array_equal(shown[False][0], shown[True][0]) and (shown[False][0] != EMPTY).any()
     assert np.array_equal(shown[False][1], shown[True][1])
+
+
+@pytest.mark.parametrize("color_by", [None, "intensity"])
+def test_a_session_holds_its_loader_until_the_first_frame(gl, color_by):
+    """Opening a session parses FIRST_HELD batches and no more until its first frame is
+    issued (the renderer is built with the GIL to itself); then the rest loads and the
+    still view converges to the brute-force render."""
+    from progressive.session import FIRST_HELD, Method, Session, SessionOptions
+
+    progressive = SessionOptions(width=W, height=H, color_by=color_by)
+    with Session([str(SAMPLE)], progressive, glc=gl) as s:
+        assert s.loader.total > FIRST_HELD * 100_000     # more batches than are held
+        deadline = time.monotonic() + 0.5
+        while time.monotonic() < deadline:
+            for b in s.loader.poll():   # what the first frame would take
+                s.renderer.add_batch(b)
+            time.sleep(0.01)
+        assert 0 < s.loader.loaded <= FIRST_HELD * 100_000 and not s.loader.done
+        camera = s.auto_camera()
+        for _ in range(200):
+            s.frame(camera)
+            if s.converged:
+                break
+        assert s.converged and s.renderer.scene.loaded == s.loader.total
+        ids = s.ids().copy()
+    with Session([str(SAMPLE)], dataclasses.replace(progressive, method=Method.BRUTE), glc=gl) as s:
+        s.frame(camera)
+        assert np.array_equal(ids, s.ids())
