@@ -46,13 +46,14 @@ def test_hit_renders_what_a_compile_renders(cached, tmp_path):
     if first.programs.directory is None:
         pytest.skip("the driver offers no program binary formats")
     compiled = render_ids(first)
-    assert first.programs.stats.hits == 0 and first.programs.stats.misses > 0
+    built = first.programs.stats.hits + first.programs.stats.misses
+    assert first.programs.stats.misses > 0          # a hit here: two passes build the same program
     entries = sorted((tmp_path / "programs").glob("*.bin"))
     assert len(entries) == first.programs.stats.misses
     assert not list((tmp_path / "programs").glob(".tmp-*"))
     second = cached()
     loaded = render_ids(second)
-    assert second.programs.stats.misses == 0 and second.programs.stats.hits == first.programs.stats.misses
+    assert second.programs.stats.misses == 0 and second.programs.stats.hits == built
     assert (compiled != 0xFFFFFFFF).sum() > 1000
     np.testing.assert_array_equal(loaded, compiled)
     uncached = create_context(program_cache=None)
