@@ -69,7 +69,7 @@ def run(glc: GLContext, points: int, repeats: int = 3) -> Table:
                            round(packing, 4)))
         raw.append({"attribute": name, "components": components, "points": points, "seconds": best,
                     "points_per_s": rate, "packing_seconds": packing})
-    pieces = scene.distribute.piece_items(1)
+    pieces = scene.distribute.word_piece_items()
     scene.release()
     table.notes = [
         ("Each switch: the kept batches in file order as runs of words, each packed on the CPU (numpy, "
@@ -94,7 +94,7 @@ def packing_seconds(scene: Scene, attribute, words: np.ndarray, repeats: int) ->
     best = float("inf")
     for _ in range(repeats):
         t0 = time.perf_counter()
-        step = scene.distribute.piece_items(1)
+        step = scene.distribute.word_piece_items()
         for lo in range(0, run.count, step):
             fill(words[lo: lo + step], lo, min(run.count, lo + step))
         best = min(best, time.perf_counter() - t0)

@@ -346,7 +346,7 @@ class Scene:
     def _word_run(self, sw: AttributeSwitch, packer: WordPacker) -> WordRun:
         """From where the switch stands, the kept batches that follow each other in file
         order and need only their words, up to one staging piece of words."""
-        room = self.distribute.piece_items(1)
+        room = self.distribute.word_piece_items()
         parts, at, i, row = [], None, sw.next_batch, sw.next_row
         while i < sw.batches and room > 0:
             k = sw.order[i]

@@ -148,10 +148,14 @@ def test_switched_words_equal_the_reference(gl, sample_batches, encoding, name):
     for b in loaded:
         scene.add_batch(b)
     scene.distribute.batch_points = 3_001      # pieces of 12,004 words: runs and batches split over pieces
+    scene.distribute.word_piece = 12_004
     before = scene.store.read_words()
     np.testing.assert_array_equal(before[:, 3], expected_words(scene, loaded, first))
     attribute = info.attribute(name)
+    stats = scene.distribute.stats
+    pieces = stats.ring + stats.copied
     switch(scene, attribute)
+    assert stats.ring + stats.copied - pieces >= -(-info.points // 12_004)     # pieces of the word piece at most
     after = scene.store.read_words()
     np.testing.assert_array_equal(after[:, 3], expected_words(scene, loaded, attribute))
     assert not np.array_equal(after[:, 3], before[:, 3])
@@ -174,6 +178,7 @@ def test_interrupted_switches_and_switching_while_loading(gl, sample_batches, en
     for batch in loaded[:half]:
         scene.add_batch(batch)
     scene.distribute.batch_points = 2_000
+    scene.distribute.word_piece = 8_000
     scene.begin_switch(b)
     assert not scene.stream(seconds=0.0)         # one run of 8,000 words
     for batch in loaded[half: half + 3]:
@@ -246,6 +251,7 @@ def test_parts_encoded_again_during_a_switch_are_rewritten(gl, sample_batches):
     scene.add_batch(z)
     scene.add_batch(x)
     scene.distribute.batch_points = 2_000
+    scene.distribute.word_piece = 8_000
     scene.begin_switch(b)
     scene.stream(seconds=0.0)                    # one run, inside z: x still holds a
     scene.add_batch(y)                           # batch 5 encoded again, x's rows of it with b

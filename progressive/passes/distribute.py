@@ -28,6 +28,10 @@ RING_SLOTS = 4
 """Pieces the GPU may still be reading while the CPU packs the next: a frame's batches
 and the one after (a piece finding its slot busy is copied instead)."""
 RECORD_WORDS = RECORD_BYTES // 4
+WORD_PIECE_WORDS = 1 << 24
+"""Attribute words one piece of a switch stages (64 MiB): handed a slot of records'
+worth (2 M words) split over 8 threads, packing threads spent about as long starting
+and joining as packing (bench/packing.py, words a call)."""
 
 Fill = Callable[[np.ndarray, int, int], int]
 """fill(out, lo, hi) writes items [lo, hi) into `out` ((hi - lo, width) uint32, maybe
@@ -98,20 +102,24 @@ class StagingRing:
 
 class DistributePass:
     def __init__(self, glc: GLContext, store: PointStore, batch_points: int = BATCH_POINTS,
-                 ring_slots: int = RING_SLOTS):
+                 ring_slots: int = RING_SLOTS, word_piece: int = WORD_PIECE_WORDS):
         """ring_slots: staging slots of batch_points records each, fewer and smaller for a
         smaller cloud (where the context has buffer storage; GLFunctions.storage None
-        stands for a driver without)."""
+        stands for a driver without). word_piece: words a slot of the ring of attribute
+        switches holds (made at the first switch; the copy path stages a records' slot)."""
         self.glc = glc
         self.store = store
         self.batch_points = batch_points
         storage = glc.gl.storage
         offered = storage is not None and BufferStorage.offered(glc.ctx.version_code, glc.ctx.extensions)
         self.staging = Staging.RING if offered and ring_slots > 0 else Staging.COPY
+        self._ring_of = lambda items, piece_bytes: StagingRing(
+            glc, storage, piece_bytes, max(1, min(ring_slots, -(-store.count // items))))
         slot_points = max(1, min(batch_points, store.count))    # a small cloud maps no more than it needs
-        slots = min(ring_slots, -(-store.count // slot_points))
-        self.ring = StagingRing(glc, storage, slot_points * RECORD_BYTES, max(1, slots)) \
-            if self.staging is Staging.RING else None
+        self.ring = self._ring_of(slot_points, slot_points * RECORD_BYTES) if self.staging is Staging.RING else None
+        self.word_ring: StagingRing | None = None
+        self.word_piece = max(1, min(word_piece, store.count))
+        """Words a piece of a switch stages through the ring (set before the first switch)."""
         self._stage = None      # the copy path's buffer: made when first needed
         self.stats = StagingStats()
         int64 = glc.caps.shader_int64
@@ -133,6 +141,10 @@ class DistributePass:
     def piece_items(self, width: int) -> int:
         """Items of `width` words one piece stages (a batch of records, or a slot's worth)."""
         return min(self.batch_points * RECORD_WORDS, self.piece_bytes // 4) // width
+
+    def word_piece_items(self) -> int:
+        """Attribute words one piece of a switch stages (upload_words)."""
+        return self.word_piece if self.staging is Staging.RING else self.piece_items(1)
 
     @property
     def stage(self):
@@ -163,15 +175,22 @@ class DistributePass:
         3.5): an array of them, or a fill that packs `count` of them straight into the
         staging memory, in pieces of a whole slot (four times a slot's records)."""
         self.words = self.words or self._build(1, "distribute words")
+        if self.staging is Staging.RING and self.word_ring is None:
+            self.word_ring = self._ring_of(self.word_piece, self.word_piece * 4)
         if isinstance(words, np.ndarray):
             words, count = _copy(words, 1), words.shape[0]
-        self._scatter(self.words, words, count, 1, start)
+        self._scatter(self.words, words, count, 1, start, self.word_ring, self.word_piece_items())
 
     def upload_classes(self, codes: np.ndarray, start: int) -> None:
         """Set the class byte of n points (stores that keep classes)."""
         self._scatter(self.classes, _copy(codes, 1), codes.shape[0], 1, start)
 
-    def _scatter(self, program, fill: Fill, n: int, width: int, start: int) -> int:
+    def _scatter(self, program, fill: Fill, n: int, width: int, start: int, ring: StagingRing | None = None,
+                 step: int | None = None) -> int:
+        """Pieces of `step` items (default piece_items) staged in `ring`'s slots (default
+        the records' ring) or, where none is free, copied."""
+        ring = ring or self.ring
+        step = step or self.piece_items(width)
         if start < 0 or start + n > self.store.count:
             raise ValueError(f"batch [{start}, {start + n}) outside the cloud of {self.store.count} points")
         perm = self.store.permutation
@@ -181,13 +200,12 @@ class DistributePass:
                 program[name] = value
         self.store.bind()
         total = 0
-        step = self.piece_items(width)
         for lo in range(0, n, step):
             hi = min(n, lo + step)
-            slot = self.ring.acquire() if self.ring is not None else None
+            slot = ring.acquire() if ring is not None else None
             if slot is not None:
-                total += fill(self.ring.view(slot, hi - lo, width), lo, hi)
-                self.ring.bind(slot, (hi - lo) * width * 4)
+                total += fill(ring.view(slot, hi - lo, width), lo, hi)
+                ring.bind(slot, (hi - lo) * width * 4)
                 self.stats.ring += 1
             else:
                 part = np.empty((hi - lo, width), dtype=np.uint32)
@@ -200,15 +218,16 @@ class DistributePass:
             program["u_count"] = hi - lo
             program.run(*grid(hi - lo))
             if slot is not None:
-                self.ring.read(slot)
+                ring.read(slot)
             self.glc.ctx.memory_barrier()
         self.points_distributed += n
         return total
 
     def release(self) -> None:
-        if self.ring is not None:
-            self.ring.release()
-            self.ring = None
+        for ring in (self.ring, self.word_ring):
+            if ring is not None:
+                ring.release()
+        self.ring = self.word_ring = None
         for obj in (self._stage, *self._programs.values(), self.words, self.classes):
             if obj is not None:
                 obj.release()
