@@ -70,10 +70,11 @@ def test_packing_bench_runs(tmp_path):
     the reference words (it raises where they differ)."""
     from bench import packing
 
-    assert packing.main(["--points", "300000", "--threads", "1", "2", "--repeats", "1", "--out", str(tmp_path)]) == 0
+    assert packing.main(["--points", "300000", "--threads", "1", "2", "--piece-words", "100000", "300000",
+                         "--repeats", "1", "--out", str(tmp_path)]) == 0
     rows = json.loads((tmp_path / "local" / "packing.json").read_text())["raw"]["rows"]
-    assert sorted((r["attribute"], r["threads"]) for r in rows) == sorted(
-        (name, k) for name, _ in packing.CASES for k in (1, 2))
+    assert sorted((r["attribute"], r["piece_words"], r["threads"]) for r in rows) == sorted(
+        (name, piece, k) for name, _ in packing.CASES for piece in (100000, 300000) for k in (1, 2))
 
 
 def test_plan_bench_runs(tmp_path):
