@@ -80,18 +80,25 @@ class RangeServer:
     def url(self, name: str) -> str:
         return f"{self.scheme}://127.0.0.1:{self._server.server_address[1]}/{name}"
 
-    def counts(self) -> tuple[int, int]:
+    def counts(self, idle_s: float = HOLD_S) -> tuple[int, int]:
+        """Requests answered and body bytes sent, once the answers still being sent are
+        done (at most idle_s): a client may have read a whole body before the thread
+        that sent it has counted its bytes."""
+        self._idle(idle_s)
         with self.lock:
             return self.requests, self.bytes
 
     def reset(self, idle_s: float = HOLD_S) -> None:
         """Counts from zero, once the answers still being sent are done (at most idle_s):
         an earlier test's late answers must not count in the next one's."""
+        self._idle(idle_s)
+        with self.lock:
+            self.requests, self.bytes, self.ranges, self.most_active, self.connections = 0, 0, [], 0, 0
+
+    def _idle(self, idle_s: float) -> None:
         deadline = time.monotonic() + idle_s
         while self.active and time.monotonic() < deadline:
             time.sleep(0.01)
-        with self.lock:
-            self.requests, self.bytes, self.ranges, self.most_active, self.connections = 0, 0, [], 0, 0
 
     def __enter__(self) -> RangeServer:
         self._thread.start()
