@@ -3,7 +3,7 @@
 # (see its README.md): a writable copy; glvnd's unversioned names as real files (the shared
 # folder keeps libGL.so and libEGL.so as 10-byte files naming their targets, and links do
 # not travel); and wheels for that machine's Python 3.12 of the package's dependencies the
-# shared folder lacks (plyfile, pye57, pyproj: without plyfile nothing imports there).
+# shared folder lacks (plyfile, pye57 and its pyquaternion, pyproj: without plyfile nothing imports there).
 # Run here, then `run` with carry [".gpu"] and `source .gpu/env.sh` there.
 #   bash bench/carry_gpu.sh
 set -euo pipefail
@@ -21,7 +21,7 @@ for name in .gpu/glvnd/*; do
         [ -f "$target" ] && cp "$target" "$name"
     fi
 done
-for requirement in plyfile pye57 pyproj; do
+for requirement in plyfile pye57 pyquaternion pyproj; do
     version="$("$PY" -c "import importlib.metadata as m, sys; print(m.version(sys.argv[1]))" "$requirement")"
     "$PY" -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
         --platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64 \
