@@ -11,15 +11,26 @@ specification (https://copc.io) requires.
 
 Point records keep every field: point formats 6-8 are written as they are (9 and 10 as 6
 and 8, without their waveform fields), older ones converted by laspy, field by field
-(scan angle from whole degrees to 0.006° steps: the nearest). Every point is held in
-memory while the octree is built.
+(scan angle from whole degrees to 0.006° steps: the nearest).
+
+A cloud of up to `memory_points` is held in memory while its octree is built. A larger
+one is built out of core, with the same nodes: the inputs are read once for the bounds
+(which place the root cube) and again into files of a scratch folder, one for each of
+the octree's cubes at TOP_DEPTH. Every cell of the levels above that depth lies in one
+cube, and a point's rank is a hash of its index, so each cube picks its points of those
+levels alone; only whether a node of those levels keeps every point left (at most
+LEAF_POINTS) needs the counts of all its cubes, summed first. Then each cube's own
+subtree is built in memory and compressed apart, and the file is assembled from the
+compressed chunks: the upper levels' nodes first, level by level, then each cube's.
 """
 
 from __future__ import annotations
 
 import os
 import struct
+import tempfile
 from dataclasses import dataclass
+from pathlib import Path
 
 import laspy
 import lazrs
@@ -61,6 +72,14 @@ GRID_BITS = CELL_BITS + MAX_DEPTH      # bits of a point's cell at MAX_DEPTH, pe
 SEED = 0x5EED
 COMPRESS_POINTS = 1 << 22
 """Points handed to the parallel compressor at a time."""
+MEMORY_POINTS = 50_000_000
+"""Points whose octree is built in memory at a time (about 100 bytes each with their
+codes and ranks): a larger cloud is built out of core, a cube at a time."""
+TOP_DEPTH = 3
+"""The depth of the cubes a cloud is split into out of core (at most 8^3 files; a cube
+over memory_points is still built whole in memory). At most CELL_BITS: each cell of the
+levels above lies in one cube."""
+COPY_BYTES = 64 << 20
 TARGET_FORMAT = {0: 6, 1: 6, 4: 6, 6: 6, 9: 6, 2: 7, 3: 7, 5: 7, 7: 7, 8: 8, 10: 8}
 """The COPC point format (6, 7 or 8) that holds a point format's fields."""
 DROPPED_VLRS = (LasZipVlr, ExtraBytesVlr, GeoKeyDirectoryVlr, GeoDoubleParamsVlr, GeoAsciiParamsVlr,
@@ -81,8 +100,12 @@ class Written:
     warnings: tuple[str, ...]
 
 
-def write_copc(stream, inputs: list[str], *, partial: bool = False) -> Written:
-    """Write `inputs` (LAS/LAZ files, one cloud) to `stream` (opened w+b, at 0) as COPC."""
+def write_copc(stream, inputs: list[str], *, partial: bool = False, memory_points: int | None = None,
+               scratch: str | os.PathLike | None = None) -> Written:
+    """Write `inputs` (LAS/LAZ files, one cloud) to `stream` (opened w+b, at 0) as COPC;
+    a cloud of more than memory_points (default MEMORY_POINTS) is built out of core in a
+    temporary folder made in `scratch` (default: the system's), removed whatever happens."""
+    memory_points = MEMORY_POINTS if memory_points is None else memory_points
     _, sources = open_sources(inputs, partial=partial)
     for s in sources:
         if not isinstance(s, LasSource):
@@ -90,18 +113,17 @@ def write_copc(stream, inputs: list[str], *, partial: bool = False) -> Written:
     warnings: list[str] = []
     first = _laspy_header(sources[0].info.path)
     header = _output_header(sources, first, warnings)
-    records = _records(sources, header, partial, warnings)
+    if sum(s.info.points for s in sources) > memory_points:
+        with tempfile.TemporaryDirectory(prefix=".progressive-copc-", dir=scratch) as folder:
+            written = _out_of_core(stream, sources, header, partial, warnings, memory_points, Path(folder))
+        return written
+    records = np.concatenate(list(_record_parts(sources, header, partial, warnings)))
     order, level, key = octree_order(records, header)
     records = records[order]
     starts = np.r_[0, np.nonzero((np.diff(level) != 0) | (np.diff(key) != 0))[0] + 1]
     counts = np.diff(np.r_[starts, records.size])
-    info = _cube(header)
     _fill_header(header, records)
-    laz_vlr = lazrs.LazVlr.new_for_compression(header.point_format.id, header.point_format.num_extra_bytes, True)
-    copc_vlr = laspy.VLR(USER_ID.decode(), INFO_RECORD, "COPC info VLR", bytes(INFO.size))
-    header.vlrs.insert(0, copc_vlr)
-    header.vlrs.insert(1, LasZipVlr(laz_vlr.record_data()))
-    header.write_to(stream)
+    copc_vlr, laz_vlr = _write_head(stream, header)
     point_data = header.offset_to_point_data
     compressor = lazrs.ParLasZipCompressor(stream, laz_vlr)
     for group in _groups(counts):
@@ -111,23 +133,42 @@ def write_copc(stream, inputs: list[str], *, partial: bool = False) -> Written:
     table = lazrs.read_chunk_table(stream, laz_vlr)
     if [n for n, _ in table] != counts.tolist():
         raise InputError("internal error: the LAZ chunk table does not list one chunk per octree node")
+    gps = records["gps_time"]
+    _write_hierarchy(stream, header, copc_vlr, point_data, level[starts], key[starts], table,
+                     (float(gps.min()), float(gps.max())))
+    return Written(int(records.size), int(counts.size), int(level.max()) + 1, tuple(warnings))
+
+
+def _write_head(stream, header: laspy.LasHeader):
+    """The header and VLRs, the COPC info VLR (filled in last) first: (it, the LAZ VLR)."""
+    laz_vlr = lazrs.LazVlr.new_for_compression(header.point_format.id, header.point_format.num_extra_bytes, True)
+    copc_vlr = laspy.VLR(USER_ID.decode(), INFO_RECORD, "COPC info VLR", bytes(INFO.size))
+    header.vlrs.insert(0, copc_vlr)
+    header.vlrs.insert(1, LasZipVlr(laz_vlr.record_data()))
+    header.write_to(stream)
+    return copc_vlr, laz_vlr
+
+
+def _write_hierarchy(stream, header: laspy.LasHeader, copc_vlr, point_data: int, levels: np.ndarray,
+                     keys: np.ndarray, table, gps: tuple[float, float]) -> None:
+    """The hierarchy EVLR after the chunks (one a node, in the chunk table's order), then
+    the header again with the info VLR filled in."""
     sizes = np.array([b for _, b in table], np.int64)
-    entries = np.zeros(counts.size, ENTRY)
-    entries["level"] = level[starts]
-    entries["x"], entries["y"], entries["z"] = _key_xyz(key[starts])
+    entries = np.zeros(len(table), ENTRY)
+    entries["level"] = levels
+    entries["x"], entries["y"], entries["z"] = _key_xyz(keys)
     entries["offset"] = point_data + TABLE_OFFSET_BYTES + np.r_[0, np.cumsum(sizes)[:-1]]
-    entries["byte_size"], entries["point_count"] = sizes, counts
+    entries["byte_size"], entries["point_count"] = sizes, [n for n, _ in table]
     evlr_start = stream.seek(0, os.SEEK_END)
     body = entries.tobytes()
     stream.write(EVLR_HEAD.pack(0, USER_ID, HIERARCHY_RECORD, len(body), b"COPC hierarchy"))
     stream.write(body)
     header.start_of_first_evlr, header.number_of_evlrs = evlr_start, 1
-    gps = records["gps_time"]
+    info = _cube(header)
     copc_vlr.record_data = CopcInfo(info.center, info.halfsize, info.spacing, evlr_start + EVLR_HEADER, len(body),
-                                    float(gps.min()), float(gps.max())).pack()
+                                    *gps).pack()
     stream.seek(0)
     header.write_to(stream, ensure_same_size=True)
-    return Written(int(records.size), int(counts.size), int(level.max()) + 1, tuple(warnings))
 
 
 def _laspy_header(path: str) -> laspy.LasHeader:
@@ -188,9 +229,9 @@ def _add_crs(header: laspy.LasHeader, first: laspy.LasHeader, path: str, warning
         header.add_crs(crs, keep_compatibility=False)
 
 
-def _records(sources, header: laspy.LasHeader, partial: bool, warnings: list[str]) -> np.ndarray:
-    """Every input point as a record of the output's format, on the output's scale grid."""
-    parts = []
+def _record_parts(sources, header: laspy.LasHeader, partial: bool, warnings: list[str]):
+    """Every input point as a record of the output's format, on the output's scale grid,
+    a loader batch at a time."""
     requantized = False
     for s in sources:
         records = s.records
@@ -200,7 +241,7 @@ def _records(sources, header: laspy.LasHeader, partial: bool, warnings: list[str
             for chunk in s.chunks(BATCH_POINTS, salvage=partial):
                 if isinstance(chunk, Span):
                     chunk = read_span(s.info.path, records, chunk, s.info.points)
-                parts.append(_converted(s.info.path, chunk, records, header, same_grid))
+                yield _converted(s.info.path, chunk, records, header, same_grid)
         except TruncatedInput as exc:         # with partial: what decoded before the damage, and a warning
             if not partial:
                 raise
@@ -210,7 +251,6 @@ def _records(sources, header: laspy.LasHeader, partial: bool, warnings: list[str
                         "(to the nearest step)")
     if any("scan_angle_rank" in s.records.dtype.names for s in sources):
         warnings.append(f"scan angles in whole degrees were written in {SCAN_ANGLE_STEP}° steps (to the nearest step)")
-    return np.concatenate(parts)
 
 
 def _converted(path: str, chunk: np.ndarray, records, header: laspy.LasHeader, same_grid: bool) -> np.ndarray:
@@ -250,43 +290,207 @@ def octree_order(records: np.ndarray, header: laspy.LasHeader) -> tuple[np.ndarr
     """The points in the order they are written (node by node, root first, level by level,
     nodes of a level and points of a node in Morton order), with each one's
     level and node key (the Morton code of its cell at that level). Octree by spacing: a
-    node keeps the first point, in a fixed pseudo-random order, of each occupied cell of
-    its CELLS³ grid, unless it has at most LEAF_POINTS left, which it keeps all. In Morton
-    order every node and every cell of every level is a run of points, so each level
-    takes a few passes over the points left and no sort. Sets the header's bounds."""
+    node keeps the point of least rank (_rank) of each occupied cell of its CELLS³ grid,
+    unless it has at most LEAF_POINTS left, which it keeps all. In Morton order every
+    node and every cell of every level is a run of points, so each level takes a few
+    passes over the points left and no sort. Sets the header's bounds."""
     scaled = [records["XYZ"[a]] * header.scales[a] + header.offsets[a] for a in range(3)]
     header.mins = np.array([c.min() for c in scaled])
     header.maxs = np.array([c.max() for c in scaled])
-    info = _cube(header)
+    del scaled
+    morton = _morton(records, header, _cube(header))
+    by_code = np.argsort(morton, kind="stable")
+    morton = morton[by_code]
+    level = _levels(morton, _rank(by_code.astype(np.uint64)))
+    order = np.argsort(level, kind="stable")
+    level = level[order]
+    return by_code[order], level, _keys(morton[order], level)
+
+
+def _morton(records: np.ndarray, header: laspy.LasHeader, info: CopcInfo) -> np.ndarray:
+    """Each point's Morton code of its cell at MAX_DEPTH in the root cube."""
     lo = np.asarray(info.center) - info.halfsize
     side = 1 << GRID_BITS
     morton = np.zeros(records.size, np.uint64)
     for a in range(3):
-        cell = np.clip(np.floor((scaled[a] - lo[a]) / (2 * info.halfsize) * side), 0, side - 1).astype(np.uint64)
+        scaled = records["XYZ"[a]] * header.scales[a] + header.offsets[a]
+        cell = np.clip(np.floor((scaled - lo[a]) / (2 * info.halfsize) * side), 0, side - 1).astype(np.uint64)
         morton |= _spread(cell) << np.uint64(2 - a)
-    del scaled
-    by_code = np.argsort(morton, kind="stable")
-    morton = morton[by_code]
-    rank = np.random.default_rng(SEED).permutation(records.size)
-    level = np.full(records.size, MAX_DEPTH, np.int8)
-    remaining = np.arange(records.size)
+    return morton
+
+
+def _rank(index: np.ndarray) -> np.ndarray:
+    """A point's rank from its index in the cloud (splitmix64's finalizer, a bijection of
+    64-bit words: distinct points, distinct ranks), the same in memory and out of core."""
+    with np.errstate(over="ignore"):
+        z = index.astype(np.uint64) + np.uint64(SEED)
+        z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+        z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return z ^ (z >> np.uint64(31))
+
+
+def _keys(morton: np.ndarray, level: np.ndarray) -> np.ndarray:
+    return morton >> (np.uint64(3) * (np.uint64(GRID_BITS) - level.astype(np.uint64)))
+
+
+def _levels(morton: np.ndarray, rank: np.ndarray, keeps_all: list[np.ndarray] | None = None,
+            counts: list[tuple[np.ndarray, np.ndarray]] | None = None) -> np.ndarray:
+    """The level of each point (`morton` sorted, `rank` of each). keeps_all[d]: out of
+    core, the node codes of depth d whose nodes keep every point left, as the counts of
+    every cube decided; those depths' other nodes keep a point a cell (None: each node
+    by its own count). counts: collect, for each of those depths, the codes of the
+    nodes with points left and how many, then stop (what those decisions are made of)."""
+    top = len(keeps_all) if keeps_all is not None else 0
+    level = np.full(morton.size, MAX_DEPTH, np.int8)
+    remaining = np.arange(morton.size)
     for d in range(MAX_DEPTH):
+        if remaining.size == 0 or (counts is not None and d == top):
+            break
         codes = morton[remaining]
-        nodes = _runs(codes >> np.uint64(3 * (GRID_BITS - d)))
+        node_codes = codes >> np.uint64(3 * (GRID_BITS - d))
+        nodes = _runs(node_codes)
         sizes = np.diff(np.r_[nodes, codes.size])
-        keep = np.repeat(sizes <= LEAF_POINTS, sizes)
+        if counts is not None:
+            counts.append((node_codes[nodes], sizes))
+        if d < top:
+            keep = np.isin(node_codes, keeps_all[d])
+        else:
+            keep = np.repeat(sizes <= LEAF_POINTS, sizes)
         cells = _runs(codes >> np.uint64(3 * (GRID_BITS - d - CELL_BITS)))
         ranks = rank[remaining]
         least = np.minimum.reduceat(ranks, cells)
         keep |= ranks == np.repeat(least, np.diff(np.r_[cells, codes.size]))
         level[remaining[keep]] = d
         remaining = remaining[~keep]
-        if remaining.size == 0:
-            break
-    order = np.argsort(level, kind="stable")
-    level = level[order]
-    key = morton[order] >> (np.uint64(3) * (np.uint64(GRID_BITS) - level.astype(np.uint64)))
-    return by_code[order], level, key
+    return level
+
+
+def _out_of_core(stream, sources, header: laspy.LasHeader, partial: bool, warnings: list[str],
+                 memory_points: int, folder: Path) -> Written:
+    """write_copc for a cloud of more than memory_points (see the module): the inputs read
+    once for the bounds and again into the cubes of depth TOP_DEPTH (files in `folder`:
+    each record and its index, 40 bytes a point for point format 7), the upper levels'
+    nodes that keep every point decided from all cubes' counts, each cube's subtree
+    built and compressed, the file assembled."""
+    n, mins, maxs, returns, gps = 0, np.full(3, np.inf), np.full(3, -np.inf), np.zeros(16, np.int64), [np.inf, -np.inf]
+    dtype = None
+    for part in _record_parts(sources, header, partial, warnings):
+        dtype = part.dtype
+        n += part.size
+        for a in range(3):
+            scaled = part["XYZ"[a]] * header.scales[a] + header.offsets[a]
+            mins[a], maxs[a] = min(mins[a], scaled.min()), max(maxs[a], scaled.max())
+        returns += np.bincount(np.asarray(laspy.PackedPointRecord(part, header.point_format)["return_number"]),
+                               minlength=16)[:16]
+        gps = [min(gps[0], float(part["gps_time"].min())), max(gps[1], float(part["gps_time"].max()))]
+    header.mins, header.maxs, header.point_count = mins, maxs, n
+    header.number_of_points_by_return = returns[1:16].astype(np.uint64)
+    info = _cube(header)
+    cube = np.dtype([("index", "<u4" if n <= 2**32 else "<u8"), ("record", dtype)])
+    shift = np.uint64(3 * (GRID_BITS - TOP_DEPTH))
+    at = 0
+    for part in _record_parts(sources, header, partial, []):     # the same records again, warned of once
+        ids = _morton(part, header, info) >> shift
+        order = np.argsort(ids, kind="stable")
+        block = np.empty(part.size, cube)
+        block["record"], block["index"] = part[order], np.arange(at, at + part.size)[order]
+        ids = ids[order]
+        for start, end in zip(*_run_bounds(ids)):
+            with open(folder / f"cube-{int(ids[start])}", "ab") as f:
+                block[start:end].tofile(f)
+        at += part.size
+    if at != n:
+        raise InputError("internal error: the inputs read back a different number of points")
+    cubes = sorted((int(path.name.split("-")[1]), path) for path in folder.glob("cube-*"))
+    keeps_all = _upper_nodes_keeping_all(cubes, cube, header, info)
+    laz_vlr = lazrs.LazVlr.new_for_compression(header.point_format.id, header.point_format.num_extra_bytes, True)
+    upper, parts = [], []
+    for code, path in cubes:
+        points, morton = _cube_points(path, cube, header, info)
+        level = _levels(morton, _rank(points["index"]), keeps_all)
+        above = level < TOP_DEPTH
+        upper.append((points[above], morton[above], level[above]))
+        deep = np.argsort(level, kind="stable")[np.count_nonzero(above):]
+        parts.append(_compressed(folder / f"nodes-{code}", points["record"][deep], level[deep], morton[deep],
+                                 laz_vlr))
+        path.unlink()
+    points, morton, level = (np.concatenate([u[k] for u in upper]) for k in range(3))
+    order = np.lexsort((points["index"], morton, level))
+    parts.insert(0, _compressed(folder / "nodes-upper", points["record"][order], level[order], morton[order],
+                                laz_vlr))
+    copc_vlr, _ = _write_head(stream, header)
+    point_data = header.offset_to_point_data
+    stream.seek(point_data)
+    stream.write(bytes(TABLE_OFFSET_BYTES))
+    table, levels, keys = [], [], []
+    for path, part_table, part_levels, part_keys in parts:
+        with open(path, "rb") as f:
+            f.seek(TABLE_OFFSET_BYTES)
+            left = sum(b for _, b in part_table)
+            while left > 0:
+                left -= stream.write(f.read(min(COPY_BYTES, left)))
+        table += part_table
+        levels.append(part_levels)
+        keys.append(part_keys)
+    table_at = stream.tell()
+    lazrs.write_chunk_table(stream, table, laz_vlr)
+    stream.seek(point_data)
+    stream.write(struct.pack("<q", table_at))
+    levels, keys = np.concatenate(levels), np.concatenate(keys)
+    _write_hierarchy(stream, header, copc_vlr, point_data, levels, keys, table, tuple(gps))
+    return Written(n, len(table), int(levels.max()) + 1, tuple(warnings))
+
+
+def _cube_points(path: Path, cube: np.dtype, header: laspy.LasHeader, info: CopcInfo):
+    """A cube file's points in Morton order (ties in cloud order), and their codes."""
+    points = np.fromfile(path, cube)
+    morton = _morton(points["record"], header, info)
+    order = np.argsort(morton, kind="stable")
+    return points[order], morton[order]
+
+
+def _upper_nodes_keeping_all(cubes, cube: np.dtype, header: laspy.LasHeader, info: CopcInfo) -> list[np.ndarray]:
+    """For each depth above TOP_DEPTH, the codes of the nodes that keep every point left:
+    at most LEAF_POINTS left in all their cubes together, and no such node above them."""
+    totals: list[dict[int, int]] = [{} for _ in range(TOP_DEPTH)]
+    none = [np.zeros(0, np.uint64)] * TOP_DEPTH
+    for _, path in cubes:
+        points, morton = _cube_points(path, cube, header, info)
+        counts: list[tuple[np.ndarray, np.ndarray]] = []
+        _levels(morton, _rank(points["index"]), none, counts)
+        for d, (codes, sizes) in enumerate(counts):
+            for c, k in zip(codes.tolist(), sizes.tolist()):
+                totals[d][c] = totals[d].get(c, 0) + k
+    keeps: list[np.ndarray] = []
+    for d in range(TOP_DEPTH):
+        chosen = [c for c, k in totals[d].items() if k <= LEAF_POINTS
+                  and not any(np.isin(np.uint64(c) >> np.uint64(3 * (d - a)), keeps[a]) for a in range(d))]
+        keeps.append(np.array(sorted(chosen), np.uint64))
+    return keeps
+
+
+def _compressed(path: Path, records: np.ndarray, level: np.ndarray, morton: np.ndarray, laz_vlr):
+    """Records in node order (level, then Morton code) compressed to `path`, a chunk a
+    node: (path, its chunk table, each node's level and key)."""
+    key = _keys(morton, level)
+    starts = np.r_[0, np.nonzero((np.diff(level) != 0) | (np.diff(key) != 0))[0] + 1] if records.size else \
+        np.zeros(0, np.int64)
+    counts = np.diff(np.r_[starts, records.size])
+    with open(path, "w+b") as f:
+        compressor = lazrs.ParLasZipCompressor(f, laz_vlr)
+        for group in _groups(counts):
+            compressor.compress_chunks([records[starts[i]:starts[i] + counts[i]].view(np.uint8) for i in group])
+        compressor.done()
+        f.seek(0)
+        table = lazrs.read_chunk_table(f, laz_vlr) if counts.size else []
+    if [c for c, _ in table] != counts.tolist():
+        raise InputError("internal error: the LAZ chunk table does not list one chunk per octree node")
+    return path, table, level[starts], key[starts]
+
+
+def _run_bounds(sorted_values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    starts = _runs(sorted_values) if sorted_values.size else np.zeros(0, np.int64)
+    return starts, np.r_[starts[1:], sorted_values.size].astype(np.int64)
 
 
 def _runs(sorted_codes: np.ndarray) -> np.ndarray:

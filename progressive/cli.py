@@ -691,7 +691,8 @@ def _convert_copc(args) -> int:
         raise UsageError(f"--attribute is for the fast format; a {COPC_SUFFIX} file keeps every attribute")
     with Outputs() as outputs:
         with open(outputs.reserve(args.output), "w+b") as stream:     # the transaction's temporary, no other
-            written = write_copc(stream, args.inputs, partial=args.partial)
+            written = write_copc(stream, args.inputs, partial=args.partial,
+                                 scratch=os.path.dirname(os.path.abspath(args.output)))
         for w in written.warnings:
             warn(w)
         commit_saying(outputs, f"wrote {written.points:,} points to {args.output} (COPC: {written.levels} levels, "

@@ -77,6 +77,18 @@ def test_packing_bench_runs(tmp_path):
         (name, piece, k) for name, _ in packing.CASES for piece in (100000, 300000) for k in (1, 2))
 
 
+def test_convert_bench_runs(tmp_path):
+    """bench.convert converts in memory and out of core in fresh processes; it raises
+    where the two hierarchies differ."""
+    from bench import convert
+
+    assert convert.main(["--points", "300000", "--memory-points", "60000", "--cache", str(tmp_path / "cache"),
+                         "--out", str(tmp_path)]) == 0
+    rows = json.loads((tmp_path / "local" / "convert.json").read_text())["raw"]["rows"]
+    assert [r["build"] for r in rows] == ["in memory", "out of core"]
+    assert rows[0]["points"] == rows[1]["points"] == 300_000 and rows[0]["nodes"] == rows[1]["nodes"]
+
+
 def test_plan_bench_runs(tmp_path):
     """bench.plan times residency plans of synthetic hierarchies, their nodes resident."""
     from bench import plan

@@ -20,7 +20,7 @@ from conftest import SAMPLE, shared_file
 from progressive import memory
 from progressive.camera import Camera
 from progressive.cli import main
-from progressive.loaders import CloudLoader
+from progressive.loaders import CloudLoader, copc_write
 from progressive.loaders.copc import ENTRY, is_copc, keep_levels, open_copc
 from progressive.loaders.las import open_las
 from progressive.permutation import LAYOUT, Permutation
@@ -168,6 +168,59 @@ def test_level_queries_are_even_samples(tmp_path, capsys):
         cells = np.floor((np.stack([root.x, root.y, root.z], axis=1) - lo) / info.spacing).astype(np.int64)
     assert np.unique(cells, axis=0).shape[0] == len(root)       # one point a cell
     assert len(root) < laspy.open(out).header.point_count
+
+
+def node_points(path) -> dict:
+    """Each node of the file (level, x, y, z) and its point records, sorted as bytes."""
+    with laspy.CopcReader.open(path) as reader:
+        nodes = load_octree_for_query(reader.source, reader.copc_info, reader.root_page)
+        out = {}
+        for node in nodes:
+            records = reader._fetch_and_decompress_points_of_nodes([node]).array
+            out[(node.key.level, node.key.x, node.key.y, node.key.z)] = np.sort(
+                records.view(f"V{records.itemsize}").ravel())
+    return out
+
+
+@pytest.mark.parametrize("leaf", [100_000, 2_000, 150])
+def test_out_of_core_equals_in_memory_node_for_node(tmp_path, monkeypatch, leaf):
+    """A cloud over memory_points is built a cube at a time from a spill in a scratch
+    folder: the same nodes, each with the same points, as the octree built in memory
+    (smaller leaves: subtrees below the cubes, and upper nodes that keep every point);
+    a valid hierarchy laspy reads whole; the scratch folder left empty."""
+    monkeypatch.setattr(copc_write, "LEAF_POINTS", leaf)
+    built = {}
+    for limit in (None, 20_000):
+        out = tmp_path / f"{limit}.copc.laz"
+        scratch = tmp_path / f"scratch-{limit}"
+        scratch.mkdir()
+        with open(out, "w+b") as f:
+            written = copc_write.write_copc(f, [str(SAMPLE)], memory_points=limit, scratch=scratch)
+        assert list(scratch.iterdir()) == []
+        assert_valid_hierarchy(out)
+        assert_same_points([SAMPLE], out)
+        built[limit] = node_points(out), written
+    (whole, a), (cubes, b) = built[None], built[20_000]
+    assert whole.keys() == cubes.keys() and (a.nodes, a.levels) == (b.nodes, b.levels)
+    assert a.levels > (copc_write.TOP_DEPTH if leaf < 1_000 else 1)
+    for key, points in whole.items():
+        assert np.array_equal(points, cubes[key]), key
+
+
+def test_convert_out_of_core_from_the_cli(tmp_path, capsys, monkeypatch):
+    """convert builds a cloud over MEMORY_POINTS out of core, its scratch folder beside the
+    output: every point of both inputs back, nothing else left; a damaged input fails
+    in one line with nothing left either."""
+    monkeypatch.setattr(copc_write, "MEMORY_POINTS", 30_000)
+    copy = tmp_path / "copy.las"
+    shutil.copy(SAMPLE, copy)
+    out = convert(tmp_path, SAMPLE, copy, capsys=capsys)
+    assert_same_points([SAMPLE, copy], out)
+    assert_valid_hierarchy(out)
+    assert sorted(os.listdir(tmp_path)) == ["copy.las", "out.copc.laz"]
+    data = SAMPLE.read_bytes()
+    copy.write_bytes(data[: len(data) * 2 // 3])
+    assert "copy.las" in bad_convert(tmp_path, capsys, SAMPLE, copy, tmp_path / "cut.copc.laz")
 
 
 def bad_convert(tmp_path, capsys, *args) -> str:

@@ -1,0 +1,87 @@
+"""Converting to COPC (loaders/copc_write.py, what `progressive convert IN OUT.copc.laz`
+runs): seconds and peak memory of the octree built in memory and out of core, each in a
+fresh process, GPU-free, for the sample tiled to N points as LAS (bench/data.py); both
+outputs are checked to hold the same nodes with the same points."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from bench.report import RunInfo, Table
+
+
+def child(source: str, out: str, memory_points: int | None) -> dict:
+    """One convert in this process: its seconds, peak resident memory and what it wrote."""
+    from progressive.loaders import copc_write
+
+    t0 = time.perf_counter()
+    with open(out, "w+b") as stream:
+        written = copc_write.write_copc(stream, [source], memory_points=memory_points, scratch=Path(out).parent)
+    seconds = time.perf_counter() - t0
+    return {"seconds": seconds, "peak_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+            "points": written.points, "nodes": written.nodes, "levels": written.levels,
+            "bytes": Path(out).stat().st_size}
+
+
+def node_table(path: str) -> list[tuple]:
+    """The hierarchy's (level, x, y, z, point count) of every node, sorted."""
+    from progressive.loaders.copc import open_copc
+
+    h = open_copc(path).hierarchy
+    return sorted(zip(*(a.tolist() for a in (h.nodes["level"], h.nodes["x"], h.nodes["y"], h.nodes["z"],
+                                             h.nodes["point_count"]))))
+
+
+def run(points: int, memory_points: int, cache: Path | None = None) -> Table:
+    from bench import data
+
+    source = data.scaled(points, cache or data.CACHE).las
+    table = Table("convert", "COPC written in memory and out of core", f"{source.name}", f"{points:,}",
+                  ("build", "memory points", "seconds", "M points/s", "peak MiB", "nodes", "levels", "MiB written"))
+    raw, tables = [], []
+    with tempfile.TemporaryDirectory(prefix="convert-", dir=source.parent) as folder:
+        for label, limit in (("in memory", None), ("out of core", memory_points)):
+            out = str(Path(folder) / f"{label.replace(' ', '_')}.copc.laz")
+            done = subprocess.run([sys.executable, "-m", "bench.convert", "--child", str(source), out,
+                                   str(limit or 0)], capture_output=True, text=True, check=True)
+            r = json.loads(done.stdout.strip().splitlines()[-1])
+            tables.append(node_table(out))
+            table.rows.append((label, "" if limit is None else f"{limit:,}", round(r["seconds"], 2),
+                               round(r["points"] / r["seconds"] / 1e6, 2), round(r["peak_mib"]), r["nodes"],
+                               r["levels"], round(r["bytes"] / 2**20, 1)))
+            raw.append({"build": label, "memory_points": limit, **r})
+    if tables[0] != tables[1]:
+        raise AssertionError("the octree built out of core has other nodes than the one built in memory")
+    table.notes = [f"Each build a fresh `python` process converting {source.name} (LAS); peak MiB: its peak "
+                   "resident memory (getrusage). Out of core: the cubes' scratch files beside the output. Both "
+                   "files' hierarchies were checked to hold the same nodes with the same point counts."]
+    table.raw = {"rows": raw}
+    return table
+
+
+def main(argv=None) -> int:
+    if argv is None and len(sys.argv) == 5 and sys.argv[1] == "--child":
+        source, out, limit = sys.argv[2], sys.argv[3], int(sys.argv[4])
+        print(json.dumps(child(source, out, limit or None)))
+        return 0
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--points", type=int, default=12_000_000)
+    ap.add_argument("--memory-points", type=int, default=2_000_000, help="the out-of-core build's limit")
+    ap.add_argument("--cache", type=Path, help="where the tiled file is made (default bench/.cache)")
+    ap.add_argument("--machine", default="local", help="the results folder's name (no GPU is asked)")
+    ap.add_argument("--out", default="bench/results")
+    args = ap.parse_args(argv)
+    table = run(args.points, args.memory_points, args.cache)
+    table.publish(RunInfo.cpu_only("convert only", args.machine), None, Path(args.out))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
