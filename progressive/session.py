@@ -57,7 +57,7 @@ FIRST_HELD = 1
 """Batches the loader parses before the first frame is issued: until then the context,
 the renderer's buffers and programs and the first upload have the GIL and the cores to
 themselves (at 100 M points on the H200 machine's 16 cores the first frame was issued
-in 0.12-0.13 s instead of 0.16-0.33 s: bench/results/nvidia-h200/startup_hold/)."""
+in 0.12-0.13 s instead of 0.18-0.33 s: bench/results/nvidia-h200/startup_hold/)."""
 
 
 class Method(enum.Enum):
