@@ -82,8 +82,9 @@ def test_convert_bench_runs(tmp_path):
     where the two hierarchies differ."""
     from bench import convert
 
-    assert convert.main(["--points", "300000", "--memory-points", "60000", "--cache", str(tmp_path / "cache"),
-                         "--out", str(tmp_path)]) == 0
+    assert convert.main(["--points", "300000", "--memory-points", "60000", "--laz", "--cache",
+                         str(tmp_path / "cache"), "--out", str(tmp_path)]) == 0
+    assert [p.suffix for p in (tmp_path / "cache").iterdir()] == [".laz"]
     rows = json.loads((tmp_path / "local" / "convert.json").read_text())["raw"]["rows"]
     assert [r["build"] for r in rows] == ["in memory", "out of core"]
     assert rows[0]["points"] == rows[1]["points"] == 300_000 and rows[0]["nodes"] == rows[1]["nodes"]

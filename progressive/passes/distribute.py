@@ -31,7 +31,7 @@ RECORD_WORDS = RECORD_BYTES // 4
 WORD_PIECE_WORDS = 1 << 24
 """Attribute words one piece of a switch stages (64 MiB): handed a slot of records'
 worth (2 M words) split over 8 threads, packing threads spent about as long starting
-and joining as packing (bench/packing.py, words a call)."""
+and joining as packing (bench/results/nvidia-h200/packing.md, words a call)."""
 
 Fill = Callable[[np.ndarray, int, int], int]
 """fill(out, lo, hi) writes items [lo, hi) into `out` ((hi - lo, width) uint32, maybe
@@ -173,7 +173,7 @@ class DistributePass:
     def upload_words(self, words: np.ndarray | Fill, start: int, count: int | None = None) -> None:
         """Replace only the attribute word of points start.. (attribute switching, paper
         3.5): an array of them, or a fill that packs `count` of them straight into the
-        staging memory, in pieces of a whole slot (four times a slot's records)."""
+        staging memory, in pieces of word_piece_items() through the words' own ring."""
         self.words = self.words or self._build(1, "distribute words")
         if self.staging is Staging.RING and self.word_ring is None:
             self.word_ring = self._ring_of(self.word_piece, self.word_piece * 4)
