@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from progressive.loaders.copc_choice import View
-from progressive.loaders.copc_residency import PlanOptions, Residency, Status, plan
+from progressive.loaders.copc_residency import PlanOptions, Residency, Status, ViewPart, plan
 from progressive.loaders.copc_stream import NodeReader
 from progressive.loaders.types import Batch
 from progressive.permutation import BATCH_POINTS
@@ -82,6 +82,7 @@ class Streamer:
         self._to_write: deque[int] = deque()
         self._to_rewrite: deque[int] = deque()      # resident nodes to write again with the attribute shown
         self._view: View | None = None
+        self._part: ViewPart | None = None       # the last plan's view part, reused while it holds
         self._events = True
         self._planned_at = -np.inf
         self.evicted = 0
@@ -122,7 +123,9 @@ class Streamer:
         moved = view != self._view
         # No plan while shown nodes wait to be written: an eviction must not meet a node not yet written.
         if not self._to_write and (self._events or (moved and now - self._planned_at >= PLAN_SECONDS)):
-            p = plan(self.state, view, self.options)
+            if self._part is None or not self._part.holds(self.state, view):
+                self._part = ViewPart.of(self.state, view)
+            p = plan(self.state, view, self.options, self._part)
             self._view, self._events, self._planned_at = view, False, now
             if not p.empty:
                 self.state.begin(p)

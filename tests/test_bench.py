@@ -96,7 +96,7 @@ def test_plan_bench_runs(tmp_path):
 
     assert plan.main(["--levels", "3", "5", "--rounds", "2", "--repeats", "1", "--out", str(tmp_path)]) == 0
     rows = json.loads((tmp_path / "local" / "plan.json").read_text())["rows"]
-    assert [r[0] for r in rows] == [21, 341] and all(r[1] > 0 and r[2] > 0 for r in rows)
+    assert [r[0] for r in rows] == [21, 341] and all(r[1] > 0 and r[2] > 0 and r[4] > 0 for r in rows)
 
 
 def test_startup_bench_times_scaled_files(tmp_path, monkeypatch):

@@ -17,7 +17,7 @@ import pytest
 from test_copc_choice import keys_of, octree, random_view, reference
 
 from progressive.loaders.copc_choice import Nodes, View, choose
-from progressive.loaders.copc_residency import BOOKED, PlanOptions, Residency, Status, plan
+from progressive.loaders.copc_residency import BOOKED, PlanOptions, Residency, Status, ViewPart, plan
 
 
 def parent_key(k: tuple) -> tuple:
@@ -218,6 +218,10 @@ def test_target_is_the_choice_in_store_batches(seed, sides):
         assert (rows == choose(counted, view, state.budget)).all()
 
 
+def same_plan(a, b) -> bool:
+    return a.version == b.version and (a.target == b.target).all() and a.evict == b.evict and a.request == b.request
+
+
 def random_walk(seed: int) -> dict:
     """One walk of the eye, every plan compared with the naive one and every invariant
     checked after every plan and event; how often each case came up."""
@@ -227,7 +231,8 @@ def random_walk(seed: int) -> dict:
     state = Residency(nodes, budget, batch_points)
     scene = Scene()
     view = random_view(rng, described, bool(rng.random() < 0.3), bool(rng.random() < 0.5))
-    met = {"requested": 0, "evicted": 0, "held": 0, "dropped": 0, "discarded": 0}
+    met = {"requested": 0, "evicted": 0, "held": 0, "dropped": 0, "discarded": 0, "kept": 0}
+    part = None
 
     def after_event():
         check(state, scene)
@@ -236,7 +241,12 @@ def random_walk(seed: int) -> dict:
         view = walk(rng, view, described, float(rng.choice([0.02, 0.2, 1.0])))
         p = plan(state, view, options)
         again = plan(state, view, options)
-        assert (again.target == p.target).all() and again.evict == p.evict and again.request == p.request
+        assert same_plan(again, p)
+        if part is not None:            # made before the last events, for the view before this step's
+            assert part.holds(state, view) == (part.view == view and part.lost == state.lost.sum())
+            assert same_plan(plan(state, view, options, part), p)
+        part = ViewPart.of(state, view)
+        assert same_plan(plan(state, view, options, part), p)
         target, requests, evictions = naive_plan(state, described, batch_points, view, options)
         assert keys_of(nodes, p.target) == target
         assert [key(nodes, r.row) for r in p.request] == requests
@@ -254,6 +264,9 @@ def random_walk(seed: int) -> dict:
         met["dropped"] += sum(map(len, scene.dropped_log)) - dropped
         met["discarded"] += cancelled > len(state.cancelled)
         assert state.in_flight <= options.max_in_flight
+        if part.holds(state, view):      # the same view after arrivals: the part kept gives the plan anew
+            met["kept"] += 1
+            assert same_plan(plan(state, view, options, part), plan(state, view, options))
         if rng.random() < 0.05:
             scene.dropped(state.clear())
             check(state, scene)
@@ -446,3 +459,28 @@ def test_a_stale_plan_is_refused_and_options_are_checked():
             PlanOptions(**bad)
     with pytest.raises(ValueError):
         Residency(nodes, 100, 0)
+
+
+def test_a_view_part_that_holds_spares_the_errors(monkeypatch):
+    """plan() with a ViewPart of the same view and lost nodes computes no errors (nor
+    their sort and the choice); for another view, or once a node was lost, it makes the
+    part anew."""
+    rng = np.random.default_rng(7)
+    nodes, described, batch_points, budget = setup(rng, levels=4)
+    state = Residency(nodes, budget, batch_points)
+    view = random_view(rng, described, False, False)
+    part = ViewPart.of(state, view)
+    calls = []
+    errors = Nodes.errors
+    monkeypatch.setattr(Nodes, "errors", lambda self, v: calls.append(v) or errors(self, v))
+    first = plan(state, view, PlanOptions(), part)
+    assert calls == [] and first.request
+    state.begin(first)
+    plan(state, view, PlanOptions(), part)
+    assert calls == []
+    other = walk(rng, view, described, 0.2)
+    plan(state, other, PlanOptions(), part)
+    assert calls == [other]
+    state.failed(first.request[0].row, "test")
+    plan(state, view, PlanOptions(), part)
+    assert calls == [other, view]
