@@ -418,3 +418,17 @@ def test_a_held_loader_of_fewer_batches_finishes_and_iterating_resumes():
         loader.start(first=1)
         batches = list(loader)
     assert_covers(sorted(batches, key=lambda b: b.start), loader.total, 9_000)
+
+
+def test_a_held_loader_closes_at_once():
+    """Closing a loader whose parsers wait to be resumed ends every thread within the
+    wait of one look at the stop flag (a session closed before its first frame)."""
+    loader = CloudLoader([SAMPLE], batch_points=9_000, parser_threads=4)
+    loader.start(first=1)
+    deadline = time.monotonic() + 10
+    while not loader.poll() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    t0 = time.monotonic()
+    loader.close()
+    assert time.monotonic() - t0 < 1.0
+    assert not any(t.is_alive() for t in loader._threads)
