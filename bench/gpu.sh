@@ -14,7 +14,7 @@
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
-CHUNKS=(files-100M load-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B winners-1B accuracy attributes packing startup-100M)
+CHUNKS=(files-100M load-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B winners-1B accuracy attributes packing startup-100M convert-1B copc-1B stream-1B)
 chunk="${1:-list}"
 if [ "$chunk" = list ]; then
     printf '%s\n' "${CHUNKS[@]}"
@@ -62,5 +62,15 @@ case "$chunk" in
     # with the cloud (files-100M makes the files, this chunk too if absent)
     startup-100M)     "${PYTHON:-python3}" -m bench.startup --scaled 100000000 --commands view \
                           --caches "Mesa + program cache" --out "$OUT/$(machine)" "${@:2}" ;;
+    # convert to COPC out of core at 1 B points (the sample tiled as LAZ, kept in bench/.cache for the two
+    # chunks after), timed with its peak memory; about 40 GB of scratch beside it (the machine has 64 GB)
+    convert-1B)       "${PYTHON:-python3}" -m bench.convert --points 1000000000 --laz --builds "out of core" \
+                          --machine "$(machine)" --out "$OUT" "${@:2}" ;;
+    # the 1 B-point COPC file stream-1B reads, converted once (a call that runs out of time leaves the LAZ:
+    # the next one only converts)
+    copc-1B)          "${PYTHON:-python3}" -m bench.stream --points 1000000000 --laz --build-only "${@:2}" ;;
+    # issue 15's targets: the 1 B-point COPC streamed with a 4 GB GPU limit, from the file and over HTTP
+    stream-1B)        "${PYTHON:-python3}" -m bench.stream --points 1000000000 --laz --limit 4G --size 1920x1080 --still-seconds 60 \
+                          --out "$OUT/$(machine)" "${@:2}" ;;
     *) echo "unknown chunk '$chunk'; one of: ${CHUNKS[*]}" >&2; exit 2 ;;
 esac

@@ -73,32 +73,34 @@ class Built:
     nodes: int
     levels: int
     bytes: int
-    tile_seconds: float       # the tiled LAS written (0 where it was there already)
+    tile_seconds: float       # the tiled LAS or LAZ written (0 where it was there already)
     convert_seconds: float    # loaders/copc_write.write_copc, as `progressive convert` runs it
     cached: bool              # this run found it built
 
 
-def build(points: int, cache: Path = CACHE) -> Built:
-    """The sample tiled to `points` as LAS (bench/data.py, shared with the other benches),
-    converted to COPC once; the LAS is removed again where this made it."""
+def build(points: int, cache: Path = CACHE, compress: bool = False) -> Built:
+    """The sample tiled to `points` as LAS, or LAZ with `compress` (bench/data.py, shared
+    with the other benches; LAZ where a LAS would not fit the disk beside the scratch of
+    an out-of-core convert), converted to COPC once (its scratch in `cache`); the source
+    is removed again where this made it."""
     cache.mkdir(parents=True, exist_ok=True)
     stem = cache / f"{SAMPLE.stem}_x{points}"
     path, sidecar = stem.with_suffix(".copc.laz"), stem.with_suffix(".copc.json")
     if path.exists() and sidecar.exists():
         return Built(**{**json.loads(sidecar.read_text()), "path": path, "cached": True})
-    las = stem.with_suffix(".las")
-    made = not las.exists()
+    source = stem.with_suffix(".laz" if compress else ".las")
+    made = not source.exists()
     t0 = time.perf_counter()
     if made:
-        write_tiled(SAMPLE, las, points, compress=False)
+        write_tiled(SAMPLE, source, points, compress=compress)
     t1 = time.perf_counter()
     tmp = path.with_suffix(".tmp")
     with open(tmp, "w+b") as stream:
-        written = write_copc(stream, [str(las)])
+        written = write_copc(stream, [str(source)], scratch=cache)
     convert = time.perf_counter() - t1
     tmp.replace(path)
     if made:
-        las.unlink()
+        source.unlink()
     built = Built(path, written.points, written.nodes, written.levels, path.stat().st_size, t1 - t0, convert, False)
     sidecar.write_text(json.dumps({k: v for k, v in asdict(built).items() if k not in ("path", "cached")}))
     return built
@@ -250,9 +252,9 @@ def rows(label: str, run: dict) -> list[tuple]:
 
 
 def run(points: int, limit: int, size: tuple[int, int], frames: int, cache: Path = CACHE,
-        limit_s: float = STILL_SECONDS) -> tuple[Table, RunInfo]:
+        limit_s: float = STILL_SECONDS, compress: bool = False) -> tuple[Table, RunInfo]:
     load_before = os.getloadavg()[0]
-    built = build(points, cache)
+    built = build(points, cache, compress)
     width, height = size
     options = SessionOptions(width=width, height=height, stream=Streaming.ON, gpu_memory_limit=limit)
     local = stream(str(built.path), options, frames, limit_s)
@@ -325,10 +327,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, default=LEG_FRAMES, help="moving frames per leg of the path")
     ap.add_argument("--still-seconds", type=float, default=STILL_SECONDS, help="longest wait for a still view")
     ap.add_argument("--cache", type=Path, default=CACHE, help="where the COPC file is kept")
+    ap.add_argument("--laz", action="store_true", help="tile the sample as LAZ before converting (default LAS)")
+    ap.add_argument("--build-only", action="store_true", help="make the COPC file and stop (a device call of its own)")
     ap.add_argument("--out", type=Path, default=None, help="default: bench/results/<machine>/")
     args = ap.parse_args(argv)
+    if args.build_only:
+        built = build(args.points, args.cache, args.laz)
+        print(f"{built.path}: {built.points:,} points, {built.nodes:,} nodes, {built.levels} levels, "
+              f"tiled in {built.tile_seconds:.1f} s, converted in {built.convert_seconds:.1f} s")
+        return 0
     width, height = (int(v) for v in args.size.split("x"))
-    table, info = run(args.points, args.limit, (width, height), args.frames, args.cache, args.still_seconds)
+    table, info = run(args.points, args.limit, (width, height), args.frames, args.cache, args.still_seconds,
+                      args.laz)
     table.publish(info, args.out, RESULTS)
     return 0
 

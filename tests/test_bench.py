@@ -153,3 +153,15 @@ def test_stream_bench_runs(tmp_path):
     md = (tmp_path / "stream.md").read_text()
     assert md.startswith("# ") and "N: 110,000" in md
     assert {line.count("|") for line in md.splitlines() if line.startswith("|")} == {len(stream.COLUMNS) + 1}
+
+
+def test_stream_bench_builds_from_laz_alone(tmp_path, capsys):
+    """--laz --build-only: the sample tiled as LAZ, converted to COPC, the LAZ removed, and
+    nothing streamed (the 1 B-point file takes a device call of its own)."""
+    from bench import stream
+
+    cache = tmp_path / "cache"
+    assert stream.main(["--points", "120000", "--laz", "--build-only", "--cache", str(cache)]) == 0
+    assert "120,000 points" in capsys.readouterr().out
+    assert sorted(p.name for p in cache.iterdir()) == ["autzen_trim_x120000.copc.json", "autzen_trim_x120000.copc.laz"]
+    assert stream.build(120_000, cache).cached
