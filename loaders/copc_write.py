@@ -80,6 +80,7 @@ TOP_DEPTH = 3
 over memory_points is still built whole in memory). At most CELL_BITS: each cell of the
 levels above lies in one cube."""
 COPY_BYTES = 64 << 20
+"""Compressed chunks copied into the output at a time, out of core."""
 TARGET_FORMAT = {0: 6, 1: 6, 4: 6, 6: 6, 9: 6, 2: 7, 3: 7, 5: 7, 7: 7, 8: 8, 10: 8}
 """The COPC point format (6, 7 or 8) that holds a point format's fields."""
 DROPPED_VLRS = (LasZipVlr, ExtraBytesVlr, GeoKeyDirectoryVlr, GeoDoubleParamsVlr, GeoAsciiParamsVlr,
