@@ -39,18 +39,6 @@ def node_table(path: str) -> list[tuple]:
                                              h.nodes["point_count"]))))
 
 
-def tiled(points: int, compress: bool, cache: Path) -> Path:
-    """The sample tiled to `points` as LAS or LAZ alone (bench/data.py scaled() makes all
-    three formats: 55 GB at 1 B points)."""
-    from bench import data
-
-    path = cache / f"{data.SAMPLE.stem}_x{points}.{'laz' if compress else 'las'}"
-    if not path.exists():
-        cache.mkdir(parents=True, exist_ok=True)
-        data.write_tiled(data.SAMPLE, path, points, compress)
-    return path
-
-
 BUILDS = ("in memory", "out of core")
 
 
@@ -58,7 +46,7 @@ def run(points: int, memory_points: int, cache: Path | None = None, compress: bo
         builds: tuple[str, ...] = BUILDS) -> Table:
     from bench import data
 
-    source = tiled(points, compress, cache or data.CACHE)
+    source = data.tiled(points, compress, cache or data.CACHE)
     table = Table("convert", "COPC written in memory and out of core", f"{source.name}", f"{points:,}",
                   ("build", "memory points", "seconds", "M points/s", "peak MiB", "nodes", "levels", "MiB written"))
     raw, tables = [], []

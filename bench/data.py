@@ -50,6 +50,16 @@ def scaled(points: int, cache: Path = CACHE, source: Path = SAMPLE) -> ScaledFil
     return files
 
 
+def tiled(points: int, compress: bool, cache: Path = CACHE) -> Path:
+    """The sample tiled to `points` as LAS or LAZ alone, cached as scaled() names it
+    (scaled() makes all three formats: 55 GB at 1 B points)."""
+    path = cache / f"{SAMPLE.stem}_x{points}.{'laz' if compress else 'las'}"
+    if not path.exists():
+        cache.mkdir(parents=True, exist_ok=True)
+        write_tiled(SAMPLE, path, points, compress)
+    return path
+
+
 def write_tiled(source: Path, out: Path, points: int, compress: bool) -> None:
     """Write tile after tile (row by row) through laspy, the way a user's tool would."""
     src = laspy.read(source)

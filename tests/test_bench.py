@@ -111,6 +111,11 @@ def test_startup_bench_times_scaled_files(tmp_path, monkeypatch):
     rows = json.loads((tmp_path / "out" / "startup_30000.json").read_text())["raw"]["rows"]
     assert [r["file"] for r in rows] == [p.name for p in (made.las, made.laz, made.fast)]
     assert all(r["median"]["process"] > r["median"]["first_frame"] > 0 for r in rows)
+    monkeypatch.setattr(data, "tiled", lambda points, compress: made.laz if compress else made.las)
+    assert startup.main(["--scaled", "30000", "--laz-only", "--commands", "view", "--caches", "Mesa + program cache",
+                         "--repeats", "1", "--width", "96", "--height", "64", "--out", str(tmp_path / "laz")]) == 0
+    rows = json.loads((tmp_path / "laz" / "startup_30000.json").read_text())["raw"]["rows"]
+    assert [r["file"] for r in rows] == [made.laz.name]
 
 
 def test_upload_bench_runs(tmp_path):
