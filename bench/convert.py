@@ -1,7 +1,8 @@
 """Converting to COPC (loaders/copc_write.py, what `progressive convert IN OUT.copc.laz`
 runs): seconds and peak memory of the octree built in memory and out of core, each in a
-fresh process, GPU-free, for the sample tiled to N points as LAS or LAZ; both
-outputs are checked to hold the same nodes with the same points."""
+fresh process, GPU-free, for the sample tiled to N points as LAS or LAZ; where both
+builds run, their hierarchies are checked to hold the same nodes with the same point
+counts (tests/test_copc.py compares the points themselves)."""
 
 from __future__ import annotations
 
