@@ -3,7 +3,9 @@
 # (see its README.md): a writable copy; glvnd's unversioned names as real files (the shared
 # folder keeps libGL.so and libEGL.so as 10-byte files naming their targets, and links do
 # not travel); and wheels for that machine's Python 3.12 of the package's dependencies the
-# shared folder lacks (plyfile, pye57 and its pyquaternion, pyproj: without plyfile nothing imports there).
+# shared folder lacks (plyfile, pye57 and its pyquaternion, pyproj: without plyfile nothing imports there);
+# and ../shared/data (21 MB) as .gpu/data, which env.sh names in PROGRESSIVE_SHARED_DATA, so the tests
+# on real files run there too (they skipped without it).
 # Run here, then `run` with carry [".gpu"] and `source .gpu/env.sh` there.
 #   bash bench/carry_gpu.sh
 set -euo pipefail
@@ -27,6 +29,9 @@ for requirement in plyfile pye57 pyquaternion pyproj; do
         --platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64 \
         -d .gpu/wheels "$requirement==$version" 2>&1 | grep -v '^WARNING' || true
 done
+cp -r "${SHARED_DATA:-../shared/data}" .gpu/data
+chmod -R u+w .gpu/data
+echo 'export PROGRESSIVE_SHARED_DATA="$_gpu_here/data"' >> .gpu/env.sh
 mkdir -p .git/info
 grep -qx '/.gpu/' .git/info/exclude 2>/dev/null || echo '/.gpu/' >> .git/info/exclude
 ls .gpu/wheels

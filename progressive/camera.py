@@ -417,8 +417,8 @@ class ViewUniforms:
     @functools.cached_property
     def filtering(self) -> bool:
         """Whether a hidden category, a return filter, a clip box or a section can leave a
-        point out: without one the raster skips those tests in a uniform branch, so a
-        view without filters pays nothing for them (worked out once a view)."""
+        point out: without one the raster draws with programs that have none of those
+        tests, so a view without filters pays nothing for them (worked out once a view)."""
         return bool(self.hidden.any() or self.returns or np.isfinite(self.clip_lo).any()
                     or np.isfinite(self.clip_hi).any() or not np.array_equal(self.section_range, NO_SECTION_RANGE))
 

@@ -55,8 +55,6 @@ def set_view(program, view: ViewUniforms) -> None:
         program["u_hidden"].write(view.hidden.tobytes())
     if "u_returns" in program:
         program["u_returns"] = view.returns
-    if "u_filtering" in program:
-        program["u_filtering"] = int(view.filtering)
     if "u_clip_lo" in program:
         program["u_clip_lo"].write(view.clip_lo.tobytes())
         program["u_clip_hi"].write(view.clip_hi.tobytes())

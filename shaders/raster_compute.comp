@@ -43,16 +43,20 @@ void mark_improved(uint slot) {
 }
 #endif
 
-uniform uint u_filtering;    // 0: no filter can leave a point out (progressive/gpu.py filters_apply)
+// FILTERING: a hidden category, a return filter, a clip box or a section may leave a
+// point out (ViewUniforms.filtering); a program without it has none of their tests. Not
+// a uniform branch: llvmpipe runs every branch under a mask, so tests a uniform skipped
+// still cost it their time on every point.
 
 // One point into its pixel (source index i: the reprojection list's hint).
 void raster(uint i, uint slot, uvec4 record) {
-    if (!finite_position(record)) return;
-    if (u_filtering != 0u && (!flags_shown(point_flags(slot, record.w)) || !clip_keeps(uintBitsToFloat(record.xyz))))
-        return;
+#if FILTERING
+    if (!flags_shown(point_flags(slot, record.w)) || !clip_keeps(uintBitsToFloat(record.xyz))) return;
+#endif
     uint pixel;
     float depth;
-    if (!project(uintBitsToFloat(record.xyz), pixel, depth)) return;
+    // one test and one return: on llvmpipe an early return of its own costs every point
+    if (!(project(uintBitsToFloat(record.xyz), pixel, depth) && finite_position(record))) return;
 #ifdef WINNERS
     if (visibility[2u * pixel] == slot) {
 #if SOURCE == SOURCE_LIST
@@ -157,14 +161,14 @@ void main() {
                 w0 = quad_words(0u, index);
                 if (levels > 1u) w1 = quad_words(1u, index);
                 if (levels > 2u) w2 = quad_words(2u, index);
-                if (u_filtering != 0u) at = quad_words(3u, index);
+                if (FILTERING != 0) at = quad_words(3u, index);
             } else {
                 // A range that starts or ends inside these four: each record on its own.
                 for (uint m = 0u; m < 4u; ++m) {
                     bool held = slot + m >= first && slot + m <= last;
                     uvec3 w = held ? point_words(index + m, levels) : uvec3(HIDDEN_WORD);
                     w0[m] = w.x; w1[m] = w.y; w2[m] = w.z;
-                    at[m] = held && u_filtering != 0u ? attribute_word(index + m) : EMPTY;
+                    at[m] = held && FILTERING != 0 ? attribute_word(index + m) : EMPTY;
                 }
             }
             for (uint m = 0u; m < 4u; ++m)
@@ -195,7 +199,7 @@ void main() {
             // Every word is loaded before any is decoded; the attribute word only where a
             // filter reads it (a category's code).
             words[j] = held ? point_words(index, levels) : uvec3(HIDDEN_WORD);
-            attributes[j] = held && u_filtering != 0u ? attribute_word(index) : EMPTY;
+            attributes[j] = held && FILTERING != 0 ? attribute_word(index) : EMPTY;
 #else
             loaded[j] = held ? load_record(index) : uvec4(EMPTY);
 #endif

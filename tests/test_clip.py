@@ -101,6 +101,25 @@ def test_clipped_ids_equal_the_reference(gl, sample, raster, name):
         assert gl.ctx.error == "GL_NO_ERROR"
 
 
+@pytest.mark.parametrize("raster", [Raster.COMPUTE, Raster.COMPUTE32])
+def test_only_a_view_with_a_filter_draws_with_the_filter_tests(gl, sample, raster):
+    """The compute raster's programs without filter tests draw views without a filter
+    (llvmpipe would run the tests on every point); those with them are built when the
+    first filtered view draws, and the image without the clip comes back unchanged."""
+    info, parts, _ = sample
+    if raster is Raster.COMPUTE and not gl.caps.atomic_int64:
+        pytest.skip("no GL_NV_shader_atomic_int64")
+    cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
+    with loaded(gl, info, parts, raster) as r:
+        whole = r.render(cam, W, H, r.style()).ids
+        assert r.raster.built and not any(label.endswith("filtered") for label in r.raster.built)
+        clipped = r.render(cam, W, H, r.style(), clip=clips(info)["box"]).ids
+        assert any(label.endswith("filtered") for label in r.raster.built)
+        assert np.count_nonzero(clipped != EMPTY) < np.count_nonzero(whole != EMPTY)
+        assert np.array_equal(r.render(cam, W, H, r.style()).ids, whole)
+        assert gl.ctx.error == "GL_NO_ERROR"
+
+
 def test_progressive_converges_to_the_clipped_brute_force_render(gl, sample):
     info, parts, _ = sample
     attr = find_attribute(info, "elevation")

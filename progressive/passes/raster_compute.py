@@ -103,7 +103,7 @@ class ComputeRaster:
             self._improved = glc.ctx.buffer(reserve=-(-store.permutation.batches // 4) * 16)
             self._improved.label = "improved batches"
             self._clear_improved()
-        self._programs: dict[tuple[Source, int], object] = {}
+        self._programs: dict[tuple[Source, int, bool], object] = {}
         for source in Source:
             for pass_index in range(self.frame_passes):
                 self.program(source, pass_index)
@@ -134,13 +134,15 @@ class ComputeRaster:
         fill_uvec4s(self._clear, self._improved, 0, self._improved.size // 16, 0)
         self.glc.ctx.memory_barrier()
 
-    def program(self, source: Source, pass_index: int):
-        """Compiled at construction, so no frame pays for a compile."""
-        key = (source, pass_index)
+    def program(self, source: Source, pass_index: int, filtering: bool = False):
+        """Those without filters are compiled at construction, so no frame pays for a
+        compile; those with (ViewUniforms.filtering) when the first view with a filter
+        draws, so a start without one compiles none of them."""
+        key = (source, pass_index, filtering)
         if key not in self._programs:
             defines = dict(self.store.defines, **Source.defines(source), **StateWord.defines(), **Meta.defines(),
                            CULL=int(self._culls(source)), BATCH_GROUPS=int(self._walks_batches(source)),
-                           PREFETCH=self.prefetch)
+                           PREFETCH=self.prefetch, FILTERING=int(filtering))
             if pass_index == self.passes:
                 defines.update(ATOMIC64=0, DEPTH_PASS=0, WINNERS=1)
                 ext = ()
@@ -159,8 +161,14 @@ class ComputeRaster:
                 defines["IMPROVED"] = 1
             defines["PARTITIONED"] = int(self.partitioned)
             ext += SUBGROUP_PARTITIONED if self.partitioned else ()
+            label += " filtered" if filtering else ""
             self._programs[key] = shaderlib.compute(self.glc.ctx, "raster_compute.comp", defines, ext, label)
         return self._programs[key]
+
+    @property
+    def built(self) -> tuple[str, ...]:
+        """The labels of the programs compiled so far."""
+        return tuple(str(p.label) for p in self._programs.values())
 
     def begin_frame(self, view: ViewUniforms) -> None:
         """Flag the batches in view (the frame loop clears the visibility buffer) and
@@ -191,7 +199,7 @@ class ComputeRaster:
         return self._improved is not None and source is not Source.LIST
 
     def _prepare(self, source: Source, pass_index: int, view: ViewUniforms):
-        program = self.program(source, pass_index)
+        program = self.program(source, pass_index, view.filtering)
         set_view(program, view)
         if self._culls(source) or self._walks_batches(source):
             program["u_batches"] = self.store.permutation.batches
