@@ -60,9 +60,11 @@ void main() { %s if (a.x == 7u && a.y == 9u) o[0] = a.z; }
 """
 
 DEPTH = "    uint depth_bits = floatBitsToUint(depth);\n"
+FIRST_TEST = "#if FILTERING\n"
+"""raster()'s first line: where the "load" stage returns."""
 STAGES = {
-    "load": ("    if (!finite_position(record)) return;\n",
-             "    if (record.x == 0x7FC00001u && record.y == 1u) visibility[0] = uint64_t(0);\n    return;\n"),
+    "load": (FIRST_TEST,
+             "    if (record.x == 0x7FC00001u && record.y == 1u) visibility[0] = uint64_t(0);\n    return;\n" + FIRST_TEST),
     "+ project": (DEPTH, DEPTH + "    if (pixel == 0xFFFFFFF0u) visibility[0] = uint64_t(depth_bits);\n    return;\n"),
     "+ read": (DEPTH, DEPTH + "    uint64_t probe = (uint64_t(depth_bits) << 32) | uint64_t(slot);\n"
                "    if (probe < visibility[pixel] && pixel == 0xFFFFFFF0u) visibility[0] = probe;\n    return;\n"),

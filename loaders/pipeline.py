@@ -229,17 +229,19 @@ class BatchQueue:
     loader started with `first`: it waits for every batch."""
 
     def poll(self, max_batches: int | None = None) -> list[Batch]:
-        """The batches ready now, without waiting."""
+        """The batches ready now, without waiting. A failure is raised by the first poll
+        that finds none: the batches read before it are drawn first (a viewer keeps them
+        once it has shown the error)."""
         self.start()
         batches: list[Batch] = []
         while not self.done and (max_batches is None or len(batches) < max_batches):
-            self._raise_failure()
             try:
                 item = self._results.get_nowait()
             except queue.Empty:
                 break
             self._take(item, batches)
-        self._raise_failure()
+        if not batches:
+            self._raise_failure()
         return batches
 
     def __iter__(self) -> Iterator[Batch]:
