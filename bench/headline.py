@@ -151,12 +151,15 @@ def first_image_lines(first: dict) -> list[str]:
 
 
 def progressive_lines(prog: dict) -> list[str]:
+    """The still rows of the renderer's own choices: batch walks, the word store, and
+    the winners pass where the table has it (a small store's runs have only gathers)."""
     out = []
     brute = prog["raw"]["brute_ms"]
+    winners = any(r.get("winners", True) for r in prog["raw"]["rows"])
     for r in prog["raw"]["rows"]:
         store = r.get("store", "words")
         if (r["target_ms"] and r["path"] == "still" and r.get("batch_groups", True) and store == "words"
-                and r.get("winners", True)):
+                and r.get("winners", True) == winners):
             conv = (f"exact after {r['frames_to_converge']} frames ({r['ms_to_converge']:.1f} ms of GPU time)"
                     if r["frames_to_converge"] else "not converged within the run")
             brute_ms = brute[store] if isinstance(brute, dict) else brute

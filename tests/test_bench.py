@@ -30,6 +30,7 @@ def test_bench_writes_every_section(tmp_path):
     assert json.loads((out / "accuracy.json").read_text())["images"] == ["accuracy.png"]
     text = (out / "headline.md").read_text()
     assert "GL_POINTS" in text and "laspy" in text and "first image" in text
+    assert "Progressive, 30,000 points, adaptive" in text       # a small store's rows have gathers only
 
 
 def test_headline_goes_between_markers(tmp_path):
