@@ -15,6 +15,7 @@ import numpy as np
 from bench.report import Table
 from bench.synthetic import SAMPLE
 from progressive.context import GLContext
+from progressive.frame_loop import ProgressiveOptions
 from progressive.loaders import CloudLoader
 from progressive.scene import Scene
 from progressive.wordpack import PACK_THREADS, WordPacker, WordRun, threaded
@@ -46,7 +47,7 @@ def run(glc: GLContext, points: int, repeats: int = 3) -> Table:
                   f"{SAMPLE.name} repeated", f"{points:,}",
                   ("attribute", "source components", "points", "best s (finished on the GPU)", "M points/s",
                    "GB/s of words", "of which packing words on the CPU, s"))
-    scene = Scene(glc, info, info.attribute("elevation"), keep_batches=True)
+    scene = Scene(glc, info, info.attribute("elevation"), keep_batches=True, records=ProgressiveOptions().records)
     for b in batches:
         scene.add_batch(b)
     glc.ctx.finish()
@@ -75,7 +76,7 @@ def run(glc: GLContext, points: int, repeats: int = 3) -> Table:
         ("Each switch: the kept batches in file order as runs of words, each packed on the CPU (numpy, "
          f"progressive/wordpack.py, {PACK_THREADS} threads) straight into a staging slot of the upload ring "
          f"({pieces:,} words a piece), then scattered by the words program to the batch's records on the GPU "
-         f"(the batch's prime shuffle); timed from the switch to glFinish, best of {repeats}, each switch from "
+         f"(the batch's prime shuffle), kept in the progressive renderer's order ({ProgressiveOptions().records.value}); timed from the switch to glFinish, best of {repeats}, each switch from "
          "elevation. Words of the previous attribute are overwritten in place; no reload."),
         ("Packing: the same runs packed by the same threads into host memory (no GPU), best of "
          f"{repeats}. The cloud repeats the sample's arrays, so they are read from the CPU's cache: a real cloud's "

@@ -14,7 +14,7 @@
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
-CHUNKS=(files-100M load-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B winners-1B accuracy attributes packing startup-100M startup-1B convert-1B copc-1B stream-1B)
+CHUNKS=(files-100M load-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B winners-1B records-1B accuracy attributes packing startup-100M startup-1B convert-1B copc-1B stream-1B)
 chunk="${1:-list}"
 if [ "$chunk" = list ]; then
     printf '%s\n' "${CHUNKS[@]}"
@@ -53,6 +53,13 @@ case "$chunk" in
     winners-1B)       "${PYTHON:-python3}" -m bench.progressive --points 1000000000 --size 1920x1080 --fixed 10000000 \
                           --targets-ms 16.6 --motion-frames 60 --max-frames 600 --records "winners pass" gathered \
                           --out "$OUT/$(machine)" "${@:2}" ;;
+    # every progressive case at 1B with the store's records in slot order and batch after batch, then brute force
+    # in both orders, 1920x1080 (7 min on the H200: bench/results/nvidia-h200/record_order/)
+    records-1B)       "${PYTHON:-python3}" -m bench.progressive --points 1000000000 --size 1920x1080 --fixed 10000000 \
+                          --targets-ms 16.6 --motion-frames 60 --max-frames 600 --record-orders "slot order" "batch after batch" \
+                          --out "$OUT/$(machine)" "${@:2}"
+                      "${PYTHON:-python3}" -m bench.raster --points 1000000000 --size 1920x1080 --repeats 5 --copy-mib 2048 \
+                          --layouts batched "batched, records in slot order" --out "$OUT/$(machine)" "${@:2}" ;;
     accuracy)         "${bench[@]}" --sections accuracy "${@:2}" ;;
     attributes)       "${bench[@]}" --sections attributes "${@:2}" ;;
     # the host side of an attribute switch: words packed on the CPU at 1, 2, 4, 8 threads and every core,

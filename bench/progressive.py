@@ -23,6 +23,7 @@ from progressive.context import GLContext, create_context
 from progressive.encoding import Encoding
 from progressive.frame_loop import FrameStats, ProgressiveOptions, ProgressiveRenderer
 from progressive.passes.raster_compute import DEFAULT_TUNING, ComputeTuning
+from progressive.pointstore import RecordOrder
 from progressive.renderer import Renderer
 from progressive.scene import Scene
 
@@ -157,25 +158,30 @@ def warm_up(glc: GLContext, scene: Scene, cloud: TiledCloud, size: tuple[int, in
 
 STORE_LABELS = {Encoding.WORDS: "words", Encoding.FLOAT: "float records"}
 """The store column: the renderer's word planes, or float32 records (the baseline)."""
+RECORD_ORDER = ProgressiveOptions().records
+RECORD_ORDER_LABELS = {RecordOrder.SLOTS: ", records in slot order", RecordOrder.BATCHES: ", each batch's records together"}
+"""Appended to the store column where the store keeps its records in another order than
+the renderer's (ProgressiveOptions.records)."""
 RECORDS_LABELS = {True: "winners pass", False: "gathered"}
 """The records column: where prepare takes new winners' records (ComputeTuning.winners)."""
 
 
 def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], targets_ms: list[float],
         paths: list[CameraPath], motion: int, max_frames: int, compare_walk: bool = False,
-        encodings: tuple[Encoding, ...] = (Encoding.WORDS,), winners: tuple[bool | None, ...] = (None,)) -> Table:
+        encodings: tuple[Encoding, ...] = (Encoding.WORDS,), winners: tuple[bool | None, ...] = (None,),
+        record_orders: tuple[RecordOrder, ...] = (RECORD_ORDER,)) -> Table:
     """compare_walk: also run every case with fill pieces walked one invocation a slot
     (ComputeTuning.batch_groups off), side by side with the renderer's batch walk;
-    encodings: the stores to run every case on, one after the other in this run;
-    winners: with and/or without the winners pass, each case side by side (None: the
-    renderer's choice for the store)."""
+    encodings and record_orders: the stores to run every case on, one after the other
+    in this run; winners: with and/or without the winners pass, each case side by side
+    (None: the renderer's choice for the store)."""
     walks = (True, False) if compare_walk else (True,)
     tunings = [ComputeTuning(batch_groups=g, winners=w) for g in walks for w in winners]
     cloud = tiled(str(SAMPLE), points)
     rows, frames, brute = [], {}, {}
-    for position_encoding in encodings:
-        store = STORE_LABELS[position_encoding]
-        scene, upload_s = load(glc, cloud, position_encoding=position_encoding)
+    for position_encoding, records in ((e, o) for e in encodings for o in record_orders):
+        store = STORE_LABELS[position_encoding] + ("" if records is RECORD_ORDER else RECORD_ORDER_LABELS[records])
+        scene, upload_s = load(glc, cloud, records=records, position_encoding=position_encoding)
         warm_up(glc, scene, cloud, size)
         brute[store] = brute_ms(glc, scene, cloud, size)
         for budget in budgets(fixed, targets_ms):
@@ -211,7 +217,10 @@ def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], ta
          f"Two frames in flight, as a swap chain paces a window. Fill work group: batch = fill pieces walked "
          f"one work group a batch (the renderer's), 256 slots = one invocation a slot. Store: words = the "
          f"renderer's (three 10-bit position words and the attribute word, each in its plane), float records = "
-         f"float32 xyz and the attribute word together; each store loaded and run in turn. Records: where "
+         f"float32 xyz and the attribute word together, each with its records in the renderer's order "
+         f"({RECORD_ORDER.value}: slice k of every batch before slice k+1 of any, so a fill piece's records lie "
+         f"together) unless the store says otherwise (each batch's records together: as brute force keeps "
+         f"them); each store loaded and run in turn. Records: where "
          f"prepare takes the records of the points visible now, for the next frame's reprojection and resolve: "
          f"winners pass = the raster's last pass over the frame's points leaves each pixel's record (its time "
          f"is in the fill column), gathered = from the last list where a hint finds it, else from the store at "
@@ -233,6 +242,8 @@ def main(argv=None) -> int:
                     help="run every case on each store in turn")
     ap.add_argument("--records", nargs="+", choices=list(RECORDS_LABELS.values()),
                     help="run every case with prepare's records from each source in turn (default: the renderer's choice)")
+    ap.add_argument("--record-orders", nargs="+", choices=[o.value for o in RecordOrder], default=[RECORD_ORDER.value],
+                    help="run every case with the store's records in each order in turn")
     ap.add_argument("--out", default="bench/results/local")
     args = ap.parse_args(argv)
     glc = create_context()
@@ -240,7 +251,8 @@ def main(argv=None) -> int:
     table = run(glc, args.points, size, args.fixed, args.targets_ms, list(CameraPath), args.motion_frames,
                 args.max_frames, args.compare_walk,
                 tuple(e for e, label in STORE_LABELS.items() if label in args.stores),
-                tuple(w for w, label in RECORDS_LABELS.items() if label in args.records) if args.records else (None,))
+                tuple(w for w, label in RECORDS_LABELS.items() if label in args.records) if args.records else (None,),
+                tuple(RecordOrder(o) for o in args.record_orders))
     info = RunInfo.from_caps(glc.caps, "progressive only")
     table.write(Path(args.out), info)
     print(table.markdown(info))

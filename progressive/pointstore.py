@@ -54,7 +54,10 @@ class RecordOrder(enum.Enum):
     k of every batch before slice k+1 of any: fills and memory limits take the same share
     of every batch); BATCHES stores each batch's records together, so a work group
     walking a batch reads one contiguous block instead of slices spread over the whole
-    store (bench/raster.py measures both)."""
+    store: brute force's order. SLOTS keeps the slices of a round together, so a
+    progressive fill (the next slice of every batch) reads one contiguous run: the
+    progressive renderer's (ProgressiveOptions.records; bench/raster.py and
+    bench/progressive.py measure both)."""
 
     SLOTS = "slot order"
     BATCHES = "batch after batch"
@@ -213,8 +216,8 @@ class PointStore:
         if b.size == 0:
             return
         gl = self._glc.gl
-        for r in self.layout.batch_record(b).tolist():
-            for c, offset, size in self._record_bytes(r, r + BATCH_SLOTS):
+        for first, end in self._batch_records(b):
+            for c, offset, size in self._record_bytes(first, end):
                 gl.clear_u32(self.buffers[c].glo, EMPTY_WORD, offset, size, total=self.buffers[c].size)
         self.boxes[b] = batches.empty_boxes(b.size)
         self.frames[b] = encoding.empty_frames(b.size)
@@ -224,6 +227,16 @@ class PointStore:
             if self.frame_buffer is not None:
                 self.frame_buffer.write(self.frames[lo:hi].tobytes(),
                                         offset=lo * self.frames.itemsize * encoding.FRAME_FLOATS)
+
+    def _batch_records(self, b: np.ndarray) -> list[tuple[int, int]]:
+        """[first, end) runs of the records of batches b (sorted) in a store of every
+        slot: a block a batch batch after batch; in slot order, a slice a round for each
+        run of consecutive batches (their slices of a round lie together)."""
+        if self.layout.batches:
+            return [(r, r + BATCH_SLOTS) for r in self.layout.batch_record(b).tolist()]
+        stride = self.permutation.batches * SLICE_POINTS
+        return [(k * stride + lo * SLICE_POINTS, k * stride + hi * SLICE_POINTS)
+                for lo, hi in batches.runs(b) for k in range(BATCH_SLOTS // SLICE_POINTS)]
 
     def add_boxes(self, positions, start: int) -> None:
         """Grow the boxes of the batches that file indices [start, start+n) belong to

@@ -267,7 +267,7 @@ class Session:
             state = Streamer.residency(reader, self.memory.capacity * BATCH_POINTS // BATCH_SLOTS)
             info = replace(self.info, points=state.capacity * BATCH_POINTS)
             scene = Scene(self.glc, info, self.attribute, chunk_points=options.chunk_points,
-                          class_filter=class_filter, streamed=True)
+                          class_filter=class_filter, streamed=True, records=options.progressive.records)
             self.renderer = ProgressiveRenderer(self.glc, info, self.attribute, replace(
                 options.progressive, width=options.width, height=options.height, raster=options.raster,
                 chunk_points=options.chunk_points, class_filter=class_filter), scene=scene)

@@ -144,18 +144,19 @@ void main() {
     uint stride = u_batches * SLICE_POINTS;
     uint last = first + (count - 1u);
 #ifdef VECTOR_WORDS
-    // Where the batch's records lie together and aligned, each invocation takes four
-    // consecutive records of a slice and loads each word plane's four words at once
-    // (the paper's uvec4 prefetch): QUADS invocations a slice, SLICES_A_PASS slices a pass.
+    // Where the batch's records lie together and aligned, or in slot order (a slice's
+    // records then lie at its slots, aligned), each invocation takes four consecutive
+    // records of a slice and loads each word plane's four words at once (the paper's
+    // uvec4 prefetch): QUADS invocations a slice, SLICES_A_PASS slices a pass.
     const uint QUADS = SLICE_POINTS / 4u, SLICES_A_PASS = gl_WorkGroupSize.x / QUADS;
     uint block = batch_record(b);
-    if (store_batches != 0u && quads_aligned(block, BATCH_SLOTS)) {
+    if (store_batches == 0u || quads_aligned(block, BATCH_SLOTS)) {
         uint lane = 4u * (gl_LocalInvocationID.x % QUADS);
         for (uint k = gl_LocalInvocationID.x / QUADS; k < ROUNDS; k += SLICES_A_PASS) {
             uint slot = k * stride + b * SLICE_POINTS + lane;   // of the first of the four
             if (slot > last) break;
             if (slot + 3u < first) continue;
-            uint index = block + k * SLICE_POINTS + lane;
+            uint index = store_batches == 0u ? slot : block + k * SLICE_POINTS + lane;
             uvec4 w0, w1 = uvec4(0u), w2 = uvec4(0u), at = uvec4(EMPTY);
             if (slot >= first && slot + 3u <= last) {
                 w0 = quad_words(0u, index);

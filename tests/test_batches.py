@@ -15,6 +15,7 @@ from progressive.passes.cull import CullPass
 from progressive.passes.raster_compute import ComputeRaster, ComputeTuning
 from progressive.passes.visibility import EMPTY
 from progressive.permutation import BATCH_POINTS, BATCH_SLOTS, SLICE_POINTS
+from progressive.pointstore import RecordOrder
 from progressive.renderer import Renderer
 from progressive.scene import Scene
 
@@ -185,15 +186,17 @@ def store_shape(info, shape: str) -> dict:
 @pytest.mark.parametrize("atomic64", [True, False], ids=["64-bit", "32-bit"])
 @pytest.mark.parametrize("name", ["overview", "zoomed corner"])
 @pytest.mark.parametrize("shape", ["whole", "two buffers", "memory limit"])
-def test_every_tuning_keeps_the_ids(gl, sample, atomic64, name, shape):
+@pytest.mark.parametrize("records", list(RecordOrder))
+def test_every_tuning_keeps_the_ids(gl, sample, atomic64, name, shape, records):
     """One work group a batch, its four-word loads and the subgroup reduction (where the
     GPU has GL_NV_shader_subgroup_partitioned) give the ids of one invocation and one
     atomic per point, for the whole store and for ranges that start and end inside
-    slices, with the store in one or two buffers and under a memory limit."""
+    slices, with the store in one or two buffers and under a memory limit, its records
+    batch after batch or in slot order."""
     if atomic64 and not gl.caps.atomic_int64:
         pytest.skip("no GL_NV_shader_atomic_int64")
     info, parts, _, _ = sample
-    scene = Scene(gl, info, find_attribute(info, "elevation"), **store_shape(info, shape))
+    scene = Scene(gl, info, find_attribute(info, "elevation"), records=records, **store_shape(info, shape))
     assert scene.store.chunks == (2 if shape.startswith("two") else 1)
     r = Renderer(gl, info, scene.attribute, width=W, height=H, scene=scene)
     cam = cameras(info)[name]

@@ -12,8 +12,8 @@ from progressive import encoding
 from progressive.attributes import find_attribute
 from progressive.camera import auto_camera
 from progressive.loaders.records import pack_records
-from progressive.permutation import BATCH_POINTS, SLICE_POINTS, FillOrder, Permutation
-from progressive.pointstore import RecordOrder, StoreLayout
+from progressive.permutation import BATCH_POINTS, BATCH_SLOTS, SLICE_POINTS, FillOrder, Permutation
+from progressive.pointstore import EMPTY_WORD, RecordOrder, StoreLayout
 from progressive.renderer import Raster, Renderer
 from progressive.scene import Scene
 
@@ -94,6 +94,32 @@ def test_the_gpu_writes_each_record_where_the_twin_says(gl, cloud):
         starts = store.layout.batch_record(np.arange(perm.batches + 1))
         file_batch = ids[kept] // BATCH_POINTS
         assert np.all((where >= starts[file_batch]) & (where < starts[file_batch + 1]))
+        gl.check()
+    finally:
+        scene.release()
+
+
+@pytest.mark.parametrize("records", list(RecordOrder))
+def test_clearing_batches_empties_their_records_alone(gl, cloud, records):
+    """What a streamed cloud's evictions rely on: clear_batches leaves EMPTY_WORD in every
+    word of the emptied batches' records, wherever the order keeps them, and no other."""
+    info, batches = cloud
+    scene = Scene(gl, info, find_attribute(info, "elevation"), records=records)
+    try:
+        for b in batches:
+            scene.add_batch(b)
+        store = scene.store
+        before = store.raw_words().copy()
+        emptied = [1, 2, 4]
+        store.clear_batches(emptied)
+        after = store.raw_words()
+        slots = np.arange(store.capacity)
+        gone = np.zeros(store.capacity, bool)
+        gone[store.layout.record_index(slots[np.isin(store.permutation.slot_batch(slots), emptied)])] = True
+        assert gone.sum() == len(emptied) * BATCH_SLOTS
+        assert (after[gone] == EMPTY_WORD).all()
+        assert np.array_equal(after[~gone], before[~gone])
+        assert (before[gone] != EMPTY_WORD).any()
         gl.check()
     finally:
         scene.release()
