@@ -9,19 +9,34 @@ root first, level by level, each one LAZ chunk (lazrs, on every core); the hiera
 one page in an EVLR, and the COPC info VLR comes first after the header, as the
 specification (https://copc.io) requires.
 
+The root cube is placed from the inputs' header bounds (their union, as Untwine's
+preflight does), so that the points need not be read first for it: each point's Morton
+code is computed as it is read, and its coordinates checked to lie within those bounds
+(give or take the scale step the cube is widened by). If one does not (a header that
+lies), both builds place the cube from the points' own bounds, so that they give the
+same nodes: out of core, the pass goes on for those bounds alone and the inputs are read
+again into the cubes. The output header holds the points' own bounds and counts,
+gathered in the same pass.
+
 Point records keep every field: point formats 6-8 are written as they are (9 and 10 as 6
-and 8, without their waveform fields), older ones converted by laspy, field by field
-(scan angle from whole degrees to 0.006° steps: the nearest).
+and 8, without their waveform fields), older ones converted field by field as laspy
+converts them (numpy copies of runs of fields and bit operations; laspy's own
+conversion where fields do not match), scan angles from whole degrees to 0.006° steps
+(the nearest).
 
 A cloud of up to `memory_points` is held in memory while its octree is built. A larger
-one is built out of core, with the same nodes: the inputs are read once for the bounds
-(which place the root cube) and again into files of a scratch folder, one for each of
-the octree's cubes at TOP_DEPTH. Every cell of the levels above that depth lies in one
-cube, and a point's rank is a hash of its index, so each cube picks its points of those
-levels alone; only whether a node of those levels keeps every point left (at most
-LEAF_POINTS) needs the counts of all its cubes, summed first. Then each cube's own
-subtree is built in memory and compressed apart, and the file is assembled from the
-compressed chunks: the upper levels' nodes first, level by level, then each cube's.
+one is built out of core, with the same nodes: the inputs are read once, into files of a
+scratch folder, one for each of the octree's cubes at TOP_DEPTH (the records, and apart
+each point's Morton code and index; parts are coded and sorted by cube on `workers`
+threads while the next is read). Every cell of the levels above that depth lies in
+one cube, and a point's rank is a hash of its index, so each cube picks its points of
+those levels alone; only whether a node of those levels keeps every point left (at most
+LEAF_POINTS) needs the counts of all its cubes, summed first from the codes files alone.
+Then each cube's own subtree is built in memory and compressed apart, on `workers`
+threads (numpy sorts and gathers run without the GIL) with at most memory_points points
+of the cubes in flight, and the file is assembled from the compressed chunks in cube
+order, whatever the number of workers: the upper levels' nodes first, level by level,
+then each cube's.
 """
 
 from __future__ import annotations
@@ -29,6 +44,8 @@ from __future__ import annotations
 import os
 import struct
 import tempfile
+from collections import deque
+from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -69,6 +86,8 @@ MAX_DEPTH = 12
 """Deepest level: every point left there stays (keys of CELLS·2^12 cells fit 64 bits)."""
 CELL_BITS = CELLS.bit_length() - 1
 GRID_BITS = CELL_BITS + MAX_DEPTH      # bits of a point's cell at MAX_DEPTH, per axis
+SPREAD_BITS = 10
+"""Bits of a cell coordinate spread at a time through a table (GRID_BITS in two looks)."""
 SEED = 0x5EED
 COMPRESS_POINTS = 1 << 22
 """Points handed to the parallel compressor at a time."""
@@ -83,6 +102,10 @@ COPY_BYTES = 64 << 20
 """Compressed chunks copied into the output at a time, out of core."""
 TARGET_FORMAT = {0: 6, 1: 6, 4: 6, 6: 6, 9: 6, 2: 7, 3: 7, 5: 7, 7: 7, 8: 8, 10: 8}
 """The COPC point format (6, 7 or 8) that holds a point format's fields."""
+LEGACY_FIELDS = {"bit_fields", "raw_classification", "scan_angle_rank"}
+"""Fields of point formats 0-5 whose bits move in formats 6-10 (_fast_converted)."""
+NEW_BIT_FIELDS = {"bit_fields", "classification_flags", "classification", "scan_angle"}
+"""Fields of point formats 6-10 made from LEGACY_FIELDS."""
 DROPPED_VLRS = (LasZipVlr, ExtraBytesVlr, GeoKeyDirectoryVlr, GeoDoubleParamsVlr, GeoAsciiParamsVlr,
                 WktCoordinateSystemVlr)
 """VLRs of the input not copied as they are: written anew (LASzip, extra bytes, the CRS
@@ -101,11 +124,49 @@ class Written:
     warnings: tuple[str, ...]
 
 
+@dataclass(frozen=True)
+class Bounds:
+    """Mins and maxs of x, y, z; `slack`: how far outside a point may lie and still be in
+    the cube placed around them (the scale step the cube is widened by)."""
+
+    mins: np.ndarray
+    maxs: np.ndarray
+    slack: float
+
+    def holds(self, mins: np.ndarray, maxs: np.ndarray) -> bool:
+        return bool(np.all(mins >= self.mins - self.slack) and np.all(maxs <= self.maxs + self.slack))
+
+
+class Tally:
+    """What the output header says of the points seen so far: their count, bounds,
+    points by return and GPS time range."""
+
+    def __init__(self):
+        self.points = 0
+        self.mins, self.maxs = np.full(3, np.inf), np.full(3, -np.inf)
+        self.returns = np.zeros(16, np.int64)
+        self.gps = (np.inf, -np.inf)
+
+    def add(self, records: np.ndarray, mins: np.ndarray, maxs: np.ndarray) -> None:
+        if records.size == 0:
+            return
+        self.points += records.size
+        self.mins, self.maxs = np.minimum(self.mins, mins), np.maximum(self.maxs, maxs)
+        self.returns += np.bincount(records["bit_fields"] & 0x0F, minlength=16)
+        gps = records["gps_time"]
+        self.gps = (min(self.gps[0], float(gps.min())), max(self.gps[1], float(gps.max())))
+
+    def fill(self, header: laspy.LasHeader) -> None:
+        header.mins, header.maxs, header.point_count = self.mins, self.maxs, self.points
+        header.number_of_points_by_return = self.returns[1:16].astype(np.uint64)
+
+
 def write_copc(stream, inputs: list[str], *, partial: bool = False, memory_points: int | None = None,
-               scratch: str | os.PathLike | None = None) -> Written:
+               scratch: str | os.PathLike | None = None, workers: int | None = None) -> Written:
     """Write `inputs` (LAS/LAZ files, one cloud) to `stream` (opened w+b, at 0) as COPC;
     a cloud of more than memory_points (default MEMORY_POINTS) is built out of core in a
-    temporary folder made in `scratch` (default: the system's), removed whatever happens."""
+    temporary folder made in `scratch` (default: the system's), removed whatever happens,
+    its cubes on `workers` threads (default: one a core; the file is the same)."""
     memory_points = MEMORY_POINTS if memory_points is None else memory_points
     _, sources = open_sources(inputs, partial=partial)
     for s in sources:
@@ -114,16 +175,30 @@ def write_copc(stream, inputs: list[str], *, partial: bool = False, memory_point
     warnings: list[str] = []
     first = _laspy_header(sources[0].info.path)
     header = _output_header(sources, first, warnings)
-    if sum(s.info.points for s in sources) > memory_points:
+    claimed = _header_bounds(sources, header)
+    total = sum(s.info.points for s in sources)
+    if total > memory_points:
         with tempfile.TemporaryDirectory(prefix=".progressive-copc-", dir=scratch) as folder:
-            written = _out_of_core(stream, sources, header, partial, warnings, memory_points, Path(folder))
+            written = _out_of_core(stream, sources, header, claimed, partial, warnings, memory_points,
+                                   workers or os.cpu_count() or 1, Path(folder))
         return written
-    records = np.concatenate(list(_record_parts(sources, header, partial, warnings)))
-    order, level, key = octree_order(records, header)
-    records = records[order]
+    info, tally = _cube(claimed), Tally()
+    records, morton = np.empty(total, header.point_format.dtype()), np.empty(total, np.uint64)
+    for part in _record_parts(sources, header, partial, warnings):
+        at = tally.points
+        morton[at:at + part.size], mins, maxs = _codes(part, header, info)
+        records[at:at + part.size] = part
+        tally.add(part, mins, maxs)
+    records, morton = records[:tally.points], morton[:tally.points]
+    if not claimed.holds(tally.mins, tally.maxs):
+        info = _cube(Bounds(tally.mins, tally.maxs, claimed.slack))
+        morton, _, _ = _codes(records, header, info)
+    order, level, key = octree_order(morton)
+    del morton
+    records = records.take(order)
     starts = np.r_[0, np.nonzero((np.diff(level) != 0) | (np.diff(key) != 0))[0] + 1]
     counts = np.diff(np.r_[starts, records.size])
-    _fill_header(header, records)
+    tally.fill(header)
     copc_vlr, laz_vlr = _write_head(stream, header)
     point_data = header.offset_to_point_data
     compressor = lazrs.ParLasZipCompressor(stream, laz_vlr)
@@ -134,10 +209,16 @@ def write_copc(stream, inputs: list[str], *, partial: bool = False, memory_point
     table = lazrs.read_chunk_table(stream, laz_vlr)
     if [n for n, _ in table] != counts.tolist():
         raise InputError("internal error: the LAZ chunk table does not list one chunk per octree node")
-    gps = records["gps_time"]
-    _write_hierarchy(stream, header, copc_vlr, point_data, level[starts], key[starts], table,
-                     (float(gps.min()), float(gps.max())))
+    _write_hierarchy(stream, header, info, copc_vlr, point_data, level[starts], key[starts], table, tally.gps)
     return Written(int(records.size), int(counts.size), int(level.max()) + 1, tuple(warnings))
+
+
+def _header_bounds(sources, header: laspy.LasHeader) -> Bounds:
+    """The union of the inputs' header bounds (those of the points where open_las found
+    the header's wrong), which place the root cube unless a point lies outside."""
+    mins = np.min([s.info.bounds_min for s in sources], axis=0).astype(np.float64)
+    maxs = np.max([s.info.bounds_max for s in sources], axis=0).astype(np.float64)
+    return Bounds(mins, maxs, float(np.abs(header.scales).max()))
 
 
 def _write_head(stream, header: laspy.LasHeader):
@@ -150,10 +231,10 @@ def _write_head(stream, header: laspy.LasHeader):
     return copc_vlr, laz_vlr
 
 
-def _write_hierarchy(stream, header: laspy.LasHeader, copc_vlr, point_data: int, levels: np.ndarray,
-                     keys: np.ndarray, table, gps: tuple[float, float]) -> None:
+def _write_hierarchy(stream, header: laspy.LasHeader, info: CopcInfo, copc_vlr, point_data: int,
+                     levels: np.ndarray, keys: np.ndarray, table, gps: tuple[float, float]) -> None:
     """The hierarchy EVLR after the chunks (one a node, in the chunk table's order), then
-    the header again with the info VLR filled in."""
+    the header again with the info VLR (the root cube `info`) filled in."""
     sizes = np.array([b for _, b in table], np.int64)
     entries = np.zeros(len(table), ENTRY)
     entries["level"] = levels
@@ -165,7 +246,6 @@ def _write_hierarchy(stream, header: laspy.LasHeader, copc_vlr, point_data: int,
     stream.write(EVLR_HEAD.pack(0, USER_ID, HIERARCHY_RECORD, len(body), b"COPC hierarchy"))
     stream.write(body)
     header.start_of_first_evlr, header.number_of_evlrs = evlr_start, 1
-    info = _cube(header)
     copc_vlr.record_data = CopcInfo(info.center, info.halfsize, info.spacing, evlr_start + EVLR_HEADER, len(body),
                                     *gps).pack()
     stream.seek(0)
@@ -255,10 +335,14 @@ def _record_parts(sources, header: laspy.LasHeader, partial: bool, warnings: lis
 
 
 def _converted(path: str, chunk: np.ndarray, records, header: laspy.LasHeader, same_grid: bool) -> np.ndarray:
-    """A chunk of input records as records of the output's point format (laspy copies the
-    fields by name), on the output's scale grid."""
-    out = laspy.PackedPointRecord.from_point_record(laspy.PackedPointRecord(chunk, records.point_format),
-                                                    header.point_format).array
+    """A chunk of input records as records of the output's point format (as laspy copies
+    the fields by name), on the output's scale grid."""
+    out = _fast_converted(chunk, records.point_format, header.point_format)
+    if out is None:
+        out = laspy.PackedPointRecord.from_point_record(laspy.PackedPointRecord(chunk, records.point_format),
+                                                        header.point_format).array
+    elif out is chunk and not same_grid:
+        out = chunk.copy()
     if "scan_angle_rank" in chunk.dtype.names:
         out["scan_angle"] = np.rint(chunk["scan_angle_rank"] / SCAN_ANGLE_STEP).astype(np.int16)
     if not same_grid:
@@ -271,53 +355,109 @@ def _converted(path: str, chunk: np.ndarray, records, header: laspy.LasHeader, s
     return out
 
 
-def _cube(header_or_bounds) -> CopcInfo:
-    """The octree's root cube around the header's bounds (a scale step wider on each side,
-    so that rounding never leaves a point on the outside), and its spacing."""
-    lo, hi = np.asarray(header_or_bounds.mins, np.float64), np.asarray(header_or_bounds.maxs, np.float64)
-    half = float((hi - lo).max()) / 2 + float(np.abs(header_or_bounds.scales).max())
-    center = tuple(float(c) for c in (lo + hi) / 2)
+def _fast_converted(chunk: np.ndarray, source: laspy.PointFormat, target: laspy.PointFormat) -> np.ndarray | None:
+    """What laspy's conversion gives (fields of the same name copied, the others zero;
+    scan_angle left for the caller), by runs of fields copied whole and, from point
+    formats 0-5, the bits of LEGACY_FIELDS moved; the chunk itself where the formats
+    match; None where a field of the same name has another type."""
+    src, dst = chunk.dtype, target.dtype()
+    if src == dst:
+        return chunk
+    legacy = source.id < 6
+    out = np.empty(chunk.size, dst)
+    runs: list[list[int]] = []          # [source offset, target offset, bytes]
+    for name in sorted(dst.names, key=lambda n: dst.fields[n][1]):
+        if legacy and name in NEW_BIT_FIELDS:
+            continue
+        dtype, offset = dst.fields[name][:2]
+        if name not in src.names or (legacy and name in LEGACY_FIELDS):
+            out[name] = 0
+            continue
+        if src.fields[name][0] != dtype:
+            return None
+        at = src.fields[name][1]
+        if runs and runs[-1][0] + runs[-1][2] == at and runs[-1][1] + runs[-1][2] == offset:
+            runs[-1][2] += dtype.itemsize
+        else:
+            runs.append([at, offset, dtype.itemsize])
+    for at, offset, size in runs:
+        _bytes(out, offset, size)[...] = _bytes(chunk, at, size)
+    if legacy:
+        bits, classes = chunk["bit_fields"], chunk["raw_classification"]
+        out["bit_fields"] = (bits & 0x07) | ((bits & 0x38) << 1)              # return number, number of returns
+        out["classification_flags"] = ((classes >> 5) & 0x07) | (bits & 0xC0)   # synthetic.. withheld; scan, edge
+        out["classification"] = classes & 0x1F
+        out["scan_angle"] = 0
+    return out
+
+
+def _bytes(records: np.ndarray, offset: int, size: int) -> np.ndarray:
+    """`size` bytes at `offset` of each record, as one void field (a view)."""
+    return records.view(np.dtype({"names": ["v"], "formats": [f"V{size}"], "offsets": [offset],
+                                  "itemsize": records.dtype.itemsize}))["v"]
+
+
+def _cube(bounds: Bounds) -> CopcInfo:
+    """The octree's root cube around `bounds` (bounds.slack wider on each side, so that
+    rounding never leaves a point on the outside), and its spacing."""
+    half = float((bounds.maxs - bounds.mins).max()) / 2 + bounds.slack
+    center = tuple(float(c) for c in (bounds.mins + bounds.maxs) / 2)
     return CopcInfo(center, half, 2 * half / CELLS, 0, 0, 0.0, 0.0)
 
 
-def _fill_header(header: laspy.LasHeader, records: np.ndarray) -> None:
-    """Count and points by return of the records (octree_order sets the bounds)."""
-    header.point_count = int(records.size)
-    returns = np.asarray(laspy.PackedPointRecord(records, header.point_format)["return_number"])
-    header.number_of_points_by_return = np.bincount(returns, minlength=16)[1:16].astype(np.uint64)
-
-
-def octree_order(records: np.ndarray, header: laspy.LasHeader) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The points in the order they are written (node by node, root first, level by level,
-    nodes of a level and points of a node in Morton order), with each one's
-    level and node key (the Morton code of its cell at that level). Octree by spacing: a
-    node keeps the point of least rank (_rank) of each occupied cell of its CELLS³ grid,
-    unless it has at most LEAF_POINTS left, which it keeps all. In Morton order every
-    node and every cell of every level is a run of points, so each level takes a few
-    passes over the points left and no sort. Sets the header's bounds."""
-    scaled = [records["XYZ"[a]] * header.scales[a] + header.offsets[a] for a in range(3)]
-    header.mins = np.array([c.min() for c in scaled])
-    header.maxs = np.array([c.max() for c in scaled])
-    del scaled
-    morton = _morton(records, header, _cube(header))
-    by_code = np.argsort(morton, kind="stable")
-    morton = morton[by_code]
+def octree_order(morton: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The points (their Morton codes in cloud order, sorted in place) in the order they
+    are written (node by node, root first, level by level, nodes of a level and points of
+    a node in Morton order), with each one's level and node key (the Morton code of its
+    cell at that level). Octree by spacing: a node keeps the point of least rank (_rank)
+    of each occupied cell of its CELLS³ grid, unless it has at most LEAF_POINTS left,
+    which it keeps all. In Morton order every node and every cell of every level is a run
+    of points, so each level takes a few passes over the points left and no sort."""
+    by_code = _morton_order(morton)
     level = _levels(morton, _rank(by_code.astype(np.uint64)))
     order = np.argsort(level, kind="stable")
     level = level[order]
     return by_code[order], level, _keys(morton[order], level)
 
 
-def _morton(records: np.ndarray, header: laspy.LasHeader, info: CopcInfo) -> np.ndarray:
-    """Each point's Morton code of its cell at MAX_DEPTH in the root cube."""
+def _morton_order(morton: np.ndarray) -> np.ndarray:
+    """The stable argsort of `morton` (ties in the order given), from numpy's faster
+    unstable one with the runs of equal codes put back in order; `morton` is sorted in
+    place (no second array of codes held)."""
+    order = np.argsort(morton)
+    morton[...] = morton[order]
+    tied = morton[1:] == morton[:-1]
+    if tied.any():
+        runs = np.r_[0, np.cumsum(~tied)]
+        at = np.flatnonzero(np.r_[tied, False] | np.r_[False, tied])
+        ties = order[at]
+        order[at] = ties[np.lexsort((ties, runs[at]))]
+    return order
+
+
+def _codes(records: np.ndarray, header: laspy.LasHeader, info: CopcInfo):
+    """Each point's Morton code of its cell at MAX_DEPTH in the root cube, and the
+    points' mins and maxs (inf and -inf for none)."""
     lo = np.asarray(info.center) - info.halfsize
     side = 1 << GRID_BITS
+    table = _spread(np.arange(1 << SPREAD_BITS, dtype=np.uint64))
+    low, high = np.uint64((1 << SPREAD_BITS) - 1), np.uint64(SPREAD_BITS)
     morton = np.zeros(records.size, np.uint64)
+    mins, maxs = np.full(3, np.inf), np.full(3, -np.inf)
     for a in range(3):
         scaled = records["XYZ"[a]] * header.scales[a] + header.offsets[a]
-        cell = np.clip(np.floor((scaled - lo[a]) / (2 * info.halfsize) * side), 0, side - 1).astype(np.uint64)
-        morton |= _spread(cell) << np.uint64(2 - a)
-    return morton
+        if scaled.size:
+            mins[a], maxs[a] = scaled.min(), scaled.max()
+        scaled -= lo[a]
+        scaled /= 2 * info.halfsize
+        scaled *= side
+        np.floor(scaled, out=scaled)
+        np.clip(scaled, 0, side - 1, out=scaled)
+        cell = scaled.astype(np.uint64)
+        spread = table.take(cell & low)
+        spread |= table.take(cell >> high) << np.uint64(3 * SPREAD_BITS)
+        morton |= spread << np.uint64(2 - a)
+    return morton, mins, maxs
 
 
 def _rank(index: np.ndarray) -> np.ndarray:
@@ -366,59 +506,39 @@ def _levels(morton: np.ndarray, rank: np.ndarray, keeps_all: list[np.ndarray] | 
     return level
 
 
-def _out_of_core(stream, sources, header: laspy.LasHeader, partial: bool, warnings: list[str],
-                 memory_points: int, folder: Path) -> Written:
+def _out_of_core(stream, sources, header: laspy.LasHeader, claimed: Bounds, partial: bool, warnings: list[str],
+                 memory_points: int, workers: int, folder: Path) -> Written:
     """write_copc for a cloud of more than memory_points (see the module): the inputs read
-    once for the bounds and again into the cubes of depth TOP_DEPTH (files in `folder`:
-    each record and its index, 40 bytes a point for point format 7), the upper levels'
-    nodes that keep every point decided from all cubes' counts, each cube's subtree
-    built and compressed, the file assembled."""
-    n, mins, maxs, returns, gps = 0, np.full(3, np.inf), np.full(3, -np.inf), np.zeros(16, np.int64), [np.inf, -np.inf]
-    dtype = None
-    for part in _record_parts(sources, header, partial, warnings):
-        dtype = part.dtype
-        n += part.size
-        for a in range(3):
-            scaled = part["XYZ"[a]] * header.scales[a] + header.offsets[a]
-            mins[a], maxs[a] = min(mins[a], scaled.min()), max(maxs[a], scaled.max())
-        returns += np.bincount(np.asarray(laspy.PackedPointRecord(part, header.point_format)["return_number"]),
-                               minlength=16)[:16]
-        gps = [min(gps[0], float(part["gps_time"].min())), max(gps[1], float(part["gps_time"].max()))]
-    header.mins, header.maxs, header.point_count = mins, maxs, n
-    header.number_of_points_by_return = returns[1:16].astype(np.uint64)
-    info = _cube(header)
-    cube = np.dtype([("index", "<u4" if n <= 2**32 else "<u8"), ("record", dtype)])
-    shift = np.uint64(3 * (GRID_BITS - TOP_DEPTH))
-    at = 0
-    for part in _record_parts(sources, header, partial, []):     # the same records again, warned of once
-        ids = _morton(part, header, info) >> shift
-        order = np.argsort(ids, kind="stable")
-        block = np.empty(part.size, cube)
-        block["record"], block["index"] = part[order], np.arange(at, at + part.size)[order]
-        ids = ids[order]
-        for start, end in zip(*_run_bounds(ids)):
-            with open(folder / f"cube-{int(ids[start])}", "ab") as f:
-                block[start:end].tofile(f)
-        at += part.size
-    if at != n:
-        raise InputError("internal error: the inputs read back a different number of points")
-    cubes = sorted((int(path.name.split("-")[1]), path) for path in folder.glob("cube-*"))
-    keeps_all = _upper_nodes_keeping_all(cubes, cube, header, info)
-    laz_vlr = lazrs.LazVlr.new_for_compression(header.point_format.id, header.point_format.num_extra_bytes, True)
-    upper, parts = [], []
-    for code, path in cubes:
-        points, morton = _cube_points(path, cube, header, info)
-        level = _levels(morton, _rank(points["index"]), keeps_all)
-        above = level < TOP_DEPTH
-        upper.append((points[above], morton[above], level[above]))
-        deep = np.argsort(level, kind="stable")[np.count_nonzero(above):]
-        parts.append(_compressed(folder / f"nodes-{code}", points["record"][deep], level[deep], morton[deep],
-                                 laz_vlr))
-        path.unlink()
-    points, morton, level = (np.concatenate([u[k] for u in upper]) for k in range(3))
-    order = np.lexsort((points["index"], morton, level))
-    parts.insert(0, _compressed(folder / "nodes-upper", points["record"][order], level[order], morton[order],
-                                laz_vlr))
+    once into the cubes of depth TOP_DEPTH (files in `folder`: each record, 36 bytes for
+    point format 7, and its Morton code and index, 12 bytes) and once more where a point
+    lies outside the header bounds; the upper levels' nodes that keep every point decided
+    from all cubes' counts; each cube's subtree built and compressed; the file assembled."""
+    index = "<u4" if sum(s.info.points for s in sources) <= 2**32 else "<u8"
+    coded = np.dtype([("morton", "<u8"), ("index", index)])
+    info = _cube(claimed)
+    window = max(1, min(workers, memory_points // BATCH_POINTS - 2))    # parts in flight, one read, one written
+    with ThreadPoolExecutor(workers) as pool:
+        tally, spilled = _spill(_record_parts(sources, header, partial, warnings), header, info, claimed, coded,
+                                folder, pool, window)
+        if not spilled:
+            info = _cube(Bounds(tally.mins, tally.maxs, claimed.slack))
+            again, _ = _spill(_record_parts(sources, header, partial, []), header, info, None, coded, folder, pool,
+                              window)
+            if again.points != tally.points:
+                raise InputError("internal error: the inputs read back a different number of points")
+        tally.fill(header)
+        cubes = sorted(int(path.name.split("-")[1]) for path in folder.glob("codes-*"))
+        sizes = [(folder / f"codes-{c}").stat().st_size // coded.itemsize for c in cubes]
+        laz_vlr = lazrs.LazVlr.new_for_compression(header.point_format.id, header.point_format.num_extra_bytes,
+                                                   True)
+        counts = _bounded(pool, _cube_counts, [(folder, c, coded) for c in cubes], sizes, memory_points)
+        keeps_all = _keeping_all(counts)
+        built = _bounded(pool, _cube_nodes, [(folder, c, header.point_format.dtype(), coded, keeps_all, laz_vlr)
+                                             for c in cubes], sizes, memory_points)
+    records, morton, level, index = (np.concatenate([upper[k] for upper, _ in built]) for k in range(4))
+    order = np.lexsort((index, morton, level))
+    parts = [_compressed(folder / "nodes-upper", records.take(order), level[order], morton[order], laz_vlr)]
+    parts += [part for _, part in built]
     copc_vlr, _ = _write_head(stream, header)
     point_data = header.offset_to_point_data
     stream.seek(point_data)
@@ -438,29 +558,101 @@ def _out_of_core(stream, sources, header: laspy.LasHeader, partial: bool, warnin
     stream.seek(point_data)
     stream.write(struct.pack("<q", table_at))
     levels, keys = np.concatenate(levels), np.concatenate(keys)
-    _write_hierarchy(stream, header, copc_vlr, point_data, levels, keys, table, tuple(gps))
-    return Written(n, len(table), int(levels.max()) + 1, tuple(warnings))
+    _write_hierarchy(stream, header, info, copc_vlr, point_data, levels, keys, table, tally.gps)
+    return Written(tally.points, len(table), int(levels.max()) + 1, tuple(warnings))
 
 
-def _cube_points(path: Path, cube: np.dtype, header: laspy.LasHeader, info: CopcInfo):
-    """A cube file's points in Morton order (ties in cloud order), and their codes."""
-    points = np.fromfile(path, cube)
-    morton = _morton(points["record"], header, info)
-    order = np.argsort(morton, kind="stable")
-    return points[order], morton[order]
+def _spill(parts, header: laspy.LasHeader, info: CopcInfo, claimed: Bounds | None, coded: np.dtype,
+           folder: Path, pool: ThreadPoolExecutor, window: int) -> tuple[Tally, bool]:
+    """The records of `parts` appended to the files of their cubes (cube-C the records,
+    codes-C their Morton codes in `info` and indices), in cloud order, and the tally of
+    them all; False, and no files left, where a point lies outside `claimed` (the rest is
+    tallied only). Parts are coded and sorted by cube on `pool`, `window` at a time,
+    while the next is read and the files are written in order here."""
+    tally, spilling = Tally(), True
+    pending: deque = deque()
+    at = 0
+    for part in parts:
+        pending.append((part, pool.submit(_by_cube, part, header, info, at, coded)))
+        at += part.size
+        if len(pending) > window:
+            spilling = _append(pending.popleft(), tally, claimed, spilling, folder)
+    while pending:
+        spilling = _append(pending.popleft(), tally, claimed, spilling, folder)
+    return tally, spilling
 
 
-def _upper_nodes_keeping_all(cubes, cube: np.dtype, header: laspy.LasHeader, info: CopcInfo) -> list[np.ndarray]:
+def _append(coding, tally: Tally, claimed: Bounds | None, spilling: bool, folder: Path) -> bool:
+    """A part's records and codes (the part, its _by_cube future) appended to its cubes'
+    files, and tallied: whether the spill goes on (see _spill)."""
+    part, future = coding
+    cubes, records, codes, mins, maxs = future.result()
+    tally.add(part, mins, maxs)
+    if spilling and claimed is not None and not claimed.holds(mins, maxs):
+        for path in [*folder.glob("cube-*"), *folder.glob("codes-*")]:
+            path.unlink()
+        return False
+    if spilling:
+        for start, end in zip(*_run_bounds(cubes)):
+            with open(folder / f"cube-{int(cubes[start])}", "ab") as f:
+                records[start:end].tofile(f)
+            with open(folder / f"codes-{int(cubes[start])}", "ab") as f:
+                codes[start:end].tofile(f)
+    return spilling
+
+
+def _by_cube(part: np.ndarray, header: laspy.LasHeader, info: CopcInfo, at: int, coded: np.dtype):
+    """A part's records (the first of index `at`) sorted by their cube at TOP_DEPTH, in
+    cloud order within one: (each one's cube, the records, their codes, their mins and
+    maxs)."""
+    morton, mins, maxs = _codes(part, header, info)
+    cubes = (morton >> np.uint64(3 * (GRID_BITS - TOP_DEPTH))).astype(np.uint16)   # < 8^TOP_DEPTH: a radix sort
+    order = np.argsort(cubes, kind="stable")
+    codes = np.empty(part.size, coded)
+    codes["morton"] = morton.take(order)
+    codes["index"] = order + at
+    return cubes[order], part.take(order), codes, mins, maxs
+
+
+def _bounded(pool: ThreadPoolExecutor, work, jobs: list[tuple], sizes: list[int], limit: int) -> list:
+    """work(*job) for each job on `pool`, at most `limit` points (`sizes`) in flight, or
+    one job alone where it has more: the results in the jobs' order."""
+    results: list = [None] * len(jobs)
+    running: dict = {}
+    held = 0
+    for i, (job, size) in enumerate(zip(jobs, sizes, strict=True)):
+        while running and held + size > limit:
+            done, _ = wait(running, return_when=FIRST_COMPLETED)
+            for future in done:
+                j, s = running.pop(future)
+                held -= s
+                results[j] = future.result()
+        running[pool.submit(work, *job)] = (i, size)
+        held += size
+    for future, (j, _) in running.items():
+        results[j] = future.result()
+    return results
+
+
+def _cube_counts(folder: Path, code: int, coded: np.dtype) -> list[tuple[np.ndarray, np.ndarray]]:
+    """For each depth above TOP_DEPTH, the codes of the cube's nodes with points left (no
+    node keeping them all) and how many, from its codes file alone (ties in any order:
+    the counts do not depend on it)."""
+    codes = np.fromfile(folder / f"codes-{code}", coded)
+    order = np.argsort(codes["morton"])
+    counts: list[tuple[np.ndarray, np.ndarray]] = []
+    _levels(codes["morton"][order], _rank(codes["index"][order]), [np.zeros(0, np.uint64)] * TOP_DEPTH, counts)
+    return counts
+
+
+def _keeping_all(counts: list[list[tuple[np.ndarray, np.ndarray]]]) -> list[np.ndarray]:
     """For each depth above TOP_DEPTH, the codes of the nodes that keep every point left:
-    at most LEAF_POINTS left in all their cubes together, and no such node above them."""
+    at most LEAF_POINTS left in all their cubes together (`counts`, _cube_counts of each),
+    and no such node above them."""
     totals: list[dict[int, int]] = [{} for _ in range(TOP_DEPTH)]
-    none = [np.zeros(0, np.uint64)] * TOP_DEPTH
-    for _, path in cubes:
-        points, morton = _cube_points(path, cube, header, info)
-        counts: list[tuple[np.ndarray, np.ndarray]] = []
-        _levels(morton, _rank(points["index"]), none, counts)
-        for d, (codes, sizes) in enumerate(counts):
-            for c, k in zip(codes.tolist(), sizes.tolist()):
+    for cube in counts:
+        for d, (codes, sizes) in enumerate(cube):
+            for c, k in zip(codes.tolist(), sizes.tolist(), strict=True):
                 totals[d][c] = totals[d].get(c, 0) + k
     keeps: list[np.ndarray] = []
     for d in range(TOP_DEPTH):
@@ -468,6 +660,26 @@ def _upper_nodes_keeping_all(cubes, cube: np.dtype, header: laspy.LasHeader, inf
                   and not any(np.isin(np.uint64(c) >> np.uint64(3 * (d - a)), keeps[a]) for a in range(d))]
         keeps.append(np.array(sorted(chosen), np.uint64))
     return keeps
+
+
+def _cube_nodes(folder: Path, code: int, record: np.dtype, coded: np.dtype, keeps_all: list[np.ndarray], laz_vlr):
+    """A cube's points of the upper levels (records, Morton codes, levels, indices) and
+    its own subtree compressed (_compressed), its files removed."""
+    records = np.fromfile(folder / f"cube-{code}", record)
+    codes = np.fromfile(folder / f"codes-{code}", coded)
+    morton = codes["morton"].copy()
+    order = _morton_order(morton)
+    index = codes["index"][order]
+    del codes
+    level = _levels(morton, _rank(index), keeps_all)
+    by_level = np.argsort(level, kind="stable")
+    above = np.count_nonzero(level < TOP_DEPTH)
+    up, deep = by_level[:above], by_level[above:]
+    upper = records.take(order[up]), morton[up], level[up], index[up]
+    part = _compressed(folder / f"nodes-{code}", records.take(order[deep]), level[deep], morton[deep], laz_vlr)
+    (folder / f"cube-{code}").unlink()
+    (folder / f"codes-{code}").unlink()
+    return upper, part
 
 
 def _compressed(path: Path, records: np.ndarray, level: np.ndarray, morton: np.ndarray, laz_vlr):
