@@ -140,15 +140,20 @@ WARM_UP_S = 3.0
 """Seconds of frames before the first measured case: a GPU that has just loaded the cloud
 runs its first second or two at lower clocks (on the H200 every pass took about twice
 as long in the first cases of a run after a four-frame warm-up)."""
+CASE_WARM_UP_S = 0.5
+"""Seconds of the same frames before each case: a light case (a fixed fill of 1 M points,
+frames of 0.7 ms) lets the GPU lower its clocks again, and on the H200 at 1 B points the
+fixed 10 M fills after it took 1.54 ms where two runs without such cases before gave 0.47
+and 0.48 ms (bench/results/nvidia-h200/record_order/no_case_warm_up/ and README.md)."""
 
 
-def warm_up(glc: GLContext, scene: Scene, cloud: TiledCloud, size: tuple[int, int]) -> None:
+def warm_up(glc: GLContext, scene: Scene, cloud: TiledCloud, size: tuple[int, int], seconds: float = WARM_UP_S) -> None:
     width, height = size
     r = ProgressiveRenderer(glc, cloud.info, cloud.attribute, ProgressiveOptions(
         width, height, budget=BudgetParams(fixed=max(1, cloud.points // 8)), frames_in_flight=2), scene=scene)
     base = auto_camera(cloud.info.bounds_min, cloud.info.bounds_max, width / height)
     style = scene.style()
-    end, k = time.perf_counter() + WARM_UP_S, 0
+    end, k = time.perf_counter() + seconds, 0
     while time.perf_counter() < end:
         r.frame(orbit(base, k), style)
         k += 1
@@ -187,6 +192,7 @@ def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], ta
         for budget in budgets(fixed, targets_ms):
             for path in paths:
                 for tuning in tunings:
+                    warm_up(glc, scene, cloud, size, CASE_WARM_UP_S)
                     summary, stats = run_case(glc, scene, cloud, size, budget, path, motion, max_frames, tuning)
                     summary.update(store=store, upload_s=upload_s)
                     rows.append(summary)
@@ -214,7 +220,8 @@ def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], ta
          f"height), then hold the last camera. Frames to converge count from the first still frame to the first "
          f"frame by which every point was filled since the last change (exact: the image then equals brute "
          f"force); ms to converge sums their GPU frame times. Runs stop there or at {max_frames} frames. "
-         f"Two frames in flight, as a swap chain paces a window. Fill work group: batch = fill pieces walked "
+         f"Two frames in flight, as a swap chain paces a window; each case after {CASE_WARM_UP_S} s of orbiting "
+         f"frames filling an eighth of the cloud (so that the GPU's clocks are up). Fill work group: batch = fill pieces walked "
          f"one work group a batch (the renderer's), 256 slots = one invocation a slot. Store: words = the "
          f"renderer's (three 10-bit position words and the attribute word, each in its plane), float records = "
          f"float32 xyz and the attribute word together, each with its records in the renderer's order "
