@@ -140,6 +140,7 @@ class PointStore:
         self.chunks = chunks
         self._glc = glc
         self._fill = shaderlib.compute(glc.ctx, "clear.comp", label="fill store")
+        self._clear_batches = None      # shaders/clear_batches.comp, built on the first eviction
         """Fills the new buffers: on the H200's driver glClearNamedBufferSubData blocked
         the CPU while it committed fresh memory, so the renderer's buffers for 100 M
         points took 1.08-1.41 s; with this pass 0.13-0.26 s
@@ -215,10 +216,17 @@ class PointStore:
         b = np.asarray(sorted(batches_cleared), dtype=np.int64)
         if b.size == 0:
             return
-        gl = self._glc.gl
-        for first, end in self._batch_records(b):
-            for c, offset, size in self._record_bytes(first, end):
-                gl.clear_u32(self.buffers[c].glo, EMPTY_WORD, offset, size, total=self.buffers[c].size)
+        if self._clear_batches is None:
+            self._clear_batches = shaderlib.compute(self._glc.ctx, "clear_batches.comp", self.defines,
+                                                    label="clear batches")
+        program = self._clear_batches
+        program["u_batches"] = self.permutation.batches
+        self.bind()
+        for lo, hi in batches.runs(b):
+            program["u_first"] = lo
+            program["u_count"] = (hi - lo) * BATCH_SLOTS
+            program.run(*gpu.grid((hi - lo) * BATCH_SLOTS))
+        self._glc.ctx.memory_barrier()
         self.boxes[b] = batches.empty_boxes(b.size)
         self.frames[b] = encoding.empty_frames(b.size)
         self.integer[b] = False
@@ -227,16 +235,6 @@ class PointStore:
             if self.frame_buffer is not None:
                 self.frame_buffer.write(self.frames[lo:hi].tobytes(),
                                         offset=lo * self.frames.itemsize * encoding.FRAME_FLOATS)
-
-    def _batch_records(self, b: np.ndarray) -> list[tuple[int, int]]:
-        """[first, end) runs of the records of batches b (sorted) in a store of every
-        slot: a block a batch batch after batch; in slot order, a slice a round for each
-        run of consecutive batches (their slices of a round lie together)."""
-        if self.layout.batches:
-            return [(r, r + BATCH_SLOTS) for r in self.layout.batch_record(b).tolist()]
-        stride = self.permutation.batches * SLICE_POINTS
-        return [(k * stride + lo * SLICE_POINTS, k * stride + hi * SLICE_POINTS)
-                for lo, hi in batches.runs(b) for k in range(BATCH_SLOTS // SLICE_POINTS)]
 
     def add_boxes(self, positions, start: int) -> None:
         """Grow the boxes of the batches that file indices [start, start+n) belong to
@@ -308,22 +306,6 @@ class PointStore:
         n = max(1, self._held(c))
         return n + (-n) % BLOCK_RECORDS if self.words else n
 
-    def _record_bytes(self, first: int, end: int):
-        """(buffer, byte offset, bytes) runs holding records [first, end): a float
-        record's 16 bytes, or each plane's words block by block."""
-        at = first
-        while at < end:
-            c, within = divmod(at, self.chunk_points)
-            if not self.words:
-                n = min(end - at, self.chunk_points - within)
-                yield c, within * RECORD_BYTES, n * RECORD_BYTES
-            else:
-                block, j = divmod(within, BLOCK_RECORDS)
-                n = min(end - at, BLOCK_RECORDS - j)
-                for plane in range(encoding.PLANES):
-                    yield c, ((block * encoding.PLANES + plane) * BLOCK_RECORDS + j) * 4, n * 4
-            at += n
-
     def raw_words(self) -> np.ndarray:
         """Every record as (capacity, 4) uint32 in record order (StoreLayout): the float
         record, or the word store's three position words and attribute word (tests and
@@ -366,7 +348,8 @@ class PointStore:
         if self.class_buffer is not None:
             self.class_buffer.release()
             self.class_buffer = None
-        if getattr(self, "_fill", None) is not None:
-            self._fill.release()
-            self._fill = None
+        for name in ("_fill", "_clear_batches"):
+            if getattr(self, name, None) is not None:
+                getattr(self, name).release()
+                setattr(self, name, None)
 
