@@ -62,6 +62,7 @@ def uploads(sizes: list[int], repeats: int) -> tuple[list[dict], object]:
     """Each size, ring and copy alternating `repeats` times (so drift hits both alike)."""
     from bench.synthetic import SAMPLE, load, tiled
     from progressive.context import create_context
+    from progressive.frame_loop import ProgressiveOptions
     from progressive.passes.distribute import Staging
 
     glc = create_context()
@@ -72,7 +73,7 @@ def uploads(sizes: list[int], repeats: int) -> tuple[list[dict], object]:
         runs = {s: [] for s in Staging}
         for _ in range(repeats):
             for s in Staging:
-                scene, seconds = load(staged(glc, s.value), cloud)
+                scene, seconds = load(staged(glc, s.value), cloud, records=ProgressiveOptions().records)
                 d = scene.distribute
                 assert d.staging is s
                 runs[s].append({"seconds": seconds, "add_batch": scene.upload_seconds,
@@ -104,6 +105,7 @@ def distribute_seconds(scene, records) -> float:
 def run(sizes: list[int], repeats: int, startup_repeats: int, size: tuple[int, int]):
     from bench.report import Table, cell
     from bench.startup import SAMPLE, environment
+    from progressive.frame_loop import ProgressiveOptions
     from progressive.passes.distribute import RING_SLOTS, Staging
 
     rows, caps = uploads(sizes, repeats)
@@ -138,7 +140,9 @@ def run(sizes: list[int], repeats: int, startup_repeats: int, size: tuple[int, i
     table.notes = [
         (f"One run, ring and copy alternating, median of {repeats} (best in brackets); add_batch ring / copy: the "
          "median of the ratios of each pair of runs. load s: bench.synthetic.load, the sample's "
-         "records moved to each tile (the stand-in for reading and decoding), packed, distributed, then glFinish; "
+         "records moved to each tile (the stand-in for reading and decoding), packed, distributed (into a store "
+         f"keeping its records in the progressive renderer's order, {ProgressiveOptions().records.value}), then "
+         "glFinish; "
          "add_batch s: Scene.add_batch alone (packing, staging, queuing the scatter). Ring: "
          f"{RING_SLOTS} slots of a batch each in one buffer mapped persistent and coherent (glBufferStorage, "
          "glMapNamedBufferRange through ctypes); each piece is packed straight into a free slot, a fence per slot "
