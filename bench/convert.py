@@ -52,13 +52,13 @@ def run(points: int, memory_points: int, cache: Path | None = None, compress: bo
                   ("build", "memory points", "seconds", "M points/s", "peak MiB", "nodes", "levels", "MiB written"))
     raw, tables = [], []
     with tempfile.TemporaryDirectory(prefix="convert-", dir=source.parent) as folder:
-        for label, limit in ((b, None if b == "in memory" else memory_points) for b in builds):
+        for label, limit in ((b, points if b == "in memory" else memory_points) for b in builds):
             out = str(Path(folder) / f"{label.replace(' ', '_')}.copc.laz")
             done = subprocess.run([sys.executable, "-m", "bench.convert", "--child", str(source), out,
                                    str(limit or 0)], capture_output=True, text=True, check=True)
             r = json.loads(done.stdout.strip().splitlines()[-1])
             tables.append(node_table(out))
-            table.rows.append((label, "" if limit is None else f"{limit:,}", round(r["seconds"], 2),
+            table.rows.append((label, "" if label == "in memory" else f"{limit:,}", round(r["seconds"], 2),
                                round(r["points"] / r["seconds"] / 1e6, 2), round(r["peak_mib"]), r["nodes"],
                                r["levels"], round(r["bytes"] / 2**20, 1)))
             raw.append({"build": label, "memory_points": limit, **r})

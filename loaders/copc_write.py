@@ -24,8 +24,8 @@ converts them (numpy copies of runs of fields and bit operations; laspy's own
 conversion where fields do not match), scan angles from whole degrees to 0.006° steps
 (the nearest).
 
-A cloud of up to `memory_points` is held in memory while its octree is built. A larger
-one is built out of core, with the same nodes: the inputs are read once, into files of a
+A cloud of up to IN_MEMORY_POINTS (or `memory_points`) is held in memory while its
+octree is built. A larger one is built out of core, with the same nodes: the inputs are read once, into files of a
 scratch folder, one for each of the octree's cubes at TOP_DEPTH (the records, and apart
 each point's Morton code and index; parts are coded and sorted by cube on `workers`
 threads while the next is read). Every cell of the levels above that depth lies in
@@ -92,8 +92,12 @@ SEED = 0x5EED
 COMPRESS_POINTS = 1 << 22
 """Points handed to the parallel compressor at a time."""
 MEMORY_POINTS = 50_000_000
-"""Points whose octree is built in memory at a time (about 100 bytes each with their
-codes and ranks): a larger cloud is built out of core, a cube at a time."""
+"""Points of the cubes built at a time out of core (about 100 bytes each with their
+codes and ranks)."""
+IN_MEMORY_POINTS = 2_000_000
+"""The largest cloud built in memory at once: a larger one is built out of core, whose
+cubes are built on every core (the sample tiled to 12 M points: 3.81 s against 7.54 s in
+memory on 2 cores, bench/results/llvmpipe/convert.md)."""
 TOP_DEPTH = 3
 """The depth of the cubes a cloud is split into out of core (at most 8^3 files; a cube
 over memory_points is still built whole in memory). At most CELL_BITS: each cell of the
@@ -164,9 +168,11 @@ class Tally:
 def write_copc(stream, inputs: list[str], *, partial: bool = False, memory_points: int | None = None,
                scratch: str | os.PathLike | None = None, workers: int | None = None) -> Written:
     """Write `inputs` (LAS/LAZ files, one cloud) to `stream` (opened w+b, at 0) as COPC;
-    a cloud of more than memory_points (default MEMORY_POINTS) is built out of core in a
-    temporary folder made in `scratch` (default: the system's), removed whatever happens,
-    its cubes on `workers` threads (default: one a core; the file is the same)."""
+    a cloud of more than memory_points (default IN_MEMORY_POINTS) is built out of core in
+    a temporary folder made in `scratch` (default: the system's), removed whatever
+    happens, its cubes on `workers` threads (default: one a core; the file is the same)
+    with at most memory_points (default MEMORY_POINTS) of their points in flight."""
+    in_memory = IN_MEMORY_POINTS if memory_points is None else memory_points
     memory_points = MEMORY_POINTS if memory_points is None else memory_points
     _, sources = open_sources(inputs, partial=partial)
     for s in sources:
@@ -177,7 +183,7 @@ def write_copc(stream, inputs: list[str], *, partial: bool = False, memory_point
     header = _output_header(sources, first, warnings)
     claimed = _header_bounds(sources, header)
     total = sum(s.info.points for s in sources)
-    if total > memory_points:
+    if total > in_memory:
         with tempfile.TemporaryDirectory(prefix=".progressive-copc-", dir=scratch) as folder:
             written = _out_of_core(stream, sources, header, claimed, partial, warnings, memory_points,
                                    workers or os.cpu_count() or 1, Path(folder))
