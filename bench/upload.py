@@ -69,7 +69,7 @@ def uploads(sizes: list[int], repeats: int) -> tuple[list[dict], object]:
     rows = []
     for points in sizes:
         cloud = tiled(str(SAMPLE), points)
-        records = list(cloud.batches())
+        records = loader_pieces(list(cloud.batches()))
         runs = {s: [] for s in Staging}
         for _ in range(repeats):
             for s in Staging:
@@ -91,6 +91,26 @@ def uploads(sizes: list[int], repeats: int) -> tuple[list[dict], object]:
     return rows, caps
 
 
+def loader_pieces(tiles: list[tuple[int, object]]) -> list[tuple[int, object]]:
+    """Consecutive tiles' records joined into pieces of about a loader batch
+    (loaders.types.BATCH_POINTS), as the loader hands its batches to the GPU, so that the
+    GPU side is timed with the loader's dispatches, not one a tile."""
+    import numpy as np
+
+    from progressive.loaders.types import BATCH_POINTS
+
+    pieces, run, held = [], [], 0
+    for start, rec in tiles:
+        if run and (held >= BATCH_POINTS or run[0][0] + held != start):
+            pieces.append((run[0][0], np.concatenate([r for _, r in run])))
+            run, held = [], 0
+        run.append((start, rec))
+        held += rec.shape[0]
+    if run:
+        pieces.append((run[0][0], np.concatenate([r for _, r in run])))
+    return pieces
+
+
 def distribute_seconds(scene, records) -> float:
     """The GPU side of loading alone: every batch's records, packed already, staged and
     distributed again (its frames are set: the same words), to glFinish."""
@@ -106,6 +126,7 @@ def run(sizes: list[int], repeats: int, startup_repeats: int, size: tuple[int, i
     from bench.report import Table, cell
     from bench.startup import SAMPLE, environment
     from progressive.frame_loop import ProgressiveOptions
+    from progressive.loaders.types import BATCH_POINTS
     from progressive.passes.distribute import RING_SLOTS, Staging
 
     rows, caps = uploads(sizes, repeats)
@@ -149,7 +170,8 @@ def run(sizes: list[int], repeats: int, startup_repeats: int, size: tuple[int, i
          "(glClientWaitSync, timeout 0) tells when it is free again, a piece finding its slot busy is copied. "
          "Copy: the same context as a driver without buffer storage offers it, each piece packed into host memory "
          "and copied into an orphaned buffer. stage + distribute s: the GPU side of loading alone, after each load: "
-         "every batch's records, packed already, copied into the staging memory and distributed again (the word "
+         f"the loaded records, packed already, in pieces of about a loader batch ({BATCH_POINTS:,} points, "
+         "consecutive tiles joined, as the loader hands its batches over), copied into the staging memory and distributed again (the word "
          "store encodes them in their frames, set by the load), to glFinish; add_batch's batch boxes, frames and "
          "packing are left out."),
         (f"first image s: `progressive view` headless on the bundled sample at {size[0]}x{size[1]}, a fresh process "

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
+
 from bench import headline
 from bench.__main__ import main
 from progressive.encoding import Encoding
@@ -131,6 +133,21 @@ def test_upload_bench_runs(tmp_path):
     starts = payload["raw"]["startup"]
     assert {staging: [run["staging"] for run in runs] for staging, runs in starts.items()} == \
         {s.value: [s.value] for s in Staging}
+
+
+def test_upload_pieces_are_loader_batches_of_consecutive_tiles():
+    """bench.upload stages the GPU side in pieces of about a loader batch: consecutive
+    tiles joined (a gap in the starts ends a piece), every record once, in order."""
+    from bench.upload import loader_pieces
+    from progressive.loaders.types import BATCH_POINTS
+
+    tile = 120_000
+    starts = [k * tile for k in range(9)] + [20 * tile]
+    tiles = [(start, np.full((tile, 4), start, np.uint32)) for start in starts]
+    pieces = loader_pieces(tiles)
+    assert [start for start, _ in pieces] == [0, 5 * tile, 20 * tile]
+    assert all(rec.shape[0] < BATCH_POINTS + tile for _, rec in pieces)
+    assert np.array_equal(np.concatenate([rec for _, rec in pieces]), np.concatenate([rec for _, rec in tiles]))
 
 
 def test_stream_bench_runs(tmp_path):
