@@ -122,14 +122,18 @@ def raster_lines(raster: dict) -> list[str]:
 
 
 def load_lines(load: dict) -> list[str]:
+    """The warm rows of the loader's default parser threads (one a core; tables before
+    the default was recorded: the most threads)."""
     scaled = [r for r in load["raw"]["rows"] if not r["cold"] and r["scaled"]]
-    threads = max(r["threads"] for r in scaled)
+    default = load["raw"].get("default_threads")
+    threads = default if default is not None else max(r["threads"] for r in scaled)
+    which = " (the default, one a core)" if default is not None else ""
     out = []
     for r in scaled:
         if r["threads"] != threads:
             continue
         decoders = f", decoded by {r['decoders']}" if r.get("decoders") else ""
-        out.append(f"- Load {r['format']}, {r['points']:,} points, warm cache, {threads} parser threads{decoders}: "
+        out.append(f"- Load {r['format']}, {r['points']:,} points, warm cache, {threads} parser threads{which}{decoders}: "
                    f"{r['points_per_s'] / 1e6:.1f} M points/s, {r['gb_per_s']:.2f} GB/s: "
                    f"{_x(r['vs_laspy'])} `laspy.read()` plus conversion ({r['laspy_file']}), "
                    f"{r['share_of_raw']:.2g}× the raw read bandwidth of the same file (`load.md`).")

@@ -204,7 +204,7 @@ def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats
         + ", ".join(f"{k} {v:.2f}×" for k, v in cold_forced.items()) + "). Where not forced, the cold rows "
         "measure a cached file: the page cache could not be dropped here (e.g. a virtual disk cached by the host).",
     ]
-    load.raw = {"rows": rows, "cold_slowdown_raw": cold_forced}
+    load.raw = {"rows": rows, "cold_slowdown_raw": cold_forced, "default_threads": cores}
 
     first = Table("first_image", "Time to first image and to fully loaded, through progressive.open()", "", "", (
         "file", "format", "points", "cache", "first image s", "all points on GPU s", "converged s", "frames",
