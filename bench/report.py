@@ -93,7 +93,9 @@ class Table:
         payload = {"name": self.name, "run": dataclasses.asdict(run), "title": self.title, "data": self.data, "points": self.points,
                    "columns": list(self.columns), "rows": [list(r) for r in self.rows], "notes": self.notes,
                    "images": self.images, "raw": self.raw}
-        text = json.dumps(clean(payload), indent=1, default=jsonable, allow_nan=False)
+        # compact: the per-frame data of 1 B-point runs is megabytes, and the checkout travels
+        # to the GPU machine under a size limit (bench/carry_gpu.sh); the .md is the table to read
+        text = json.dumps(clean(payload), separators=(",", ":"), default=jsonable, allow_nan=False)
         (out / f"{self.name}.json").write_text(text)
 
 
