@@ -74,7 +74,7 @@ case "$chunk" in
     convert-1B)       "${PYTHON:-python3}" -m bench.convert --points 1000000000 --laz --builds "out of core" \
                           --machine "$(machine)" --out "$OUT" "${@:2}" ;;
     # the 1 B-point COPC file stream-1B reads, converted once (a call that runs out of time leaves the LAZ:
-    # the next one only converts)
+    # the next one only converts); its scratch is about 48 GB: where the disk is short, add --scratch /dev/shm
     copc-1B)          "${PYTHON:-python3}" -m bench.stream --points 1000000000 --laz --build-only "${@:2}" ;;
     # issue 15's targets: the 1 B-point COPC streamed with a 4 GB GPU limit, from the file and over HTTP
     stream-1B)        "${PYTHON:-python3}" -m bench.stream --points 1000000000 --laz --limit 4G --size 1920x1080 --still-seconds 60 \

@@ -78,11 +78,12 @@ class Built:
     cached: bool              # this run found it built
 
 
-def build(points: int, cache: Path = CACHE, compress: bool = False) -> Built:
+def build(points: int, cache: Path = CACHE, compress: bool = False, scratch: Path | None = None) -> Built:
     """The sample tiled to `points` as LAS, or LAZ with `compress` (bench/data.py, shared
     with the other benches; LAZ where a LAS would not fit the disk beside the scratch of
-    an out-of-core convert), converted to COPC once (its scratch in `cache`); the source
-    is removed again where this made it."""
+    an out-of-core convert), converted to COPC once (its scratch in `scratch`, default
+    `cache`: about 48 bytes a point, so at 1 B points /dev/shm where the disk is short);
+    the source is removed again where this made it."""
     cache.mkdir(parents=True, exist_ok=True)
     stem = cache / f"{SAMPLE.stem}_x{points}"
     path, sidecar = stem.with_suffix(".copc.laz"), stem.with_suffix(".copc.json")
@@ -96,7 +97,7 @@ def build(points: int, cache: Path = CACHE, compress: bool = False) -> Built:
     t1 = time.perf_counter()
     tmp = path.with_suffix(".tmp")
     with open(tmp, "w+b") as stream:
-        written = write_copc(stream, [str(source)], scratch=cache)
+        written = write_copc(stream, [str(source)], scratch=scratch or cache)
     convert = time.perf_counter() - t1
     tmp.replace(path)
     if made:
@@ -252,9 +253,9 @@ def rows(label: str, run: dict) -> list[tuple]:
 
 
 def run(points: int, limit: int, size: tuple[int, int], frames: int, cache: Path = CACHE,
-        limit_s: float = STILL_SECONDS, compress: bool = False) -> tuple[Table, RunInfo]:
+        limit_s: float = STILL_SECONDS, compress: bool = False, scratch: Path | None = None) -> tuple[Table, RunInfo]:
     load_before = os.getloadavg()[0]
-    built = build(points, cache, compress)
+    built = build(points, cache, compress, scratch)
     width, height = size
     options = SessionOptions(width=width, height=height, stream=Streaming.ON, gpu_memory_limit=limit)
     local = stream(str(built.path), options, frames, limit_s)
@@ -329,16 +330,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cache", type=Path, default=CACHE, help="where the COPC file is kept")
     ap.add_argument("--laz", action="store_true", help="tile the sample as LAZ before converting (default LAS)")
     ap.add_argument("--build-only", action="store_true", help="make the COPC file and stop (a device call of its own)")
+    ap.add_argument("--scratch", type=Path, help="where the convert's out-of-core scratch goes (default: --cache)")
     ap.add_argument("--out", type=Path, default=None, help="default: bench/results/<machine>/")
     args = ap.parse_args(argv)
     if args.build_only:
-        built = build(args.points, args.cache, args.laz)
+        built = build(args.points, args.cache, args.laz, args.scratch)
         print(f"{built.path}: {built.points:,} points, {built.nodes:,} nodes, {built.levels} levels, "
               f"tiled in {built.tile_seconds:.1f} s, converted in {built.convert_seconds:.1f} s")
         return 0
     width, height = (int(v) for v in args.size.split("x"))
     table, info = run(args.points, args.limit, (width, height), args.frames, args.cache, args.still_seconds,
-                      args.laz)
+                      args.laz, args.scratch)
     table.publish(info, args.out, RESULTS)
     return 0
 
