@@ -75,7 +75,7 @@ from progressive.loaders.las import (
 )
 from progressive.loaders.laz import TABLE_OFFSET_BYTES, open_patched
 from progressive.loaders.pipeline import open_sources
-from progressive.loaders.types import BATCH_POINTS
+from progressive.loaders.types import BATCH_POINTS, available_cores
 from progressive.loaders.validate import fail, open_binary, shown
 
 CELLS = 128
@@ -186,7 +186,7 @@ def write_copc(stream, inputs: list[str], *, partial: bool = False, memory_point
     if total > in_memory:
         with tempfile.TemporaryDirectory(prefix=".progressive-copc-", dir=scratch) as folder:
             written = _out_of_core(stream, sources, header, claimed, partial, warnings, memory_points,
-                                   workers or os.cpu_count() or 1, Path(folder))
+                                   workers or available_cores(), Path(folder))
         return written
     info, tally = _cube(claimed), Tally()
     records, morton = np.empty(total, header.point_format.dtype()), np.empty(total, np.uint64)
