@@ -357,10 +357,12 @@ class CopcSource(LasSource):
     remote: RemoteFile | None = field(default=None, compare=False, repr=False)
     held: dict[int, bytes] = field(default_factory=dict, compare=False, repr=False)
 
-    def chunks(self, batch_points: int, *, salvage: bool = False,
-               names: tuple[str, ...] | None = None) -> Iterator[np.ndarray | AfterGap]:
+    def chunks(self, batch_points: int, *, salvage: bool = False, names: tuple[str, ...] | None = None,
+               decoders: DecoderPool | None = None) -> Iterator[np.ndarray | AfterGap]:
+        """As a LAZ's (`decoders` decode a file without a hierarchy); else node by node,
+        each decoded here."""
         if self.hierarchy is None:
-            return super().chunks(batch_points, salvage=salvage, names=names)
+            return super().chunks(batch_points, salvage=salvage, names=names, decoders=decoders)
         return self._node_chunks(self.kept_nodes(), batch_points, None if names is None else selection(names), salvage)
 
     def parse(self, chunk, start: int, origin: np.ndarray, names: tuple[str, ...]) -> Batch:

@@ -45,8 +45,10 @@ import os
 import struct
 import tempfile
 from collections import deque
-from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
+from collections.abc import Callable, Iterator
+from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass
+from functools import partial as partial_call
 from pathlib import Path
 
 import laspy
@@ -74,6 +76,8 @@ from progressive.loaders.las import (
     text_patches,
 )
 from progressive.loaders.laz import TABLE_OFFSET_BYTES, open_patched
+from progressive.loaders.laz_pool import DEFAULTS as LAZ_DEFAULTS
+from progressive.loaders.laz_pool import DecoderPool, LazOptions
 from progressive.loaders.pipeline import open_sources
 from progressive.loaders.types import BATCH_POINTS, available_cores
 from progressive.loaders.validate import fail, open_binary, shown
@@ -154,11 +158,19 @@ class Tally:
     def add(self, records: np.ndarray, mins: np.ndarray, maxs: np.ndarray) -> None:
         if records.size == 0:
             return
-        self.points += records.size
-        self.mins, self.maxs = np.minimum(self.mins, mins), np.maximum(self.maxs, maxs)
-        self.returns += np.bincount(records["bit_fields"] & 0x0F, minlength=16)
+        seen = Tally()
+        seen.points, seen.mins, seen.maxs = records.size, mins, maxs
+        seen.returns = np.bincount(records["bit_fields"] & 0x0F, minlength=16)
         gps = records["gps_time"]
-        self.gps = (min(self.gps[0], float(gps.min())), max(self.gps[1], float(gps.max())))
+        seen.gps = (float(gps.min()), float(gps.max()))
+        self.merge(seen)
+
+    def merge(self, other: Tally) -> None:
+        """Add the points another tally saw (a part's, tallied on a worker thread)."""
+        self.points += other.points
+        self.mins, self.maxs = np.minimum(self.mins, other.mins), np.maximum(self.maxs, other.maxs)
+        self.returns += other.returns
+        self.gps = (min(self.gps[0], other.gps[0]), max(self.gps[1], other.gps[1]))
 
     def fill(self, header: laspy.LasHeader) -> None:
         header.mins, header.maxs, header.point_count = self.mins, self.maxs, self.points
@@ -166,12 +178,14 @@ class Tally:
 
 
 def write_copc(stream, inputs: list[str], *, partial: bool = False, memory_points: int | None = None,
-               scratch: str | os.PathLike | None = None, workers: int | None = None) -> Written:
+               scratch: str | os.PathLike | None = None, workers: int | None = None,
+               laz: LazOptions = LAZ_DEFAULTS) -> Written:
     """Write `inputs` (LAS/LAZ files, one cloud) to `stream` (opened w+b, at 0) as COPC;
     a cloud of more than memory_points (default IN_MEMORY_POINTS) is built out of core in
     a temporary folder made in `scratch` (default: the system's), removed whatever
     happens, its cubes on `workers` threads (default: one a core; the file is the same)
-    with at most memory_points (default MEMORY_POINTS) of their points in flight."""
+    with at most memory_points (default MEMORY_POINTS) of their points in flight; LAZ
+    inputs decoded as `laz` says (the loader's rule: processes for a large file)."""
     in_memory = IN_MEMORY_POINTS if memory_points is None else memory_points
     memory_points = MEMORY_POINTS if memory_points is None else memory_points
     _, sources = open_sources(inputs, partial=partial)
@@ -183,14 +197,25 @@ def write_copc(stream, inputs: list[str], *, partial: bool = False, memory_point
     header = _output_header(sources, first, warnings)
     claimed = _header_bounds(sources, header)
     total = sum(s.info.points for s in sources)
-    if total > in_memory:
-        with tempfile.TemporaryDirectory(prefix=".progressive-copc-", dir=scratch) as folder:
-            written = _out_of_core(stream, sources, header, claimed, partial, warnings, memory_points,
-                                   workers or available_cores(), Path(folder))
-        return written
+    decoders = DecoderPool.chosen(laz)
+    try:
+        if total > in_memory:
+            with tempfile.TemporaryDirectory(prefix=".progressive-copc-", dir=scratch) as folder:
+                return _out_of_core(stream, sources, header, claimed, partial, warnings, memory_points,
+                                    workers or available_cores(), Path(folder), decoders)
+        return _in_memory(stream, sources, header, claimed, partial, warnings, total, decoders)
+    finally:
+        if decoders is not None:
+            decoders.close()
+
+
+def _in_memory(stream, sources, header: laspy.LasHeader, claimed: Bounds, partial: bool, warnings: list[str],
+               total: int, decoders: DecoderPool | None) -> Written:
+    """write_copc for a cloud of at most its memory_points: sorted and compressed whole."""
     info, tally = _cube(claimed), Tally()
     records, morton = np.empty(total, header.point_format.dtype()), np.empty(total, np.uint64)
-    for part in _record_parts(sources, header, partial, warnings):
+    for _, job in _record_parts(sources, header, partial, warnings, decoders):
+        part = job()
         at = tally.points
         morton[at:at + part.size], mins, maxs = _codes(part, header, info)
         records[at:at + part.size] = part
@@ -316,19 +341,22 @@ def _add_crs(header: laspy.LasHeader, first: laspy.LasHeader, path: str, warning
         header.add_crs(crs, keep_compatibility=False)
 
 
-def _record_parts(sources, header: laspy.LasHeader, partial: bool, warnings: list[str]):
-    """Every input point as a record of the output's format, on the output's scale grid,
-    a loader batch at a time."""
+def _record_parts(sources, header: laspy.LasHeader, partial: bool, warnings: list[str],
+                  decoders: DecoderPool | None) -> Iterator[tuple[int, Callable[[], np.ndarray]]]:
+    """Every input point, a loader batch at a time (a LAZ decoded by `decoders` where they
+    take it: lazrs in this process holds the GIL, which stalls the threads coding the
+    parts): each batch's size, and what makes its records of the output's format on the
+    output's scale grid (a job for a worker thread)."""
     requantized = False
     for s in sources:
         records = s.records
         same_grid = np.array_equal(records.scales, header.scales) and np.array_equal(records.offsets, header.offsets)
         requantized |= not same_grid
         try:
-            for chunk in s.chunks(BATCH_POINTS, salvage=partial):
+            for chunk in s.chunks(BATCH_POINTS, salvage=partial, decoders=decoders):
                 if isinstance(chunk, Span):
                     chunk = read_span(s.info.path, records, chunk, s.info.points)
-                yield _converted(s.info.path, chunk, records, header, same_grid)
+                yield chunk.size, partial_call(_converted, s.info.path, chunk, records, header, same_grid)
         except TruncatedInput as exc:         # with partial: what decoded before the damage, and a warning
             if not partial:
                 raise
@@ -513,7 +541,7 @@ def _levels(morton: np.ndarray, rank: np.ndarray, keeps_all: list[np.ndarray] | 
 
 
 def _out_of_core(stream, sources, header: laspy.LasHeader, claimed: Bounds, partial: bool, warnings: list[str],
-                 memory_points: int, workers: int, folder: Path) -> Written:
+                 memory_points: int, workers: int, folder: Path, decoders: DecoderPool | None) -> Written:
     """write_copc for a cloud of more than memory_points (see the module): the inputs read
     once into the cubes of depth TOP_DEPTH (files in `folder`: each record, 36 bytes for
     point format 7, and its Morton code and index, 12 bytes) and once more where a point
@@ -524,12 +552,12 @@ def _out_of_core(stream, sources, header: laspy.LasHeader, claimed: Bounds, part
     info = _cube(claimed)
     window = max(1, min(workers, memory_points // BATCH_POINTS - 2))    # parts in flight, one read, one written
     with ThreadPoolExecutor(workers) as pool:
-        tally, spilled = _spill(_record_parts(sources, header, partial, warnings), header, info, claimed, coded,
-                                folder, pool, window)
+        tally, spilled = _spill(_record_parts(sources, header, partial, warnings, decoders), header, info, claimed,
+                                coded, folder, pool, window)
         if not spilled:
             info = _cube(Bounds(tally.mins, tally.maxs, claimed.slack))
-            again, _ = _spill(_record_parts(sources, header, partial, []), header, info, None, coded, folder, pool,
-                              window)
+            again, _ = _spill(_record_parts(sources, header, partial, [], decoders), header, info, None, coded,
+                              folder, pool, window)
             if again.points != tally.points:
                 raise InputError("internal error: the inputs read back a different number of points")
         tally.fill(header)
@@ -578,9 +606,9 @@ def _spill(parts, header: laspy.LasHeader, info: CopcInfo, claimed: Bounds | Non
     tally, spilling = Tally(), True
     pending: deque = deque()
     at = 0
-    for part in parts:
-        pending.append((part, pool.submit(_by_cube, part, header, info, at, coded)))
-        at += part.size
+    for size, job in parts:
+        pending.append(pool.submit(_by_cube, job, header, info, at, coded))
+        at += size
         if len(pending) > window:
             spilling = _append(pending.popleft(), tally, claimed, spilling, folder)
     while pending:
@@ -588,13 +616,12 @@ def _spill(parts, header: laspy.LasHeader, info: CopcInfo, claimed: Bounds | Non
     return tally, spilling
 
 
-def _append(coding, tally: Tally, claimed: Bounds | None, spilling: bool, folder: Path) -> bool:
-    """A part's records and codes (the part, its _by_cube future) appended to its cubes'
-    files, and tallied: whether the spill goes on (see _spill)."""
-    part, future = coding
-    cubes, records, codes, mins, maxs = future.result()
-    tally.add(part, mins, maxs)
-    if spilling and claimed is not None and not claimed.holds(mins, maxs):
+def _append(coding: Future, tally: Tally, claimed: Bounds | None, spilling: bool, folder: Path) -> bool:
+    """A part's records and codes (its _by_cube future) appended to its cubes' files, and
+    tallied: whether the spill goes on (see _spill)."""
+    cubes, records, codes, seen = coding.result()
+    tally.merge(seen)
+    if spilling and claimed is not None and not claimed.holds(seen.mins, seen.maxs):
         for path in [*folder.glob("cube-*"), *folder.glob("codes-*")]:
             path.unlink()
         return False
@@ -607,17 +634,20 @@ def _append(coding, tally: Tally, claimed: Bounds | None, spilling: bool, folder
     return spilling
 
 
-def _by_cube(part: np.ndarray, header: laspy.LasHeader, info: CopcInfo, at: int, coded: np.dtype):
-    """A part's records (the first of index `at`) sorted by their cube at TOP_DEPTH, in
-    cloud order within one: (each one's cube, the records, their codes, their mins and
-    maxs)."""
+def _by_cube(job: Callable[[], np.ndarray], header: laspy.LasHeader, info: CopcInfo, at: int, coded: np.dtype):
+    """A part's records (made by `job`, the first of index `at`) sorted by their cube at
+    TOP_DEPTH, in cloud order within one: (each one's cube, the records, their codes,
+    their tally)."""
+    part = job()
     morton, mins, maxs = _codes(part, header, info)
+    seen = Tally()
+    seen.add(part, mins, maxs)
     cubes = (morton >> np.uint64(3 * (GRID_BITS - TOP_DEPTH))).astype(np.uint16)   # < 8^TOP_DEPTH: a radix sort
     order = np.argsort(cubes, kind="stable")
     codes = np.empty(part.size, coded)
     codes["morton"] = morton.take(order)
     codes["index"] = order + at
-    return cubes[order], part.take(order), codes, mins, maxs
+    return cubes[order], part.take(order), codes, seen
 
 
 def _bounded(pool: ThreadPoolExecutor, work, jobs: list[tuple], sizes: list[int], limit: int) -> list:

@@ -1,7 +1,7 @@
 """convert's speed-ups keep what it writes (loaders/copc_write.py): the root cube placed
 from the header bounds, and from the points' own where a header lies (the same bytes as
 from an honest header); the same bytes whatever the number of threads building the
-cubes; and the fast record conversion equal to laspy's for every point format pair."""
+cubes or decoding a LAZ input; and the fast record conversion equal to laspy's for every point format pair."""
 
 from __future__ import annotations
 
@@ -13,8 +13,10 @@ import pytest
 from test_copc import assert_same_points, assert_valid_hierarchy
 
 from conftest import SAMPLE
-from progressive.loaders import copc_write
+from progressive.loaders import copc_write, laz_pool
 from progressive.loaders.copc import open_copc
+from progressive.loaders.laz_pool import DEFAULTS as LAZ_DEFAULTS
+from progressive.loaders.laz_pool import Decoders, LazOptions
 
 BOUNDS_AT = 179
 """Offset of the header's max x, min x, max y, min y, max z, min z (doubles)."""
@@ -37,12 +39,13 @@ def patch_bounds(path, mins, maxs) -> None:
     path.write_bytes(bytes(data))
 
 
-def written(tmp_path, path, name: str, memory_points: int | None, workers: int | None = None) -> bytes:
+def written(tmp_path, path, name: str, memory_points: int | None, workers: int | None = None,
+            laz: LazOptions = LAZ_DEFAULTS) -> bytes:
     out = tmp_path / name
     scratch = tmp_path / f"scratch-{name}"
     scratch.mkdir()
     with open(out, "w+b") as f:
-        copc_write.write_copc(f, [str(path)], memory_points=memory_points, scratch=scratch, workers=workers)
+        copc_write.write_copc(f, [str(path)], memory_points=memory_points, scratch=scratch, workers=workers, laz=laz)
     assert list(scratch.iterdir()) == []
     return out.read_bytes()
 
@@ -98,6 +101,20 @@ def test_threads_write_the_same_bytes(tmp_path, monkeypatch, leaf):
     for workers in (3, 8):
         assert written(tmp_path, SAMPLE, f"{workers}.copc.laz", 60_000, workers=workers) == one
     assert_valid_hierarchy(tmp_path / "1.copc.laz")
+
+
+@pytest.mark.skipif(not laz_pool.available(), reason="no decoder processes on this platform")
+@pytest.mark.parametrize("memory_points", [None, 60_000], ids=["in memory", "out of core"])
+def test_laz_decoded_by_processes_gives_the_same_file(tmp_path, memory_points):
+    """A LAZ input of several chunks decoded by decoder processes (as a large file is by
+    default on four cores or more) and by lazrs in this process: the same file."""
+    source = tmp_path / "sample.laz"
+    laspy.read(SAMPLE).write(source, do_compress=True)
+    threads = written(tmp_path, source, "threads.copc.laz", memory_points, laz=LazOptions(Decoders.THREADS))
+    processes = written(tmp_path, source, "processes.copc.laz", memory_points,
+                        laz=LazOptions(Decoders.PROCESSES, processes=2))
+    assert processes == threads
+    assert_same_points([SAMPLE], tmp_path / "processes.copc.laz")
 
 
 def random_records(rng, point_format: laspy.PointFormat, n: int) -> np.ndarray:
