@@ -34,7 +34,7 @@ those levels alone; only whether a node of those levels keeps every point left (
 LEAF_POINTS) needs the counts of all its cubes, summed first from the codes files alone.
 Then each cube's own subtree is built in memory and compressed apart, on `workers`
 threads (numpy sorts and gathers run without the GIL) with at most memory_points points
-of the cubes in flight, and the file is assembled from the compressed chunks in cube
+of the cubes in flight (by default what half the free memory holds), and the file is assembled from the compressed chunks in cube
 order, whatever the number of workers: the upper levels' nodes first, level by level,
 then each cube's.
 """
@@ -79,7 +79,7 @@ from progressive.loaders.laz import TABLE_OFFSET_BYTES, open_patched
 from progressive.loaders.laz_pool import DEFAULTS as LAZ_DEFAULTS
 from progressive.loaders.laz_pool import DecoderPool, LazOptions
 from progressive.loaders.pipeline import open_sources
-from progressive.loaders.types import BATCH_POINTS, available_cores
+from progressive.loaders.types import BATCH_POINTS, available_cores, available_memory
 from progressive.loaders.validate import fail, open_binary, shown
 
 CELLS = 128
@@ -96,8 +96,13 @@ SEED = 0x5EED
 COMPRESS_POINTS = 1 << 22
 """Points handed to the parallel compressor at a time."""
 MEMORY_POINTS = 50_000_000
-"""Points of the cubes built at a time out of core (about 100 bytes each with their
-codes and ranks)."""
+"""Points of the parts in flight while the inputs are spilled into the cubes, and of the
+cubes built at once where the system's free memory is not known (build_limit)."""
+BUILD_BYTES = 128
+"""Memory a point of a cube takes at the peak of its build: its record, codes, ranks,
+orders and sorted copies (tracemalloc's peak of _cube_nodes, 127.9 bytes a point)."""
+MEMORY_SHARE = 0.5
+"""The share of the available memory the cubes built at once may take by default."""
 IN_MEMORY_POINTS = 2_000_000
 """The largest cloud built in memory at once: a larger one is built out of core, whose
 cubes are built on every core (the sample tiled to 12 M points: 3.81 s against 7.54 s in
@@ -184,10 +189,9 @@ def write_copc(stream, inputs: list[str], *, partial: bool = False, memory_point
     a cloud of more than memory_points (default IN_MEMORY_POINTS) is built out of core in
     a temporary folder made in `scratch` (default: the system's), removed whatever
     happens, its cubes on `workers` threads (default: one a core; the file is the same)
-    with at most memory_points (default MEMORY_POINTS) of their points in flight; LAZ
+    with at most memory_points (default build_limit) of their points in flight; LAZ
     inputs decoded as `laz` says (the loader's rule: processes for a large file)."""
     in_memory = IN_MEMORY_POINTS if memory_points is None else memory_points
-    memory_points = MEMORY_POINTS if memory_points is None else memory_points
     _, sources = open_sources(inputs, partial=partial)
     for s in sources:
         if not isinstance(s, LasSource):
@@ -541,7 +545,7 @@ def _levels(morton: np.ndarray, rank: np.ndarray, keeps_all: list[np.ndarray] | 
 
 
 def _out_of_core(stream, sources, header: laspy.LasHeader, claimed: Bounds, partial: bool, warnings: list[str],
-                 memory_points: int, workers: int, folder: Path, decoders: DecoderPool | None) -> Written:
+                 memory_points: int | None, workers: int, folder: Path, decoders: DecoderPool | None) -> Written:
     """write_copc for a cloud of more than memory_points (see the module): the inputs read
     once into the cubes of depth TOP_DEPTH (files in `folder`: each record, 36 bytes for
     point format 7, and its Morton code and index, 12 bytes) and once more where a point
@@ -550,7 +554,8 @@ def _out_of_core(stream, sources, header: laspy.LasHeader, claimed: Bounds, part
     index = "<u4" if sum(s.info.points for s in sources) <= 2**32 else "<u8"
     coded = np.dtype([("morton", "<u8"), ("index", index)])
     info = _cube(claimed)
-    window = max(1, min(workers, memory_points // BATCH_POINTS - 2))    # parts in flight, one read, one written
+    spill_points = MEMORY_POINTS if memory_points is None else memory_points
+    window = max(1, min(workers, spill_points // BATCH_POINTS - 2))    # parts in flight, one read, one written
     with ThreadPoolExecutor(workers) as pool:
         tally, spilled = _spill(_record_parts(sources, header, partial, warnings, decoders), header, info, claimed,
                                 coded, folder, pool, window)
@@ -565,10 +570,11 @@ def _out_of_core(stream, sources, header: laspy.LasHeader, claimed: Bounds, part
         sizes = [(folder / f"codes-{c}").stat().st_size // coded.itemsize for c in cubes]
         laz_vlr = lazrs.LazVlr.new_for_compression(header.point_format.id, header.point_format.num_extra_bytes,
                                                    True)
-        counts = _bounded(pool, _cube_counts, [(folder, c, coded) for c in cubes], sizes, memory_points)
+        limit = build_limit() if memory_points is None else memory_points
+        counts = _bounded(pool, _cube_counts, [(folder, c, coded) for c in cubes], sizes, limit)
         keeps_all = _keeping_all(counts)
         built = _bounded(pool, _cube_nodes, [(folder, c, header.point_format.dtype(), coded, keeps_all, laz_vlr)
-                                             for c in cubes], sizes, memory_points)
+                                             for c in cubes], sizes, limit)
     records, morton, level, index = (np.concatenate([upper[k] for upper, _ in built]) for k in range(4))
     order = np.lexsort((index, morton, level))
     parts = [_compressed(folder / "nodes-upper", records.take(order), level[order], morton[order], laz_vlr)]
@@ -594,6 +600,16 @@ def _out_of_core(stream, sources, header: laspy.LasHeader, claimed: Bounds, part
     levels, keys = np.concatenate(levels), np.concatenate(keys)
     _write_hierarchy(stream, header, info, copc_vlr, point_data, levels, keys, table, tally.gps)
     return Written(tally.points, len(table), int(levels.max()) + 1, tuple(warnings))
+
+
+def build_limit() -> int:
+    """The points of the cubes built at once by default: MEMORY_SHARE of the memory
+    available once the inputs are spilled (where the scratch is in /dev/shm, that memory
+    is taken), BUILD_BYTES a point; MEMORY_POINTS where that is not known. A flat cloud
+    fills few of the 512 cubes, each large (64 cubes of 16 M points from 1 B points of
+    tiled terrain): a fixed 50 M points kept three of the H200 machine's 16 cores busy."""
+    available = available_memory()
+    return MEMORY_POINTS if available is None else max(BATCH_POINTS, int(available * MEMORY_SHARE) // BUILD_BYTES)
 
 
 def _spill(parts, header: laspy.LasHeader, info: CopcInfo, claimed: Bounds | None, coded: np.dtype,

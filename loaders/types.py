@@ -28,6 +28,19 @@ def available_cores() -> int:
         return os.cpu_count() or 1
 
 
+def available_memory() -> int | None:
+    """Bytes the system can give this process without swapping (Linux's MemAvailable,
+    which leaves out memory held by files in /dev/shm); None where it is not known."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
 class AttributeKind(enum.Enum):
     """How an attribute is shown, and so how it is packed into the 4-byte GPU word."""
 

@@ -5,6 +5,7 @@ cubes or decoding a LAZ input; and the fast record conversion equal to laspy's f
 
 from __future__ import annotations
 
+import os
 import struct
 
 import laspy
@@ -17,6 +18,7 @@ from progressive.loaders import copc_write, laz_pool
 from progressive.loaders.copc import open_copc
 from progressive.loaders.laz_pool import DEFAULTS as LAZ_DEFAULTS
 from progressive.loaders.laz_pool import Decoders, LazOptions
+from progressive.loaders.types import available_memory
 
 BOUNDS_AT = 179
 """Offset of the header's max x, min x, max y, min y, max z, min z (doubles)."""
@@ -115,6 +117,26 @@ def test_laz_decoded_by_processes_gives_the_same_file(tmp_path, memory_points):
                         laz=LazOptions(Decoders.PROCESSES, processes=2))
     assert processes == threads
     assert_same_points([SAMPLE], tmp_path / "processes.copc.laz")
+
+
+def test_cubes_built_at_once_fill_half_the_free_memory(monkeypatch):
+    """The default limit on the cubes' points in flight follows the memory free after the
+    spill (so a flat cloud's few large cubes are built on every core where memory allows),
+    and falls back to MEMORY_POINTS where that is not known."""
+    monkeypatch.setattr(copc_write, "available_memory", lambda: 64 << 30)
+    assert copc_write.build_limit() == (32 << 30) // copc_write.BUILD_BYTES
+    monkeypatch.setattr(copc_write, "available_memory", lambda: 1 << 20)
+    assert copc_write.build_limit() == copc_write.BATCH_POINTS
+    monkeypatch.setattr(copc_write, "available_memory", lambda: None)
+    assert copc_write.build_limit() == copc_write.MEMORY_POINTS
+
+
+def test_available_memory_is_below_the_machine_s():
+    """MemAvailable read from /proc/meminfo: positive and below the physical memory."""
+    available = available_memory()
+    if available is None:
+        pytest.skip("no /proc/meminfo")
+    assert 0 < available <= os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
 
 
 def random_records(rng, point_format: laspy.PointFormat, n: int) -> np.ndarray:
