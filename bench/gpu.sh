@@ -14,7 +14,7 @@
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
-CHUNKS=(files-100M load-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B winners-1B records-1B accuracy attributes packing startup-100M startup-1B convert-1B copc-1B stream-1B)
+CHUNKS=(files-100M load-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B winners-1B records-1B accuracy attributes packing upload-100M startup-100M startup-1B convert-1B copc-1B stream-1B)
 chunk="${1:-list}"
 if [ "$chunk" = list ]; then
     printf '%s\n' "${CHUNKS[@]}"
@@ -65,14 +65,18 @@ case "$chunk" in
     # the host side of an attribute switch: words packed on the CPU at 1, 2, 4, 8 threads and every core,
     # 200M points of their own memory (no GPU; a minute)
     packing)          "${PYTHON:-python3}" -m bench.packing --points 200000000 --machine "$(machine)" --out "$OUT" "${@:2}" ;;
+    # the GPU side of loading 100M points through the staging ring and copied, in loader-sized pieces (2 min)
+    upload-100M)      "${PYTHON:-python3}" -m bench.upload --points 100000000 --repeats 1 --startup-repeats 1 \
+                          --out "$OUT/$(machine)" "${@:2}" ;;
     # where the time to the first image goes at 100M points (LAS, LAZ, fast; view, both caches warm): what grows
     # with the cloud (files-100M makes the files, this chunk too if absent)
     startup-100M)     "${PYTHON:-python3}" -m bench.startup --scaled 100000000 --commands view \
                           --caches "Mesa + program cache" --out "$OUT/$(machine)" "${@:2}" ;;
     # convert to COPC out of core at 1 B points (the sample tiled as LAZ, kept in bench/.cache for the two
-    # chunks after), timed with its peak memory; about 40 GB of scratch beside it (the machine has 64 GB)
+    # chunks after), timed with its peak memory, with the convert's own limits; its 48 GB of scratch in
+    # /dev/shm (the disk has 64 GB)
     convert-1B)       "${PYTHON:-python3}" -m bench.convert --points 1000000000 --laz --builds "out of core" \
-                          --machine "$(machine)" --out "$OUT" "${@:2}" ;;
+                          --memory-points 0 --scratch /dev/shm --machine "$(machine)" --out "$OUT" "${@:2}" ;;
     # the 1 B-point COPC file stream-1B reads, converted once (a call that runs out of time leaves the LAZ:
     # the next one only converts); its scratch is about 48 GB: where the disk is short, add --scratch /dev/shm
     copc-1B)          "${PYTHON:-python3}" -m bench.stream --points 1000000000 --laz --build-only "${@:2}" ;;

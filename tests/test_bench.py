@@ -81,13 +81,16 @@ def test_packing_bench_runs(tmp_path):
 
 
 def test_convert_bench_runs(tmp_path):
-    """bench.convert converts in memory and out of core in fresh processes; it raises
-    where the two hierarchies differ."""
+    """bench.convert converts in memory and out of core in fresh processes (the scratch
+    where asked, left empty); it raises where the two hierarchies differ."""
     from bench import convert
 
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
     assert convert.main(["--points", "300000", "--memory-points", "60000", "--laz", "--cache",
-                         str(tmp_path / "cache"), "--out", str(tmp_path)]) == 0
+                         str(tmp_path / "cache"), "--scratch", str(scratch), "--out", str(tmp_path)]) == 0
     assert [p.suffix for p in (tmp_path / "cache").iterdir()] == [".laz"]
+    assert list(scratch.iterdir()) == []
     rows = json.loads((tmp_path / "local" / "convert.json").read_text())["raw"]["rows"]
     assert [r["build"] for r in rows] == ["in memory", "out of core"]
     assert rows[0]["points"] == rows[1]["points"] == 300_000 and rows[0]["nodes"] == rows[1]["nodes"]
