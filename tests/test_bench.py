@@ -155,8 +155,9 @@ def test_upload_pieces_are_loader_batches_of_consecutive_tiles():
 
 def test_stream_bench_runs(tmp_path):
     """bench.stream on the sample converted to COPC (cached, so a second run reuses it):
-    for the file and over HTTP, the overview and each leg of the path settle and
-    converge within the limit's room, and the HTTP rows count what was fetched."""
+    after a warm-up session (its first image reported), for the file and over HTTP, the
+    overview and each leg of the path settle and converge within the limit's room, and
+    the HTTP rows count what was fetched."""
     from bench import stream
 
     args = ["--points", "110000", "--limit", "9M", "--size", "96x64", "--frames", "3", "--still-seconds", "60",
@@ -171,6 +172,7 @@ def test_stream_bench_runs(tmp_path):
     assert all(r["moving frames"] == (0 if r["leg"] == "overview" else 3) for r in rows)
     raw = payload["raw"]
     assert raw["built"]["points"] == 110_000 and not raw["built"]["cached"]
+    assert raw["warm_up"]["first_image_s"] > 0 and "programs" in raw["warm_up"]["startup"]
     for source in ("file", "http"):
         assert 0 < raw[source]["resident_points"] <= raw[source]["capacity_points"]
         assert all(leg["nodes_read"] >= leg["resident_nodes"] for leg in raw[source]["legs"])
