@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from progressive.batches import BATCH_ORDER, BatchOrder, runs
-from progressive.budget import BudgetParams
+from progressive.budget import GROW_STAGES, BudgetParams
 from progressive.camera import NO_CLIP, Camera, Clip, Returns, ViewUniforms, view_uniforms
 from progressive.colors import ColorStyle
 from progressive.context import GLContext
@@ -20,7 +20,7 @@ from progressive.effects import Effects
 from progressive.loaders.types import AttributeInfo, Batch, CloudInfo
 from progressive.passes.budget import BudgetPass
 from progressive.passes.compare import ComparePass
-from progressive.passes.handles import TIMESTAMP_SLOTS, Stamp, StateWord
+from progressive.passes.handles import GROW_STAMPS, TIMESTAMP_SLOTS, Stamp, StateWord
 from progressive.passes.prepare import PreparePass
 from progressive.passes.raster_compute import DEFAULT_TUNING, ComputeTuning
 from progressive.passes.stats import GPURecord, StatsRing
@@ -280,6 +280,7 @@ class ProgressiveRenderer:
         raster.begin_frame(view)
         fresh = runs(sorted(self._fresh))
         self._fresh.clear()
+        stages = GROW_STAGES if b.cold else 0
         for p in range(raster.frame_passes):
             if self._has_visible:
                 raster.draw_list(view, reprojection, p)
@@ -293,6 +294,12 @@ class ProgressiveRenderer:
                 b.adapt()
             raster.draw_piece(view, pieces, 2, p)
             raster.draw_piece(view, pieces, 3, p)
+            for stage, end_stamp in enumerate(GROW_STAMPS[:stages], start=1):
+                if p == 0:
+                    b.stamp(end_stamp)
+                    b.grow(stage)
+                raster.draw_piece(view, pieces, 2 + 2 * stage, p)
+                raster.draw_piece(view, pieces, 3 + 2 * stage, p)
             for first, end in fresh:
                 raster.draw_batches(view, first, end - first, p)
         raster.end_frame(view)

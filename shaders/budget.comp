@@ -1,7 +1,9 @@
 // The fill budget on the GPU (progressive/budget.py is the tested twin): stage
 // BEGIN places the fixed first fill on the ring; stage ADAPT turns this frame's
-// timestamps into the points that still fit and places them. Both write the range
-// of each fill piece and its indirect dispatch arguments. No CPU readback.
+// timestamps into the points that still fit and places them; stage GROW (a cold
+// frame's, budget.grow) places growth stage u_grow at the rate of the stage before
+// it. Each writes the range of its fill pieces and their indirect dispatch
+// arguments. No CPU readback.
 layout(local_size_x = 1) in;
 #include "common.glsl"
 
@@ -20,6 +22,7 @@ uniform uint u_goal_ns;
 uniform uint u_min_budget;
 uniform uint u_max_budget;
 uniform uint u_batches;       // batches of the batched layout (0: none)
+uniform uint u_grow;          // GROW: the growth stage, 1 or 2
 
 const uint64_t VALID_NS = 4294967296ul;
 
@@ -73,6 +76,7 @@ void main() {
     uint base = u_parity * TIMESTAMP_SLOTS;
     if (u_stage == STAGE_BEGIN) {
         if (u_reset) state[STATE_FILLED] = 0u;
+        for (uint k = 4u; k < FILL_PIECES; ++k) write_piece(k, 0u, 0u);     // a frame without growth stages
         uint next_first = state[STATE_NEXT_FIRST];
         uint known = next_first == 0u ? FIRST_INITIAL : next_first;
         uint first = min(u_fixed ? u_first_fill : min(known, u_first_fill), u_points);
@@ -80,12 +84,39 @@ void main() {
         place(0u, first);
         return;
     }
+    uint prev_base = (1u - u_parity) * TIMESTAMP_SLOTS;
+    // the previous frame's time after its fill (prepare, resolve, effects) is reserved
+    uint64_t reserved = 0ul;
+    if (!(u_have_prev && elapsed(stamps[prev_base + TS_END], stamps[prev_base + TS_FILL_END], reserved))) reserved = 0ul;
+    uint64_t goal = uint64_t(u_goal_ns);
+    if (u_stage == STAGE_GROW) {
+        uint start = base + (u_grow == 1u ? TS_FIRST_END : TS_GROW_1);
+        uint end = base + (u_grow == 1u ? TS_GROW_1 : TS_GROW_2);
+        uint stage_points = u_grow == 1u ? state[STATE_BUDGET] : state[STATE_STAGE_POINTS];
+        uint64_t ns, spent;
+        uint grown = 0u;
+        if (!u_fixed && stage_points > 0u && elapsed(stamps[end], stamps[start], ns) && ns > 0ul
+                && elapsed(stamps[end], stamps[base + TS_FRAME], spent)) {
+            uint64_t left = spent + reserved < goal ? goal - spent - reserved : 0ul;
+            uint64_t raw = clamp64(uint64_t(stage_points) * left / ns, 0ul, 281474976710656ul);
+            raw = raw * uint64_t(state[STATE_GAIN]) / GAIN_ONE;
+            uint so_far = state[STATE_BUDGET];
+            uint frame_points = state[STATE_FRAME_POINTS];
+            uint64_t room = uint64_t(min(u_max_budget > so_far ? u_max_budget - so_far : 0u,
+                                         u_points > frame_points ? u_points - frame_points : 0u));
+            grown = uint(raw < room ? raw : room);
+        }
+        state[STATE_STAGE_POINTS] = grown;
+        state[STATE_BUDGET] += grown;
+        state[STATE_FRAME_POINTS] += grown;
+        place(2u + 2u * u_grow, grown);
+        return;
+    }
     uint budget = 0u;
     if (!u_fixed) {
         uint first_points = state[STATE_FIRST];
         uint64_t first_ns;
         bool first_timed = elapsed(stamps[base + TS_FIRST_END], stamps[base + TS_FILL], first_ns) && first_ns > 0ul;
-        uint prev_base = (1u - u_parity) * TIMESTAMP_SLOTS;
         // the rate, as budget.measure: the previous fill's adaptive part and the first part's fixed cost
         uint64_t last_ns, last_first_ns, last_before_ns;
         bool last_fill = u_have_prev && elapsed(stamps[prev_base + TS_FILL_END], stamps[prev_base + TS_FILL], last_ns)
@@ -123,7 +154,6 @@ void main() {
                 }
             }
         }
-        uint64_t goal = uint64_t(u_goal_ns);
         uint64_t prev_ns;
         if (u_have_prev && elapsed(stamps[prev_base + TS_END], stamps[prev_base + TS_FRAME], prev_ns) && prev_ns > 0ul) {
             uint64_t ratio = clamp64(goal * GAIN_ONE / prev_ns, GAIN_STEP_MIN, GAIN_STEP_MAX);
@@ -131,9 +161,6 @@ void main() {
             uint64_t gain = clamp64(uint64_t(state[STATE_GAIN]) * half_step / GAIN_ONE, GAIN_MIN, GAIN_MAX);
             state[STATE_GAIN] = uint(gain);
         }
-        // the previous frame's time after its fill (prepare, resolve, effects) is reserved
-        uint64_t reserved = 0ul;
-        if (!(u_have_prev && elapsed(stamps[prev_base + TS_END], stamps[prev_base + TS_FILL_END], reserved))) reserved = 0ul;
         uint64_t spent;
         bool valid = elapsed(stamps[base + TS_FIRST_END], stamps[base + TS_FRAME], spent);
         uint64_t left = valid && spent + reserved < goal ? goal - spent - reserved : 0ul;

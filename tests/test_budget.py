@@ -8,12 +8,14 @@ import pytest
 
 from progressive.budget import (
     GAIN_ONE,
+    GROW_STAGES,
     U64,
     BudgetParams,
     BudgetState,
     LastFill,
     elapsed,
     frame_fill,
+    grow,
     measure,
     split_ring,
     step,
@@ -205,7 +207,7 @@ CASES = [
 @pytest.mark.parametrize("case", CASES)
 @pytest.mark.parametrize("points", [1, 1000, 3_000_000, 2**32 - 1])
 def test_gpu_budget_equals_pure_function(gl, case, points):
-    from progressive.passes.budget import TIMESTAMP_SLOTS, BudgetPass, Stamp, StateWord
+    from progressive.passes.budget import DRAW_ARGS_WORD, TIMESTAMP_SLOTS, WALK_ARGS_WORD, BudgetPass, Stamp, StateWord
 
     t_frame, t_fill, t_first, prev, first, (rp, rn, gain, fixed_ns) = case
     params = BudgetParams(target_ns=16_666_667, first_fill=first, min_budget=100, max_budget=50_000_000)
@@ -217,6 +219,7 @@ def test_gpu_budget_equals_pure_function(gl, case, points):
         [offset, rp, rn, gain, fixed_ns]
     if prev is not None:
         st[[StateWord.FRAME_POINTS, StateWord.FRAME_FIRST]] = prev[1]
+    st[StateWord.PIECES + 8: StateWord.PIECES + 16] = 7        # a cold frame's growth pieces, left from before
     bp.state.write(st.tobytes())
     bp.begin(reset=True)
     stamps = np.zeros(2 * TIMESTAMP_SLOTS, dtype=np.uint64)
@@ -249,11 +252,12 @@ def test_gpu_budget_equals_pure_function(gl, case, points):
     piece2, piece3, after = split_ring(after_first, budget, points)
     pieces = got[StateWord.PIECES: StateWord.PIECES + 8].reshape(4, 2)
     assert [tuple(x) for x in pieces.tolist()] == [piece0, piece1, piece2, piece3]
+    assert not got[StateWord.PIECES + 8: StateWord.PIECES + 16].any(), "a frame without growth draws none"
     assert got[StateWord.OFFSET] == after
     words = np.frombuffer(bp.args.read(), dtype=np.uint32)
     dispatch = words[:12].reshape(4, 3)
-    draws = words[12:28].reshape(4, 4)
-    walks = words[28:40].reshape(4, 3)
+    draws = words[DRAW_ARGS_WORD:DRAW_ARGS_WORD + 16].reshape(4, 4)
+    walks = words[WALK_ARGS_WORD:WALK_ARGS_WORD + 12].reshape(4, 3)
     for (start, count), (gx, gy, gz), draw, walk in zip([piece0, piece1, piece2, piece3], dispatch, draws, walks):
         assert gx * gy * 256 >= count and gz == 1 and gx <= 65535
         assert draw.tolist() == [count, 1, 0, 0]
@@ -263,6 +267,129 @@ def test_gpu_budget_equals_pure_function(gl, case, points):
         groups = int(walk[0]) * int(walk[1])
         assert met <= groups < met + max(int(walk[0]), 1) and (groups == 0) == (met == 0) and walk[2] == 1
     bp.release()
+
+
+def test_grow_fills_the_time_left_at_the_last_stages_rate():
+    p = BudgetParams(target_ns=16 * MS, margin_q10=0, max_budget=10**9)
+    state = BudgetState(gain_q10=GAIN_ONE)
+    # 2,000 points in the 1 ms before t_end, 4 ms into the frame: 12 ms left at 2 points/us
+    assert grow(0, 3 * MS, 4 * MS, 2000, 2000, 3000, 10**9, state, p) == 24_000
+    assert grow(0, 3 * MS, 4 * MS, 2000, 2000, 3000, 10**9, state, p, prev_after_ns=6 * MS) == 12_000
+    assert grow(0, 3 * MS, 4 * MS, 2000, 2000, 3000, 10**9, BudgetState(gain_q10=GAIN_ONE // 2), p) == 12_000
+    # capped by the ring's points left and by what max_budget leaves of the frame's budget
+    assert grow(0, 3 * MS, 4 * MS, 2000, 2000, 3000, 13_000, state, p) == 10_000
+    capped = BudgetParams(target_ns=16 * MS, margin_q10=0, max_budget=7000)
+    assert grow(0, 3 * MS, 4 * MS, 2000, 2000, 3000, 10**9, state, capped) == 5000
+    # nothing timed, nothing filled, no time left, or a fixed budget: no stage
+    assert grow(0, 4 * MS, 4 * MS, 2000, 2000, 3000, 10**9, state, p) == 0
+    assert grow(0, 3 * MS, 4 * MS, 0, 0, 1000, 10**9, state, p) == 0
+    assert grow(0, 3 * MS, 17 * MS, 2000, 2000, 3000, 10**9, state, p) == 0
+    assert grow(0, 3 * MS, 4 * MS, 2000, 2000, 3000, 10**9, state, BudgetParams(fixed=5)) == 0
+    assert grow(U64 - MS, U64 - 10, 3 * MS, 2000, 2000, 3000, 10**9, state, p) == 2000 * 12 * MS // (3 * MS + 10)
+
+
+def cold_frame(rate: float, piece_ms: float, stages: int, first: int = 65_536, before_ms: float = 0.5,
+               n: int = 10**9) -> tuple[int, float]:
+    """A renderer's first frame on a GPU whose every fill piece costs piece_ms besides its
+    points at `rate` a ms: the first fill, the adaptive part from its rate alone, then
+    `stages` growth stages (an empty piece costs nothing); the points filled and when the
+    fill ends (ms)."""
+    p = BudgetParams(target_ns=int(16.6 * MS))
+    t = before_ms + piece_ms + first / rate
+    budget, state = step(0, int(before_ms * MS), int(t * MS), None, first, BudgetState(), p)
+    budget = frame_fill(budget, first, n)
+    start, t = t, t + (piece_ms + budget / rate if budget else 0.0)
+    last, total = budget, budget
+    for _ in range(stages):
+        more = grow(0, int(start * MS), int(t * MS), last, total, first + total, n, state, p)
+        start, t = t, t + (piece_ms + more / rate if more else 0.0)
+        last, total = more, total + more
+    return first + total, t
+
+
+@pytest.mark.parametrize("rate,piece_ms", [(60_000_000, 0.05), (150_000_000, 0.02), (2_000_000, 0.3), (50_000, 0.5)])
+def test_a_cold_frame_grows_into_its_goal(rate, piece_ms):
+    """The first frame knows no rate, and its first fill's fixed cost hides it (on the H200
+    at 1 B points frame 0 filled 14 M points in 0.87 ms of a 14 ms goal): its
+    growth stages fill within 5 % of what the goal holds, never past it by more than a
+    piece's fixed cost, where its adaptive part alone left most of the goal unused."""
+    goal_ms = BudgetParams(target_ns=int(16.6 * MS)).goal_ns / MS
+    room = min((goal_ms - 0.5 - (2 + GROW_STAGES) * piece_ms) * rate, 10**9)   # or the whole cloud
+    filled, end = cold_frame(rate, piece_ms, GROW_STAGES)
+    assert filled >= 0.95 * room and end <= goal_ms + piece_ms, (filled / room, end)
+    alone, _ = cold_frame(rate, piece_ms, 0)
+    assert alone < 0.5 * room or rate * piece_ms < 65_536, alone / room
+
+
+GROW_CASES = [
+    # growth stage, stamps (FRAME, FIRST_END, GROW_1, GROW_2), the previous frame's (FILL_END, END) or None,
+    # the frame's adaptive budget so far, its last stage's points (stage 2), its points so far, gain
+    (1, (0, MS, 2 * MS, 0), None, 300_000, 0, 301_000, GAIN_ONE),
+    (2, (0, MS, 2 * MS, 5 * MS), None, 900_000, 600_000, 901_000, GAIN_ONE),
+    (2, (0, MS, 2 * MS, 5 * MS), (20 * MS, 23 * MS), 900_000, 600_000, 901_000, 700),
+    (1, (U64 - MS, U64 - 10, 2 * MS, 0), None, 2_000_000_000, 0, 2_000_065_536, GAIN_ONE),
+    (1, (0, MS, 17 * MS, 0), None, 300_000, 0, 301_000, GAIN_ONE),
+    (2, (0, MS, 2 * MS, 2 * MS), None, 300_000, 5000, 301_000, GAIN_ONE),
+    (1, (0, MS, 2 * MS, 0), None, 0, 0, 1000, GAIN_ONE),
+]
+
+
+@pytest.mark.parametrize("case", GROW_CASES)
+@pytest.mark.parametrize("points", [1000, 3_000_000, 2**32 - 1])
+def test_gpu_growth_stage_equals_pure_function(gl, case, points):
+    """Stage GROW of budget.comp against budget.grow: the stage's points, the frame's
+    budget and points, and its pieces placed at the ring offset (with their dispatch,
+    draw and batch-walk arguments)."""
+    from progressive.passes.budget import DRAW_ARGS_WORD, TIMESTAMP_SLOTS, WALK_ARGS_WORD, BudgetPass, Stamp, StateWord
+
+    stage, (t_frame, t_first, t_grow1, t_grow2), prev, budget, stage_points, frame_points, gain = case
+    budget, frame_points = min(budget, points), min(frame_points, points)
+    params = BudgetParams(target_ns=16_666_667, max_budget=2**32 - 1)
+    bp = BudgetPass(gl, points, params, max(1, points // 10_240))
+    offset = points // 3
+    st = np.zeros(StateWord.WORDS, dtype=np.uint32)
+    st[[StateWord.OFFSET, StateWord.GAIN, StateWord.BUDGET, StateWord.STAGE_POINTS, StateWord.FRAME_POINTS]] = \
+        [offset, gain, budget, stage_points, frame_points]
+    bp.state.write(st.tobytes())
+    stamps = np.zeros(2 * TIMESTAMP_SLOTS, dtype=np.uint64)
+    stamps[[Stamp.FRAME, Stamp.FIRST_END, Stamp.GROW_1, Stamp.GROW_2]] = [t_frame, t_first, t_grow1, t_grow2]
+    if prev is not None:
+        stamps[TIMESTAMP_SLOTS + np.array([Stamp.FILL_END, Stamp.END])] = prev
+    bp.stamps.write(stamps.tobytes())
+    bp.have_prev = prev is not None
+    bp.grow(stage)
+    gl.check()
+    got = np.frombuffer(bp.state.read(), dtype=np.uint32)
+    start, end = (t_first, t_grow1) if stage == 1 else (t_grow1, t_grow2)
+    last = budget if stage == 1 else stage_points
+    after = elapsed(prev[1], prev[0]) if prev is not None else None
+    want = grow(t_frame, start, end, last, budget, frame_points, points, BudgetState(gain_q10=gain), params, after)
+    assert got[StateWord.STAGE_POINTS] == want
+    assert (got[StateWord.BUDGET], got[StateWord.FRAME_POINTS]) == (budget + want, frame_points + want)
+    first_piece, second_piece, after_offset = split_ring(offset, want, points)
+    at = StateWord.PIECES + 2 * (2 + 2 * stage)
+    assert [tuple(x) for x in got[at:at + 4].reshape(2, 2).tolist()] == [first_piece, second_piece]
+    assert got[StateWord.OFFSET] == after_offset
+    words = np.frombuffer(bp.args.read(), dtype=np.uint32)
+    for piece, (_, count) in zip((2 + 2 * stage, 3 + 2 * stage), (first_piece, second_piece), strict=True):
+        gx, gy, _ = words[3 * piece: 3 * piece + 3]
+        assert gx * gy * 256 >= count
+        assert words[DRAW_ARGS_WORD + 4 * piece] == count
+        assert (words[WALK_ARGS_WORD + 3 * piece] == 0) == (count == 0)
+    bp.release()
+
+
+def test_state_stamp_and_stats_layouts_hold_the_growth_stages():
+    """The fill state's words after the pieces do not overlap them, a stamp marks each
+    growth stage, and a stats slot keeps the whole state before the frame's timestamps."""
+    from progressive.passes import stats
+    from progressive.passes.handles import FILL_PIECES, GROW_STAMPS, TIMESTAMP_SLOTS, Stamp, StateWord
+
+    assert FILL_PIECES == 2 * (2 + GROW_STAGES)
+    assert min(w for w in StateWord if w > StateWord.PIECES) >= StateWord.PIECES + 2 * FILL_PIECES
+    assert len(GROW_STAMPS) == GROW_STAGES and max(Stamp) < TIMESTAMP_SLOTS
+    assert stats.TS_WORD >= StateWord.WORDS and stats.TS_WORD % 2 == 0
+    assert stats.VISIBLE_WORD >= stats.TS_WORD + 2 * TIMESTAMP_SLOTS and stats.SLOT_WORDS > stats.GATHER_WORD
 
 
 def test_a_first_fill_of_fixed_costs_does_not_hold_the_budget_back():

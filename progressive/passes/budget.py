@@ -20,6 +20,7 @@ from progressive.budget import (
     GAIN_ONE,
     GAIN_STEP_MAX,
     GAIN_STEP_MIN,
+    GROW_STAGES,
     BudgetParams,
 )
 from progressive.context import GLContext
@@ -28,6 +29,7 @@ from progressive.gpu import dispatch_defines
 from progressive.passes.handles import (
     DRAW_ARGS_WORD,
     FILL_ARGS_BYTES,
+    FILL_PIECES,
     TIMESTAMP_SLOTS,
     WALK_ARGS_WORD,
     FillPieces,
@@ -42,6 +44,7 @@ class Stage(enum.IntEnum):
 
     BEGIN = 0
     ADAPT = 1
+    GROW = 2
 
 
 def layout_defines() -> dict[str, int]:
@@ -49,6 +52,7 @@ def layout_defines() -> dict[str, int]:
     d.update({f"TS_{s.name}": int(s) for s in Stamp})
     d.update({f"STAGE_{s.name}": int(s) for s in Stage})
     d["TIMESTAMP_SLOTS"] = TIMESTAMP_SLOTS
+    d["FILL_PIECES"] = f"{FILL_PIECES}u"
     d["FIRST_INITIAL"] = f"{FIRST_INITIAL}u"
     d.update({name: f"{value}ul" for name, value in (("GAIN_ONE", GAIN_ONE), ("GAIN_MIN", GAIN_MIN), ("GAIN_MAX", GAIN_MAX),
                                                       ("GAIN_STEP_MIN", GAIN_STEP_MIN), ("GAIN_STEP_MAX", GAIN_STEP_MAX),
@@ -79,6 +83,12 @@ class BudgetPass:
         self.program = shaderlib.compute(ctx, "budget.comp", layout_defines(), ("GL_ARB_gpu_shader_int64",), "budget")
         self.parity = 0
         self.have_prev = False
+        self.timed_frames = 0       # frames with a fill whose timestamps the budget has had
+
+    @property
+    def cold(self) -> bool:
+        """No frame with a fill yet: this one knows no rate, so it grows (budget.grow)."""
+        return self.timed_frames == 0 and self.params.fixed is None
 
     def bind(self) -> None:
         self.state.bind_to_storage_buffer(Binding.FILL_STATE)
@@ -94,9 +104,10 @@ class BudgetPass:
         gl.get_query_object_ui64v(self.queries[slot], GL_QUERY_RESULT, ctypes.c_void_p(slot * 8))
         gl.bind_buffer(GL_QUERY_BUFFER, 0)
 
-    def _run(self, stage: Stage, reset: bool = False) -> None:
+    def _run(self, stage: Stage, reset: bool = False, grow: int = 0) -> None:
         p, params = self.program, self.params
         p["u_stage"] = int(stage)
+        p["u_grow"] = grow
         p["u_points"] = self.points
         p["u_first_fill"] = min(params.fixed if params.fixed is not None else params.first_fill, 2**32 - 1)
         p["u_reset"] = reset
@@ -120,9 +131,17 @@ class BudgetPass:
         """From the first fill's timestamps, place what still fits (pieces 2, 3)."""
         self._run(Stage.ADAPT)
 
+    def grow(self, stage: int) -> None:
+        """In a cold frame, from the last stage's timestamps, place growth stage `stage`
+        (1 .. GROW_STAGES: pieces 2 + 2·stage and the next)."""
+        if not 1 <= stage <= GROW_STAGES:
+            raise ValueError(f"growth stages are 1 to {GROW_STAGES}")
+        self._run(Stage.GROW, grow=stage)
+
     def end_frame(self, complete: bool) -> None:
         """Flip timestamp blocks; a frame that skipped its passes gives no previous time."""
         self.have_prev = complete
+        self.timed_frames += complete
         self.parity ^= 1
 
     def release(self) -> None:

@@ -13,6 +13,7 @@ from typing import ClassVar, Protocol
 import moderngl
 
 from progressive.bindings import Binding
+from progressive.budget import GROW_STAGES
 
 EMPTY = 0xFFFFFFFF
 """A visibility pixel (slot and depth bits) that no point has reached."""
@@ -66,10 +67,11 @@ class StateWord(enum.IntEnum):
     FIRST = 6           # the fixed first part of this frame
     NEXT_FIRST = 7      # the next frame's first part (adaptive: a share of the goal)
     PIECES = 8          # FILL_PIECES x (first slot, count)
-    FRAME_FIRST = 16    # this frame's first part and
-    FRAME_POINTS = 17   # ... all the points it fills: the next frame measures its rate from them
-    FIXED_NS = 18       # the first part's fixed cost (budget.BudgetState.fixed_ns)
-    WORDS = 19
+    FRAME_FIRST = 24    # this frame's first part and
+    FRAME_POINTS = 25   # ... all the points it fills: the next frame measures its rate from them
+    FIXED_NS = 26       # the first part's fixed cost (budget.BudgetState.fixed_ns)
+    STAGE_POINTS = 27   # the points of a cold frame's last growth stage (budget.grow)
+    WORDS = 28
 
     @classmethod
     def defines(cls) -> dict[str, int]:
@@ -77,7 +79,7 @@ class StateWord(enum.IntEnum):
 
 
 class Stamp(enum.IntEnum):
-    """GPU timestamps of a frame, in this order in its block of the timestamp buffer."""
+    """GPU timestamps of a frame: their slots in its block of the timestamp buffer."""
 
     FRAME = 0
     FILL = 1
@@ -85,10 +87,16 @@ class Stamp(enum.IntEnum):
     FILL_END = 3
     PREPARE_END = 4
     END = 5
+    GROW_1 = 6          # a cold frame's ends of its adaptive part and of its first growth stage
+    GROW_2 = 7
+
+
+GROW_STAMPS = (Stamp.GROW_1, Stamp.GROW_2)
+"""The stamp before each growth stage (budget.GROW_STAGES of them)."""
 
 
 TIMESTAMP_SLOTS = 8        # a frame's block of timestamps (two blocks, alternate frames)
-FILL_PIECES = 4            # first fill and adaptive fill, each possibly wrapped in two
+FILL_PIECES = 2 * (2 + GROW_STAGES)   # first fill, adaptive fill, a cold frame's growth stages: each maybe wrapped in two
 ARGS_BYTES = 12            # one DispatchIndirectCommand
 DRAW_ARGS_WORD = FILL_PIECES * 3
 DRAW_ARGS_BYTES = 16       # one DrawArraysIndirectCommand

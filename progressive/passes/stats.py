@@ -12,11 +12,11 @@ import numpy as np
 from progressive.context import GLContext
 from progressive.passes.handles import TIMESTAMP_SLOTS, Meta, StateWord
 
-SLOT_WORDS = 48          # fill state (16), timestamps (16), visible count, equal pixels, gathers
-TS_WORD = 16
-VISIBLE_WORD = 32
-EQUAL_WORD = 33
-GATHER_WORD = 34
+TS_WORD = StateWord.WORDS + StateWord.WORDS % 2          # a slot: the fill state, then (8-byte aligned)
+VISIBLE_WORD = TS_WORD + 2 * TIMESTAMP_SLOTS                # the timestamps, the visible count,
+EQUAL_WORD = VISIBLE_WORD + 1                               # the equal pixels
+GATHER_WORD = VISIBLE_WORD + 2                              # and the gathers
+SLOT_WORDS = GATHER_WORD + 1
 
 
 @dataclass(frozen=True)
