@@ -253,8 +253,10 @@ class Session:
         fills it as the camera moves."""
         names = tuple(a.name for a in self.info.attributes) if options.switchable else \
             self._needed(self.attribute, class_filter)
-        threads = options.http.in_flight
         cores = available_cores()
+        # range requests are bounded per client; a local file's nodes are decoded on every core
+        remote = any(s.remote is not None for s in self.loader.sources)
+        threads = options.http.in_flight if remote else max(cores, options.http.in_flight)
         # as the loader's Decoders.AUTO: on fewer cores the processes' start slows the first image
         processes = laz_pool.available() and cores >= laz_pool.MIN_AUTO_PROCESSES
         decoders = DecoderPool(min(threads, cores)) if processes else None
@@ -276,7 +278,7 @@ class Session:
             if scene is not None:
                 scene.release()
             raise
-        self.streamer = Streamer(scene, reader, state, replace(PLAN, max_in_flight=options.http.in_flight),
+        self.streamer = Streamer(scene, reader, state, replace(PLAN, max_in_flight=threads),
                                  keep=options.switchable)
 
     def _open_renderer(self, options: SessionOptions, class_filter: bool) -> None:

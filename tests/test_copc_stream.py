@@ -255,6 +255,24 @@ def test_no_limit_streams_every_node_exactly_with_the_colour_contract(case, samp
         assert_scalar_colours(s.image()[..., :3].astype(np.int32), ids, values, reference_range(values))
 
 
+def test_a_local_file_reads_nodes_on_every_core_a_url_as_many_as_its_requests(sample_copc, monkeypatch):
+    """Range requests are bounded per client (HttpOptions.in_flight); a local file's
+    nodes are read and decoded on every core the process may use (on 16 cores, four
+    at a time left three quarters of them idle while a view's nodes came)."""
+    from range_server import RangeServer
+
+    from progressive import session as session_module
+    from progressive.loaders.http import HttpOptions
+
+    monkeypatch.setattr(session_module, "available_cores", lambda: 12)
+    monkeypatch.setattr(session_module.laz_pool, "available", lambda: False)     # no twelve processes here
+    with streamed(sample_copc) as s:
+        assert s.streamer.options.max_in_flight == s.streamer.reader._pool._max_workers == 12
+    with RangeServer({"sample.copc.laz": sample_copc}) as server, \
+            streamed(server.url("sample.copc.laz"), http=HttpOptions(in_flight=3)) as s:
+        assert s.streamer.options.max_in_flight == s.streamer.reader._pool._max_workers == 3
+
+
 def test_limit_keeps_a_tree_cut_renders_it_exactly_and_picks_the_files_points():
     path = shared_file(LONE_STAR)
     las, xyz = las_xyz(path)
