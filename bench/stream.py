@@ -36,7 +36,7 @@ from progressive.loaders.copc_write import write_copc
 from progressive.loaders.records import RECORD_BYTES
 from progressive.loaders.types import BATCH_POINTS
 from progressive.session import Session, SessionOptions, Streaming
-from progressive.streaming import WRITE_SECONDS
+from progressive.streaming import WRITE_SECONDS, WRITE_STILL_SECONDS
 
 RESULTS = Path(__file__).resolve().parent / "results"
 TESTS = Path(__file__).resolve().parents[1] / "tests"
@@ -57,10 +57,13 @@ FLY = 0.3
 """How far the fly leg moves along X, a share of the cloud's X extent."""
 NEAR = 0.01
 """A moving camera's near plane, a share of its distance to its target."""
+DETAIL_PX = 1.0
+"""A still view's detail counts as there once every node it keeps with points this far
+apart on screen (or farther) is shown."""
 NAME = "cloud.copc.laz"
 """The file's name on the range server."""
 FIELDS = ("seconds", "resident_nodes", "resident_points", "loading_nodes", "held_nodes", "evicted_nodes",
-          "settled", "converged")
+          "settled", "converged", "missing_px")
 """What is recorded of each frame (raw JSON, a list per field)."""
 
 
@@ -154,19 +157,22 @@ def timed_frame(s: Session, camera: Camera, log: dict[str, list]) -> None:
 
 def hold(s: Session, camera: Camera, since: float, log: dict[str, list], limit_s: float) -> dict:
     """Frames of a still `camera` until the view is settled and converged; seconds from
-    `since` to each (None: not within `limit_s`)."""
-    settled = converged = None
+    `since` to each, and to the frame by which every node it keeps whose points lie
+    DETAIL_PX apart on screen or more was shown (None: not within `limit_s`)."""
+    detailed = settled = converged = None
     frames = 0
     while time.perf_counter() - since < limit_s:
         timed_frame(s, camera, log)
         frames += 1
         now = time.perf_counter() - since
+        if detailed is None and log["missing_px"][-1] < DETAIL_PX:
+            detailed = now
         if settled is None and log["settled"][-1]:
             settled = now
         if log["settled"][-1] and log["converged"][-1]:
             converged = now
             break
-    return {"settled_s": settled, "converged_s": converged, "still_frames": frames}
+    return {"detailed_s": detailed, "settled_s": settled, "converged_s": converged, "still_frames": frames}
 
 
 def summary(log: dict[str, list], moving: int, before_evicted: int) -> dict:
@@ -254,7 +260,7 @@ def served(path: Path, options: SessionOptions, frames: int, limit_s: float) -> 
 
 
 COLUMNS = ("source", "leg", "moving frames", "frame ms p50", "frame ms p95", "frame ms max", "first image s",
-           "settled s", "converged s", "still frames", "still frame ms max", "resident nodes", "resident points",
+           "1 px detail s", "settled s", "converged s", "still frames", "still frame ms max", "resident nodes", "resident points",
            "loading max", "evicted", "nodes read", "MB fetched", "requests")
 
 
@@ -264,7 +270,7 @@ def rows(label: str, run: dict) -> list[tuple]:
     for leg in run["legs"]:
         over = leg["leg"] == "overview"
         out.append((label, leg["leg"], leg["frames"], leg["frame_ms_p50"], leg["frame_ms_p95"], leg["frame_ms_max"],
-                    run["first_image_s"] if over else None, leg["settled_s"], leg["converged_s"],
+                    run["first_image_s"] if over else None, leg["detailed_s"], leg["settled_s"], leg["converged_s"],
                     leg["still_frames"], leg["still_frame_ms_max"], leg["resident_nodes"], leg["resident_points"],
                     leg["loading_max"], leg["evicted"], leg["nodes_read"],
                     leg["bytes_fetched"] / 2**20 if label == "HTTP" else None, leg["requests"] if label == "HTTP" else None))
@@ -315,14 +321,17 @@ def run(points: int, limit: int, size: tuple[int, int], frames: int, cache: Path
          f"{warm['first_image_s']:.2f} s, {warm['startup'].get('programs', 0):.2f} s of it programs) and its frame times are over every frame until converged. Then {frames} "
          f"moving frames per leg: a zoom from the overview to a close-up of the corner near the cloud's lowest X and "
          f"Y ({CORNER:.0%} in, at {CLOSE:.0%} of its extent), a fly {FLY:.0%} of the X extent along that edge, a zoom "
-         f"back out to the overview; the camera then stops, and settled / converged count from that stop (settled: "
-         f"nothing more to read or write for the view; converged: settled and the still image exact, "
+         f"back out to the overview; the camera then stops, and 1 px detail / settled / converged count from that "
+         f"stop (1 px detail: every node the view keeps whose points lie {DETAIL_PX:g} px apart on screen or more is "
+         f"shown, StreamStatus.missing_px < {DETAIL_PX:g}, what is left only deciding which point of a pixel is in "
+         f"front; settled: nothing more to read or write for the view; converged: settled and the still image exact, "
          f"Session.converged). Frame ms: wall time of Session.frame over the moving frames (the frame loop paces "
          f"itself against the GPU, which on llvmpipe is the CPU); still frame ms max: the longest frame of the "
          f"stop. Resident nodes and points: at the end of the leg; loading max: most nodes in flight in a frame; "
          f"evicted: nodes evicted during the leg and its stop; nodes read: since open (a node evicted and needed again "
          f"is read again). Frames that changed the store (nodes written, for at most {WRITE_SECONDS * 1e3:g} ms "
-         f"a frame past the first node, or evicted) took a median {changes}, the others {others}."),
+         f"a frame past the first node while the camera moves, {WRITE_STILL_SECONDS * 1e3:g} ms while it holds still, "
+         f"or evicted) took a median {changes}, the others {others}."),
         (f"HTTP: tests/range_server.py's RangeServer on 127.0.0.1 (the file held in memory, answering in threads of "
          f"this process, so it shares the cores and the GIL with the renderer); MB fetched and requests: the "
          f"client's counts (Session.status().copc[0]) at the end of each leg, cumulative; the server counted "

@@ -80,7 +80,7 @@ class Scene:
         batch_order: batches of consecutive points in file order, or (MORTON, the batched
         layout) each loaded batch's whole store batches sorted by Morton code first.
         streamed: the store's batches are written and emptied one by one
-        (write_store_batch, clear_store_batches: progressive/streaming.py), not loaded
+        (write_store_batches, clear_store_batches: progressive/streaming.py), not loaded
         in order; `info.points` is then what its batches hold."""
         self.glc, self.info, self.attribute = glc, info, attribute
         if streamed and (keep_batches or capacity is not None or order is not FillOrder.BATCHED):
@@ -123,10 +123,12 @@ class Scene:
         """Every point there will be is on the GPU (streamed: for the view, `settled`)."""
         return self.settled if self.streamed else self.loaded >= self.info.points
 
-    def write_store_batch(self, part: Batch, b: int) -> None:
-        """Streamed: store batch b, empty, holds `part` from now on (at most BATCH_POINTS
-        points, numbered from `part.start` by their cloud indices, which ids report)."""
-        at = b * BATCH_POINTS
+    def write_store_batches(self, part: Batch, first: int) -> None:
+        """Streamed: the empty store batches first, first + 1, ... hold `part` from now on
+        (its points [i·B, (i+1)·B) in the i-th; numbered from `part.start` by their cloud
+        indices, which ids report). One write for a node's consecutive batches: each
+        write's fixed cost, not its points, bounded how fast a view's nodes went in."""
+        at = first * BATCH_POINTS
         self.store.reorder(at, np.arange(part.start, part.start + part.count, dtype=np.uint32))
         placed = replace(part, start=at)
         if self.assembler is not None:
@@ -136,7 +138,9 @@ class Scene:
             self.store.add_boxes(_positions(placed), at)
         if self.store.has_classes:
             self.distribute.upload_classes(point_flags(placed), at)
-        self._written[b] = (part.count, hidden)
+        for i in range(-(-part.count // BATCH_POINTS)):
+            # the hidden points go with the first batch: a node's batches are emptied together
+            self._written[first + i] = (min(BATCH_POINTS, part.count - i * BATCH_POINTS), hidden if i == 0 else 0)
         if (name := self._category_name()) is not None and name in part.attributes:
             self._codes[np.unique(np.minimum(part.attributes[name], 255))] = True
         self.loaded += part.count

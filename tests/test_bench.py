@@ -168,7 +168,7 @@ def test_stream_bench_runs(tmp_path):
     rows = [dict(zip(stream.COLUMNS, r)) for r in payload["rows"]]
     legs = ["overview", "zoom in", "fly along", "zoom out"]
     assert [(r["source"], r["leg"]) for r in rows] == [(s, leg) for s in ("file", "HTTP") for leg in legs]
-    assert all(r["converged s"] is not None and r["settled s"] <= r["converged s"] for r in rows)
+    assert all(r["converged s"] is not None and r["1 px detail s"] <= r["settled s"] <= r["converged s"] for r in rows)
     assert all(r["moving frames"] == (0 if r["leg"] == "overview" else 3) for r in rows)
     raw = payload["raw"]
     assert raw["built"]["points"] == 110_000 and not raw["built"]["cached"]

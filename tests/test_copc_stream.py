@@ -296,6 +296,31 @@ def test_limit_keeps_a_tree_cut_renders_it_exactly_and_picks_the_files_points():
         assert (picked["x"], picked["y"], picked["z"]) == pytest.approx(tuple(xyz[ids[row, col]]), abs=1e-6)
 
 
+def test_the_detail_still_missing_shrinks_to_nothing_as_a_still_view_settles():
+    """StreamStatus.missing_px, frame by frame of a still overview: the largest
+    screen-space error (copc_choice's, in pixels) among the view's kept nodes not yet
+    shown; it never grows while the camera holds, and is 0 once the view has settled."""
+    path = shared_file(LONE_STAR)
+    with streamed(path, limit_for(250_000)) as s:
+        camera = s.auto_camera()
+        view = node_view(camera, W, H)
+        state = s.streamer.state
+        target, errors = state.target(view), state.nodes.errors(view)
+        seen = []
+        for _ in range(FRAMES):
+            s.frame(camera)
+            waiting = target[state.status[target] != Status.RESIDENT]
+            seen.append(s.status().stream.missing_px)
+            assert seen[-1] == (errors[waiting].max() if waiting.size else 0.0)
+            if not s.status().stream.settled:       # the panel's last line says what is missing
+                assert stream_lines(s.status().stream)[-1].strip() == \
+                    f"reading the view's nodes (detail of {seen[-1]:.1f} px still missing)"
+            if s.status().stream.settled:
+                break
+        assert seen[0] > 1 and seen[-1] == 0 and s.status().stream.settled
+        assert all(a >= b for a, b in zip(seen, seen[1:])), seen
+
+
 def test_moving_the_camera_brings_its_nodes_and_evicts_others():
     """A close-up after the overview: the nodes its choice keeps come, others are evicted
     to make room, the new still view is exact; back at the overview the hysteresis keeps

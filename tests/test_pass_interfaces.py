@@ -260,7 +260,7 @@ def streamed(gl, cam, raster: Raster, tuning: ComputeTuning) -> None:
     pr = ProgressiveRenderer(gl, info, scene.attribute, options, scene=scene)
     half = len(parts) // 2
     for b, part in enumerate(parts):
-        scene.write_store_batch(part, b)
+        scene.write_store_batches(part, b)
         if b + 1 in (half, len(parts)):
             pr.nodes_changed(False, range(half) if b + 1 == half else range(half, len(parts)))
             scene.settled = True

@@ -359,12 +359,12 @@ def test_batches_written_into_a_still_view_are_drawn_whole(gl, brute, winners):
         style = pr.scene.style()
         try:
             for b in range(half):
-                scene.write_store_batch(parts[b], b)
+                scene.write_store_batches(parts[b], b)
             pr.nodes_changed(False, range(half))
             scene.settled = True            # what the streamer says once nothing more is on its way
             converge(pr, cam, style)
             for b in range(half, len(parts)):
-                scene.write_store_batch(parts[b], b)
+                scene.write_store_batches(parts[b], b)
             pr.nodes_changed(False, range(half, len(parts)) if told else ())
             frames[told] = frames_until_equal(gl, pr, cam, style, expected, 200)
             converge(pr, cam, style)

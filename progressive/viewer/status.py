@@ -3,6 +3,7 @@ tests check them wherever the viewer's libraries are missing (the GPU machine)."
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING
 
 from progressive.loaders.copc import CopcStatus
@@ -34,5 +35,7 @@ def stream_lines(s: StreamStatus) -> list[str]:
              f"    points {s.resident_points:,} / {s.points:,} (room for {s.capacity_points:,})",
              f"    {s.loading_nodes:,} loading, {s.held_nodes:,} waiting, {s.evicted_nodes:,} evicted"
              + (f", {s.failed_nodes:,} failed" if s.failed_nodes else "")]
-    lines.append("    the view's nodes are all on the GPU" if s.settled else "    reading the view's nodes")
+    lines.append("    the view's nodes are all on the GPU" if s.settled else
+                 "    reading the view's nodes" + (f" (detail of {s.missing_px:.1f} px still missing)"
+                                                    if math.isfinite(s.missing_px) else ""))
     return lines
