@@ -49,7 +49,7 @@ from progressive.pointstore import CLASS_BYTES, GPUMemoryError
 from progressive.renderer import Frame, Raster, Renderer, ids_for
 from progressive.reproject import Geography, open_loader, target_crs
 from progressive.scene import CLASSIFICATION, AttributeSwitch, Scene
-from progressive.streaming import PLAN, StoreChange, Streamer, StreamStatus
+from progressive.streaming import PLAN, READS_QUEUED, StoreChange, Streamer, StreamStatus
 
 PICK_RADIUS = 7
 """Pixels around a picked pixel searched for the nearest point shown."""
@@ -278,7 +278,7 @@ class Session:
             if scene is not None:
                 scene.release()
             raise
-        self.streamer = Streamer(scene, reader, state, replace(PLAN, max_in_flight=threads),
+        self.streamer = Streamer(scene, reader, state, replace(PLAN, max_in_flight=READS_QUEUED * threads),
                                  keep=options.switchable)
 
     def _open_renderer(self, options: SessionOptions, class_filter: bool) -> None:

@@ -33,7 +33,7 @@ from progressive.loaders.laz_pool import DecoderPool
 from progressive.permutation import BATCH_POINTS
 from progressive.reference import subset_reference_ids
 from progressive.session import Session, SessionOptions, Streaming, node_view
-from progressive.streaming import StoreChange
+from progressive.streaming import READS_QUEUED, StoreChange
 from progressive.viewer.status import stream_lines
 
 W, H = 160, 120
@@ -258,7 +258,8 @@ def test_no_limit_streams_every_node_exactly_with_the_colour_contract(case, samp
 def test_a_local_file_reads_nodes_on_every_core_a_url_as_many_as_its_requests(sample_copc, monkeypatch):
     """Range requests are bounded per client (HttpOptions.in_flight); a local file's
     nodes are read and decoded on every core the process may use (on 16 cores, four
-    at a time left three quarters of them idle while a view's nodes came)."""
+    at a time left three quarters of them idle while a view's nodes came). Either way
+    the plan keeps READS_QUEUED reads requested a thread: the next waits in the pool."""
     from range_server import RangeServer
 
     from progressive import session as session_module
@@ -267,10 +268,12 @@ def test_a_local_file_reads_nodes_on_every_core_a_url_as_many_as_its_requests(sa
     monkeypatch.setattr(session_module, "available_cores", lambda: 12)
     monkeypatch.setattr(session_module.laz_pool, "available", lambda: False)     # no twelve processes here
     with streamed(sample_copc) as s:
-        assert s.streamer.options.max_in_flight == s.streamer.reader._pool._max_workers == 12
+        assert s.streamer.reader._pool._max_workers == 12
+        assert s.streamer.options.max_in_flight == READS_QUEUED * 12
     with RangeServer({"sample.copc.laz": sample_copc}) as server, \
             streamed(server.url("sample.copc.laz"), http=HttpOptions(in_flight=3)) as s:
-        assert s.streamer.options.max_in_flight == s.streamer.reader._pool._max_workers == 3
+        assert s.streamer.reader._pool._max_workers == 3
+        assert s.streamer.options.max_in_flight == READS_QUEUED * 3
 
 
 def test_limit_keeps_a_tree_cut_renders_it_exactly_and_picks_the_files_points():
