@@ -28,6 +28,11 @@ def attribute_word(batch: Batch, attr: AttributeInfo, origin_z: float) -> np.nda
             return z.astype(np.float32).view(np.uint32)
     values = batch.attributes[attr.name]
     if attr.kind is AttributeKind.RGB:
+        if values.dtype == np.uint8:        # the loaders' 8-bit channels: the bytes of RGBA words, one copy
+            rgba = np.empty((n, 4), np.uint8)
+            rgba[:, :3] = values
+            rgba[:, 3] = 0xFF
+            return rgba.view("<u4").reshape(n)
         rgb = np.asarray(values, dtype=np.uint32)
         return rgb[:, 0] | (rgb[:, 1] << 8) | (rgb[:, 2] << 16) | np.uint32(0xFF000000)
     if attr.kind is AttributeKind.CATEGORY:
