@@ -126,8 +126,8 @@ class Scene:
     def write_store_batches(self, part: Batch, first: int) -> None:
         """Streamed: the empty store batches first, first + 1, ... hold `part` from now on
         (its points [i·B, (i+1)·B) in the i-th; numbered from `part.start` by their cloud
-        indices, which ids report). One write for a node's consecutive batches: each
-        write's fixed cost, not its points, bounded how fast a view's nodes went in."""
+        indices, which ids report). One write for a node's consecutive batches, each
+        write having a fixed cost of its own."""
         at = first * BATCH_POINTS
         self.store.reorder(at, np.arange(part.start, part.start + part.count, dtype=np.uint32))
         placed = replace(part, start=at)

@@ -32,18 +32,20 @@ WRITE_SECONDS = 0.004
 least one node is written), so arrivals never stall motion for long."""
 WRITE_STILL_SECONDS = 0.012
 """The same for a camera that holds still: no motion to keep smooth, and the view is
-complete sooner (at 1 B points the H200 wrote a view's 8,873 nodes within 4 ms a frame
-in 39 s, most of it waiting for the next frame)."""
+complete sooner (at 1 B points, writing at most 4 ms a frame, the H200's overview of
+8,873 nodes settled in 39 s)."""
 READS_QUEUED = 4
 """Reads a session's plan keeps requested for each reader thread, so that a thread's next
 read waits in the pool's queue rather than for the frame loop to see an arrival and plan
-again (on the H200 at 1 B points, one read a thread kept its 16 threads to 327 nodes a
-second, the decoder processes mostly idle)."""
+again (on the H200 at 1 B points, with one read a thread, 16 threads brought 327 nodes a
+second while the frames that wrote them stayed under their write limit)."""
 PLAN = PlanOptions()
 """How many nodes are read at once and how readily resident ones are evicted."""
 PLAN_SECONDS = 0.1
-"""Least time between two plans while the camera moves and nothing arrives (a plan
-walks every node)."""
+"""Least time between two plans for the new views of a moving camera. Nodes that arrive
+in between are planned for the last view planned, whose errors, order and target are
+kept (bench/plan.py: most of a plan made anew), so a frame that takes arrivals during
+motion does not also walk every node for its view."""
 
 
 class StoreChange(enum.Flag):
@@ -134,11 +136,16 @@ class Streamer:
                 changed |= StoreChange.WRITTEN | StoreChange.EMPTIED
         now = time.perf_counter()
         # No plan while shown nodes wait to be written: an eviction must not meet a node not yet written.
-        if not self._to_write and (self._events or (moved and now - self._planned_at >= PLAN_SECONDS)):
-            if self._part is None or not self._part.holds(self.state, view):
-                self._part = ViewPart.of(self.state, view)
-            p = plan(self.state, view, self.options, self._part)
-            self._view, self._events, self._planned_at = view, False, now
+        fresh = moved and now - self._planned_at >= PLAN_SECONDS
+        if not self._to_write and (self._events or fresh):
+            # arrivals while the camera moves are planned for the last view planned (its part kept)
+            planned = view if fresh or not moved else self._view
+            if self._part is None or not self._part.holds(self.state, planned):
+                self._part = ViewPart.of(self.state, planned)
+            p = plan(self.state, planned, self.options, self._part)
+            self._view, self._events = planned, False
+            if planned == view:
+                self._planned_at = now
             if not p.empty:
                 self.state.begin(p)
                 for e in p.evict:

@@ -324,6 +324,34 @@ def test_the_detail_still_missing_shrinks_to_nothing_as_a_still_view_settles():
         assert all(a >= b for a, b in zip(seen, seen[1:])), seen
 
 
+def test_a_moving_camera_plans_its_new_views_at_most_every_plan_seconds(monkeypatch):
+    """While the camera moves, nodes arriving are planned for the last view planned (its
+    part kept); the camera's own view is planned once PLAN_SECONDS have passed (a fake
+    clock, 10 ms a frame), and a still view settles on its own target."""
+    from progressive import streaming
+
+    path = shared_file(LONE_STAR)
+    clock = {"t": 0.0}
+    monkeypatch.setattr(streaming.time, "perf_counter", lambda: clock["t"])
+    made = []
+    of = streaming.ViewPart.of
+    monkeypatch.setattr(streaming.ViewPart, "of", classmethod(lambda cls, state, view: made.append(view)
+                                                              or of.__func__(cls, state, view)))
+    with streamed(path, limit_for(250_000)) as s:
+        start, end = s.auto_camera(), close_up(path)
+        frames = 30
+        for k in range(frames):
+            t = k / (frames - 1)
+            eye = tuple(a + (b - a) * t for a, b in zip(start.position, end.position))
+            target = tuple(a + (b - a) * t for a, b in zip(start.target, end.target))
+            s.frame(Camera(eye, target, up=(0, 0, 1), fov_y_deg=60.0))
+            clock["t"] += 0.01
+        assert 2 <= len(made) <= frames * 0.01 / streaming.PLAN_SECONDS + 2, len(made)
+        clock["t"] += 1.0
+        converge(s, end)
+        assert set(resident(s)[0].tolist()) == set(s.streamer.state.target(node_view(end, W, H)).tolist())
+
+
 def test_moving_the_camera_brings_its_nodes_and_evicts_others():
     """A close-up after the overview: the nodes its choice keeps come, others are evicted
     to make room, the new still view is exact; back at the overview the hysteresis keeps
