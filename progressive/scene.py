@@ -123,15 +123,26 @@ class Scene:
         """Every point there will be is on the GPU (streamed: for the view, `settled`)."""
         return self.settled if self.streamed else self.loaded >= self.info.points
 
-    def write_store_batches(self, part: Batch, first: int) -> None:
+    def write_store_batches(self, part: Batch, first: int, encoded: EncodedNode | None = None) -> None:
         """Streamed: the empty store batches first, first + 1, ... hold `part` from now on
         (its points [i·B, (i+1)·B) in the i-th; numbered from `part.start` by their cloud
         indices, which ids report). One write for a node's consecutive batches, each
-        write having a fixed cost of its own."""
+        write having a fixed cost of its own. `encoded`: encode_node's of these points,
+        copied as it is where it holds the attribute shown."""
         at = first * BATCH_POINTS
         self.store.reorder(at, np.arange(part.start, part.start + part.count, dtype=np.uint32))
         placed = replace(part, start=at)
-        if self.assembler is not None:
+        if encoded is not None and self.assembler is not None and encoded.attribute == self.attribute:
+            self.store.set_frames(first, encoded.frames, encoded.boxes, encoded.least, encoded.shift)
+            records = encoded.records
+
+            def copy(out: np.ndarray, lo: int, hi: int) -> int:
+                out[...] = records[lo:hi]
+                return 0
+
+            self.distribute.upload_packed(copy, part.count, at, cells=encoded.least is not None)
+            hidden = encoded.hidden
+        elif self.assembler is not None:
             hidden = self._encode_group([(at, part.count, [(placed, 0, part.count)])])
         else:
             hidden = self._upload_records(placed, self.attribute)
@@ -194,34 +205,33 @@ class Scene:
         return batch.reordered(lo, lo + order.shape[0], order)
 
     def _encode_group(self, group: list) -> int:
-        """Frame the batches of a group of runs (encoding.BatchAssembler) by the boxes of
-        their points, or by their integers where every part is of one LAS grid whose
-        batches span under 2^30 cells, then upload the runs (distribute encodes them in
-        those frames); the points of the runs never drawn."""
+        """Frame the batches of a group of runs (encoding.BatchAssembler, frame_parts),
+        then upload the runs (distribute encodes them in those frames); the points of the
+        runs never drawn."""
         parts = [part.rows(lo, hi) for _, _, pieces in group for part, lo, hi in pieces]
         first = group[0][0] // BATCH_POINTS
         k = (group[-1][0] + group[-1][1] - 1) // BATCH_POINTS - first + 1
-        boxes = batch_boxes.empty_boxes(k)
-        for part in parts:
-            at, part_boxes = batch_boxes.boxes_of(_positions(part), part.start, _all_finite(part))
-            batch_boxes.merge(boxes, at - first, part_boxes)
-        grids = {(p.grid.scale, p.grid.offset) if p.grid is not None else None for p in parts}
-        least = None
-        if len(grids) == 1 and None not in grids:
-            least, most = np.full((k, 3), np.iinfo(np.int64).max), np.full((k, 3), np.iinfo(np.int64).min)
-            for part in parts:
-                at, lo, hi = encoding.cell_range(part.grid.cells, part.start)
-                least[at - first: at - first + lo.shape[0]] = np.minimum(least[at - first: at - first + lo.shape[0]], lo)
-                most[at - first: at - first + hi.shape[0]] = np.maximum(most[at - first: at - first + hi.shape[0]], hi)
-            least = least if (most - least < encoding.CELLS).all() else None
-        if least is None:
-            self.store.set_frames(first, encoding.frames_from_boxes(boxes), boxes)
-        else:
-            scale, offset = next(iter(grids))
-            shift = encoding.cell_shifts(least, most)
-            self.store.set_frames(first, encoding.integer_frames(least, shift, scale, offset, self.info.origin), boxes,
-                                  least, shift)
+        self.store.set_frames(first, *frame_parts(parts, first, k, self.info.origin))
         return sum(self._upload_records(part, self.attribute) for part in parts)
+
+    def encode_node(self, part: Batch) -> EncodedNode | None:
+        """A streamed node's points as write_store_batches would stage them, computed
+        from the node alone (its batches are its own, whichever they are): for a reader
+        thread, so that the frame loop only copies them. Reads nothing that changes but
+        the attribute shown, which the encoding names; None without the word store."""
+        if self.assembler is None:
+            return None
+        attribute, n = self.attribute, part.count
+        local = replace(part, start=0)
+        frames, boxes, least, shift = frame_parts([local], 0, -(-n // BATCH_POINTS), self.info.origin)
+        words = batch_words(local, attribute, float(self.info.origin[2]))
+        records = np.empty((n, 4), dtype=np.uint32)
+        if least is None:
+            hidden = pack_into(records, local, attribute, words, 0, n)
+        else:
+            hidden = pack_cells(records, local, (least & 0xFFFFFFFF).astype(np.uint32), shift.astype(np.uint32),
+                                words, attribute, 0, n)
+        return EncodedNode(attribute, frames, boxes, least, shift, records, hidden)
 
     def _upload_records(self, batch: Batch, attribute: AttributeInfo) -> int:
         """Pack the batch's records straight into the distribute pass's staging memory
@@ -240,32 +250,12 @@ class Scene:
             cuts = (first + np.flatnonzero(np.diff(integer)) + 1) * BATCH_POINTS - batch.start
             edges = [0, *cuts.tolist(), batch.count]
             return sum(self._upload_records(batch.rows(lo, hi), attribute) for lo, hi in zip(edges, edges[1:]))
-        # Each batch's least integers and shifts as uint32: the differences are in [0, 2^31), so wrapping
-        # subtraction gives them exactly, shifted they stay under 2^30 (encoding.cell_shifts).
         touched = slice(first, first + integer.shape[0])
         least = (self.store.least_cells[touched] & 0xFFFFFFFF).astype(np.uint32)
         shift = self.store.cell_shifts[touched].astype(np.uint32)
-        cells = batch.grid.cells.astype(np.int32, copy=False).view(np.uint32)
-        hides = attribute.kind is AttributeKind.SCALAR
-
-        def fill(out: np.ndarray, lo: int, hi: int) -> int:
-            at = lo
-            while at < hi:          # batch by batch: its least and shift, no array of them a point
-                b = (batch.start + at) // BATCH_POINTS
-                end = min(hi, (b + 1) * BATCH_POINTS - batch.start)
-                for axis in range(3):     # a column at a time: long loops (rows of 3 would be the inner loop)
-                    part = out[at - lo: end - lo, axis]
-                    np.subtract(cells[at:end, axis], least[b - first, axis], out=part)
-                    np.left_shift(part, shift[b - first, axis], out=part)
-                at = end
-            out[:, 3] = words[lo:hi]
-            if not hides:
-                return 0
-            bad = (words[lo:hi] & EXPONENT) == EXPONENT
-            out[bad, :3] = EMPTY_WORD
-            return int(np.count_nonzero(bad))
-
-        return self.distribute.upload_packed(fill, batch.count, batch.start, cells=True)
+        return self.distribute.upload_packed(lambda out, lo, hi: pack_cells(out, batch, least, shift, words, attribute,
+                                                                            lo, hi),
+                                             batch.count, batch.start, cells=True)
 
     def _encoded_again(self, b: int) -> None:
         """Parts of batch b were encoded again with the attribute shown, during a switch:
@@ -499,6 +489,81 @@ def _copied_rows(batch: Batch, lo: int, hi: int) -> Batch:
     grid = None if part.grid is None else replace(part.grid, cells=part.grid.cells.copy())
     return replace(part, positions=part.positions.copy(), attributes={k: v.copy() for k, v in part.attributes.items()},
                    records=None if part.records is None else part.records.copy(), grid=grid)
+
+
+@dataclass(frozen=True, eq=False)
+class EncodedNode:
+    """A streamed node encoded off the frame loop (Scene.encode_node) for `attribute`:
+    its batches' frames and boxes, least integers and shifts (None: framed by its boxes),
+    its records as staged (cells where least is given) and the points never drawn."""
+
+    attribute: AttributeInfo
+    frames: np.ndarray
+    boxes: np.ndarray
+    least: np.ndarray | None
+    shift: np.ndarray | None
+    records: np.ndarray
+    hidden: int
+
+    def batches(self, lo: int, hi: int) -> EncodedNode:
+        """Its batches [lo, hi) (their points, its rows [lo·B, hi·B)), where none of its
+        points is hidden (how many a run hides is not kept)."""
+        if self.hidden:
+            raise ValueError("a node with hidden points is written whole")
+        pick = slice(lo, hi)
+        return EncodedNode(self.attribute, self.frames[pick], self.boxes[pick],
+                           None if self.least is None else self.least[pick],
+                           None if self.shift is None else self.shift[pick],
+                           self.records[lo * BATCH_POINTS: hi * BATCH_POINTS], 0)
+
+
+def frame_parts(parts: list[Batch], first: int, k: int, origin: np.ndarray) -> tuple:
+    """Frames of batches first .. first + k - 1 holding `parts` (numbered by their store
+    positions): by the boxes of their points, or by their integers where every part is of
+    one LAS grid whose batches span under 2^30 cells. (frames, boxes, least, shift) as
+    PointStore.set_frames takes them (least, shift None: framed by the boxes)."""
+    boxes = batch_boxes.empty_boxes(k)
+    for part in parts:
+        at, part_boxes = batch_boxes.boxes_of(_positions(part), part.start, _all_finite(part))
+        batch_boxes.merge(boxes, at - first, part_boxes)
+    grids = {(p.grid.scale, p.grid.offset) if p.grid is not None else None for p in parts}
+    if len(grids) == 1 and None not in grids:
+        least, most = np.full((k, 3), np.iinfo(np.int64).max), np.full((k, 3), np.iinfo(np.int64).min)
+        for part in parts:
+            at, lo, hi = encoding.cell_range(part.grid.cells, part.start)
+            least[at - first: at - first + lo.shape[0]] = np.minimum(least[at - first: at - first + lo.shape[0]], lo)
+            most[at - first: at - first + hi.shape[0]] = np.maximum(most[at - first: at - first + hi.shape[0]], hi)
+        if (most - least < encoding.CELLS).all():
+            scale, offset = next(iter(grids))
+            shift = encoding.cell_shifts(least, most)
+            return encoding.integer_frames(least, shift, scale, offset, origin), boxes, least, shift
+    return encoding.frames_from_boxes(boxes), boxes, None, None
+
+
+def pack_cells(out: np.ndarray, batch: Batch, least: np.ndarray, shift: np.ndarray, words: np.ndarray,
+               attribute: AttributeInfo, lo: int, hi: int) -> int:
+    """Rows [lo, hi) of a LAS batch's records staged as its cells: each batch's integers
+    less its least, moved up its shift (uint32 least and shift of the batches from
+    batch.start's on: the differences are in [0, 2^31), so wrapping subtraction gives
+    them exactly, shifted they stay under 2^30, encoding.cell_shifts), and the attribute
+    word; the points never drawn (a shown scalar not finite) get EMPTY_WORD cells."""
+    cells = batch.grid.cells.astype(np.int32, copy=False).view(np.uint32)
+    first = batch.start // BATCH_POINTS
+    at = lo
+    while at < hi:          # batch by batch: its least and shift, no array of them a point
+        b = (batch.start + at) // BATCH_POINTS
+        end = min(hi, (b + 1) * BATCH_POINTS - batch.start)
+        for axis in range(3):     # a column at a time: long loops (rows of 3 would be the inner loop)
+            part = out[at - lo: end - lo, axis]
+            np.subtract(cells[at:end, axis], least[b - first, axis], out=part)
+            np.left_shift(part, shift[b - first, axis], out=part)
+        at = end
+    out[:, 3] = words[lo:hi]
+    if attribute.kind is not AttributeKind.SCALAR:
+        return 0
+    bad = (words[lo:hi] & EXPONENT) == EXPONENT
+    out[bad, :3] = EMPTY_WORD
+    return int(np.count_nonzero(bad))
 
 
 def _hidden_points(batch: Batch, attribute: AttributeInfo, origin_z: float) -> int:

@@ -25,7 +25,7 @@ from progressive.loaders.copc_residency import PlanOptions, Residency, Status, V
 from progressive.loaders.copc_stream import NodeReader
 from progressive.loaders.types import Batch
 from progressive.permutation import BATCH_POINTS
-from progressive.scene import Scene
+from progressive.scene import EncodedNode, Scene
 
 WRITE_SECONDS = 0.004
 """Time a frame of a moving camera spends writing arrived nodes to the GPU at most (at
@@ -89,8 +89,13 @@ class Streamer:
     def __init__(self, scene: Scene, reader: NodeReader, state: Residency, options: PlanOptions = PLAN,
                  keep: bool = False):
         self.scene, self.reader, self.state, self.options = scene, reader, state, options
+        if reader.decoders is not None:
+            # processes decode, so the reading threads have the time to encode and the frame loop copies;
+            # where the threads decode (under 4 cores), encoding there only takes cores from the frames
+            reader.prepare = scene.encode_node
         self.keep = keep
         self._arrived: dict[int, Batch] = {}
+        self._encoded: dict[int, EncodedNode | None] = {}     # the reading thread's encoding of each
         self._kept: dict[int, Batch] = {}           # keep: each resident node's points
         self._to_write: deque[int] = deque()
         self._to_rewrite: deque[int] = deque()      # resident nodes to write again with the attribute shown
@@ -120,10 +125,13 @@ class Streamer:
                 self.warnings.append(failure.warning)
                 for p in failure.dropped:
                     self._arrived.pop(p.row, None)
+                    self._encoded.pop(p.row, None)
                 continue
             arrival = self.state.arrived(row)
+            encoded = self.reader.prepared(row)
             if arrival.keep:
                 self._arrived[row] = got
+                self._encoded[row] = encoded
                 self._to_write.extend(arrival.shown)
         moved = view != self._view
         began = time.perf_counter()
@@ -162,12 +170,17 @@ class Streamer:
     def _write(self, row: int) -> None:
         """Node `row`'s points into its batches: its i-th takes points [i·B, (i+1)·B)."""
         batch = self._arrived.pop(row)
+        encoded = self._encoded.pop(row, None)
         placed = self.state.batches[row]
+        whole = all(b == placed[0] + i for i, b in enumerate(placed))
+        if encoded is not None and encoded.hidden and not whole:
+            encoded = None          # how many points each run hides is not kept: encoded here
         run = 0
         for i in range(1, len(placed) + 1):         # each run of consecutive batches in one write
             if i == len(placed) or placed[i] != placed[i - 1] + 1:
+                piece = None if encoded is None else encoded if whole else encoded.batches(run, i)
                 self.scene.write_store_batches(batch.rows(run * BATCH_POINTS, min(i * BATCH_POINTS, batch.count)),
-                                               placed[run])
+                                               placed[run], piece)
                 run = i
         self.written.extend(placed)
         if self.keep:
@@ -198,6 +211,7 @@ class Streamer:
         self.reader.names = names
         self.scene.clear_store_batches([b for p in self.state.clear() for b in p.batches])
         self._arrived.clear()
+        self._encoded.clear()
         self._to_write.clear()
         self._events = True
         return StoreChange.EMPTIED

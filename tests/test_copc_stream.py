@@ -324,6 +324,28 @@ def test_the_detail_still_missing_shrinks_to_nothing_as_a_still_view_settles():
         assert all(a >= b for a, b in zip(seen, seen[1:])), seen
 
 
+def test_nodes_are_encoded_on_the_reading_threads_and_the_view_stays_exact(monkeypatch):
+    """With decoder processes (on 4 cores or more) every node of a still overview is
+    written from its reading thread's encoding (Scene.encode_node), none encoded again in
+    the frame loop, and the view is exact; on fewer, the frame loop encodes them."""
+    from progressive.scene import Scene
+
+    path = shared_file(LONE_STAR)
+    _, xyz = las_xyz(path)
+    writes = []
+    plain = Scene.write_store_batches
+    monkeypatch.setattr(Scene, "write_store_batches",
+                        lambda self, part, first, encoded=None: writes.append(encoded is not None)
+                        or plain(self, part, first, encoded))
+    with streamed(path, limit_for(250_000)) as s:
+        assert (s.streamer.reader.prepare is not None) == (s.streamer.reader.decoders is not None)
+        s.streamer.reader.prepare = s.streamer.scene.encode_node     # what the processes' cores bring
+        camera = s.auto_camera()
+        converge(s, camera)
+        assert writes and all(writes), writes
+        assert_exact(s, camera, xyz)
+
+
 def test_a_moving_camera_plans_its_new_views_at_most_every_plan_seconds(monkeypatch):
     """While the camera moves, nodes arriving are planned for the last view planned (its
     part kept); the camera's own view is planned once PLAN_SECONDS have passed (a fake
