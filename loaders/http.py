@@ -41,8 +41,8 @@ SLOW_BYTES = 1 << 14
 server that trickles its bytes (16 KiB in 20 s is 0.8 KB/s) fails as a silent one does,
 within about two timeouts, instead of holding the file for hours."""
 REQUESTS_IN_FLIGHT = 4
-"""Node requests at once: enough to hide a round trip behind the others' transfers, few
-enough for any server's limit per client."""
+"""Requests at once to one file: enough to hide a round trip behind the others'
+transfers, few enough for any server's limit per client."""
 RETRIES = 1
 """Times a request whose connection was dropped is sent again."""
 AHEAD_BYTES = 1 << 25
@@ -132,6 +132,8 @@ class RemoteFile:
         self._idle: dict[tuple, list] = {}  # (scheme, host, port) -> connections kept alive
         self._closed = False
         self._cache: list[tuple[int, bytes]] = []
+        # requests at once, whichever threads read: a streamed cloud's readers also wait on decoding
+        self._slots = threading.BoundedSemaphore(options.in_flight)
 
     @classmethod
     def open(cls, url: str, options: HttpOptions = DEFAULTS, tally: Tally | None = None) -> RemoteFile:
@@ -188,19 +190,20 @@ class RemoteFile:
         return RemoteStream(self)
 
     def _fetch(self, offset: int, length: int) -> bytes:
-        with self._lock:
-            if self._closed:
-                raise InputError(f"{self.url}: reading stopped")
-        self.tally.begin()
-        try:
-            for _ in range(REDIRECTS + 1):
-                answer = self._exchange(urllib.parse.urlsplit(self._target), offset, length)
-                if isinstance(answer, bytes):
-                    return answer
-                self._target = urllib.parse.urljoin(self._target, answer)
-            raise fail(self.url, f"more than {REDIRECTS} redirects")
-        finally:
-            self.tally.end()
+        with self._slots:
+            with self._lock:
+                if self._closed:
+                    raise InputError(f"{self.url}: reading stopped")
+            self.tally.begin()
+            try:
+                for _ in range(REDIRECTS + 1):
+                    answer = self._exchange(urllib.parse.urlsplit(self._target), offset, length)
+                    if isinstance(answer, bytes):
+                        return answer
+                    self._target = urllib.parse.urljoin(self._target, answer)
+                raise fail(self.url, f"more than {REDIRECTS} redirects")
+            finally:
+                self.tally.end()
 
     def _exchange(self, parts, offset: int, length: int) -> bytes | str:
         """One request, on a connection kept alive from an earlier one where there is one,

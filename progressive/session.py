@@ -254,9 +254,8 @@ class Session:
         names = tuple(a.name for a in self.info.attributes) if options.switchable else \
             self._needed(self.attribute, class_filter)
         cores = available_cores()
-        # range requests are bounded per client; a local file's nodes are decoded on every core
-        remote = any(s.remote is not None for s in self.loader.sources)
-        threads = options.http.in_flight if remote else max(cores, options.http.in_flight)
+        # nodes are read and decoded on every core; a URL's range requests stay bounded by its file
+        threads = max(cores, options.http.in_flight)
         # as the loader's Decoders.AUTO: on fewer cores the processes' start slows the first image
         processes = laz_pool.available() and cores >= laz_pool.MIN_AUTO_PROCESSES
         decoders = DecoderPool(min(threads, cores)) if processes else None

@@ -255,11 +255,12 @@ def test_no_limit_streams_every_node_exactly_with_the_colour_contract(case, samp
         assert_scalar_colours(s.image()[..., :3].astype(np.int32), ids, values, reference_range(values))
 
 
-def test_a_local_file_reads_nodes_on_every_core_a_url_as_many_as_its_requests(sample_copc, monkeypatch):
-    """Range requests are bounded per client (HttpOptions.in_flight); a local file's
-    nodes are read and decoded on every core the process may use (on 16 cores, four
-    at a time left three quarters of them idle while a view's nodes came). Either way
-    the plan keeps READS_QUEUED reads requested a thread: the next waits in the pool."""
+def test_nodes_are_read_on_every_core_a_urls_requests_bounded_by_its_file(sample_copc, monkeypatch):
+    """A streamed cloud's nodes are read and decoded on every core the process may use
+    (on 16 cores, four at a time left three quarters of them idle while a view's nodes
+    came), a file or a URL; a URL's range requests stay within HttpOptions.in_flight at
+    once (its RemoteFile's bound: a reader waiting on a decoder holds no request). The
+    plan keeps READS_QUEUED reads requested a thread: the next waits in the pool."""
     from range_server import RangeServer
 
     from progressive import session as session_module
@@ -270,10 +271,15 @@ def test_a_local_file_reads_nodes_on_every_core_a_url_as_many_as_its_requests(sa
     with streamed(sample_copc) as s:
         assert s.streamer.reader._pool._max_workers == 12
         assert s.streamer.options.max_in_flight == READS_QUEUED * 12
-    with RangeServer({"sample.copc.laz": sample_copc}) as server, \
-            streamed(server.url("sample.copc.laz"), http=HttpOptions(in_flight=3)) as s:
-        assert s.streamer.reader._pool._max_workers == 3
-        assert s.streamer.options.max_in_flight == READS_QUEUED * 3
+    path = shared_file(LONE_STAR)       # nodes enough to be read after the open
+    nodes = open_copc(path).hierarchy.nodes
+    with RangeServer({LONE_STAR: path}) as server, streamed(server.url(LONE_STAR), http=HttpOptions(in_flight=3)) as s:
+        assert s.streamer.reader._pool._max_workers == 12
+        server.faults.delays = {int(offset): 0.05 for offset in nodes["offset"]}
+        server.reset()
+        converge(s, s.auto_camera())
+        assert s.status().stream.resident_nodes > 3
+        assert server.most_active == 3, server.most_active
 
 
 def test_limit_keeps_a_tree_cut_renders_it_exactly_and_picks_the_files_points():
