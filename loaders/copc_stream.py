@@ -101,7 +101,12 @@ class NodeReader:
         finally:
             if lane is not None:
                 self._lanes.put(lane)
-        prepared = self.prepare(got) if self.prepare is not None and isinstance(got, Batch) else None
+        prepared = None
+        if self.prepare is not None and isinstance(got, Batch):
+            try:
+                prepared = self.prepare(got)
+            except Exception:       # the frame loop encodes the node itself (and says what is wrong)
+                prepared = None
         with self._lock:
             self._futures.pop(row, None)
             if self._closed:

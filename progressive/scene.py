@@ -219,9 +219,9 @@ class Scene:
         from the node alone (its batches are its own, whichever they are): for a reader
         thread, so that the frame loop only copies them. Reads nothing that changes but
         the attribute shown, which the encoding names; None without the word store."""
-        if self.assembler is None:
-            return None
         attribute, n = self.attribute, part.count
+        if self.assembler is None or (attribute.name != ELEVATION and attribute.name not in part.attributes):
+            return None     # (read before a switch to another attribute: written again after it)
         local = replace(part, start=0)
         frames, boxes, least, shift = frame_parts([local], 0, -(-n // BATCH_POINTS), self.info.origin)
         words = batch_words(local, attribute, float(self.info.origin[2]))

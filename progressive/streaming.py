@@ -74,7 +74,8 @@ class StreamStatus:
     evicted_nodes: int          # since opening
     settled: bool               # nothing more to read or write for the current view
     missing_px: float           # the coarsest detail the view still waits for: the largest screen-space
-                                # error of a node it keeps not yet shown, in pixels (0: none; inf: no plan yet)
+                                # error of a node it keeps not yet shown, in pixels (0: settled; inf: the
+                                # view not planned yet)
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
@@ -99,7 +100,8 @@ class Streamer:
         self._kept: dict[int, Batch] = {}           # keep: each resident node's points
         self._to_write: deque[int] = deque()
         self._to_rewrite: deque[int] = deque()      # resident nodes to write again with the attribute shown
-        self._view: View | None = None
+        self._view: View | None = None             # the view of the last plan
+        self._asked: View | None = None            # the view of the last update
         self._part: ViewPart | None = None       # the last plan's view part, reused while it holds
         self._events = True
         self._planned_at = -np.inf
@@ -133,6 +135,7 @@ class Streamer:
                 self._arrived[row] = got
                 self._encoded[row] = encoded
                 self._to_write.extend(arrival.shown)
+        self._asked = view
         moved = view != self._view
         began = time.perf_counter()
         limit = WRITE_SECONDS if moved else WRITE_STILL_SECONDS
@@ -225,9 +228,13 @@ class Streamer:
                             self.evicted, bool(self.scene.settled), self.missing_px())
 
     def missing_px(self) -> float:
-        """StreamStatus.missing_px, for the view of the last plan: under a pixel, what is
-        still on its way only changes which of a pixel's points is in front."""
-        if self._part is None:
+        """StreamStatus.missing_px: 0 once settled; unknown (inf) until the view of the
+        last update has been planned; else the largest error of its target's nodes not yet
+        shown. Under a pixel, what is still on its way only changes which of a pixel's
+        points is in front."""
+        if self.scene.settled:
+            return 0.0
+        if self._part is None or self._view != self._asked:
             return float("inf")
         target = self._part.target
         waiting = target[self.state.status[target] != Status.RESIDENT]

@@ -185,6 +185,32 @@ def test_nodes_read_alone_equal_laspy(name, processes):
     assert len(pids) == (2 if processes else 0) and not any(os.path.exists(f"/proc/{pid}") for pid in pids)
 
 
+def test_what_the_reading_threads_prepare_is_kept_a_failure_to_prepare_only_loses_it():
+    """NodeReader.prepare runs on the reading thread for every node read; what it returns
+    is there once for prepared(row); where it raises, the node still arrives whole and
+    nothing is prepared (the frame loop encodes it: a streamed switch can change the
+    attribute under a read of the old one)."""
+    path = shared_file(LONE_STAR)
+    las, xyz = las_xyz(path)
+    for fails in (False, True):
+        reader = NodeReader((open_copc(path),), np.zeros(3), ("intensity",), threads=2)
+
+        def prepare(batch, fails=fails):
+            if fails:
+                raise KeyError("intensity")
+            return batch.count
+
+        reader.prepare = prepare
+        try:
+            rows = range(reader.nodes.level.size)
+            got = read_all(reader, rows)
+            assert_every_node_is_laspys(reader, got, las, xyz)
+            assert [reader.prepared(r) for r in rows] == [None if fails else got[r].count for r in rows]
+            assert all(reader.prepared(r) is None for r in rows)       # taken once
+        finally:
+            reader.close()
+
+
 @pytest.mark.skipif(not laz_pool.available(), reason="decoder processes are for Linux")
 def test_nodes_fetched_over_http_are_decoded_by_the_processes(sample_copc, monkeypatch):
     """A URL's nodes, once fetched, go to the decoder processes with their jobs (the
@@ -328,6 +354,11 @@ def test_the_detail_still_missing_shrinks_to_nothing_as_a_still_view_settles():
                 break
         assert seen[0] > 1 and seen[-1] == 0 and s.status().stream.settled
         assert all(a >= b for a, b in zip(seen, seen[1:])), seen
+        # to a close-up and back: settled again (the hysteresis may keep what the target would
+        # swap), nothing is on its way
+        converge(s, close_up(path))
+        converge(s, camera)
+        assert s.status().stream.settled and s.status().stream.missing_px == 0
 
 
 def test_nodes_are_encoded_on_the_reading_threads_and_the_view_stays_exact(monkeypatch):

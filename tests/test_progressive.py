@@ -363,6 +363,8 @@ def test_a_node_encoded_off_the_frame_loop_writes_what_it_would_have(gl, kind, a
                 scene.write_store_batches(node.rows(BATCH_POINTS, node.count), 6, enc and enc.batches(1, 3))
         gl.check()
         scenes.append(scene)
+    if shown.name in nodes[0].attributes:       # a node read before a switch to another attribute: not encoded
+        assert scenes[1].encode_node(replace(nodes[0], attributes={})) is None
     plain, encoded = (sc.store for sc in scenes)
     assert np.array_equal(plain.raw_words(), encoded.raw_words())
     assert np.array_equal(plain.frames, encoded.frames) and np.array_equal(plain.boxes, encoded.boxes)
