@@ -43,7 +43,8 @@ def streamable(sources) -> bool:
 class NodeReader:
     """Reads nodes of COPC sources (every one usable: `streamable`) on `threads` threads.
     request(row) queues a read; arrivals() gives (row, Batch) or (row, reason) for each
-    read finished since, without waiting. Reads may finish in any order. `decoders`:
+    read finished since, or (row, None) for one cancelled before it began (cancel),
+    without waiting. Reads may finish in any order. `decoders`:
     decoder processes for the nodes, one read at a time each (their decoding then leaves
     the GIL to the frame loop; a URL's node goes to its process once fetched); the
     reader closes them. `prepare`, where set: called on the reading thread with each node
@@ -86,6 +87,16 @@ class NodeReader:
             if self._closed:
                 return
             self._futures[row] = self._pool.submit(self._read, row)
+
+    def cancel(self, rows) -> None:
+        """Reads of `rows` not begun yet are dropped: each arrives at once as (row, None)
+        (reads under way end as they would)."""
+        with self._lock:
+            for row in rows:
+                future = self._futures.get(row)
+                if future is not None and future.cancel():
+                    del self._futures[row]
+                    self._done.put((row, None))
 
     def _read(self, row: int) -> None:
         source = self.sources[int(self._file[row])]

@@ -128,6 +128,7 @@ class Streamer:
                 for p in failure.dropped:
                     self._arrived.pop(p.row, None)
                     self._encoded.pop(p.row, None)
+                self.reader.cancel([p.row for p in failure.dropped])     # those not begun come back at once
                 continue
             arrival = self.state.arrived(row)
             encoded = self.reader.prepared(row)
@@ -212,7 +213,9 @@ class Streamer:
             self._to_rewrite = deque(self._kept)
             return StoreChange.NONE
         self.reader.names = names
-        self.scene.clear_store_batches([b for p in self.state.clear() for b in p.batches])
+        given_up = self.state.clear()
+        self.reader.cancel([p.row for p in given_up])      # reads queued, not begun, come back at once
+        self.scene.clear_store_batches([b for p in given_up for b in p.batches])
         self._arrived.clear()
         self._encoded.clear()
         self._to_write.clear()

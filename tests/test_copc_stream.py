@@ -211,6 +211,34 @@ def test_what_the_reading_threads_prepare_is_kept_a_failure_to_prepare_only_lose
             reader.close()
 
 
+def test_reads_cancelled_before_they_begin_come_back_at_once():
+    """NodeReader.cancel: the queued reads of the rows given arrive at once as (row, None)
+    and are not read; the read under way ends as it would (one thread, held busy)."""
+    import threading
+
+    path = shared_file(LONE_STAR)
+    reader = NodeReader((open_copc(path),), np.zeros(3), ("intensity",), threads=1)
+    busy, prepared = threading.Event(), []
+    reader.prepare = lambda batch: prepared.append(batch.start) or busy.wait(READ_BOUND_S)
+    try:
+        rows = list(range(reader.nodes.level.size))
+        for row in rows:
+            reader.request(row)
+        reader.cancel(rows[1:])
+        assert sorted(reader.arrivals()) == [(row, None) for row in rows[1:]] and reader.reading == 1
+        busy.set()
+        deadline = time.monotonic() + READ_BOUND_S
+        got = []
+        while not got and time.monotonic() < deadline:
+            got = reader.arrivals()
+            time.sleep(0.005)
+        assert [row for row, _ in got] == [0] and got[0][1].count > 0 and len(prepared) == 1
+        assert reader.reading == 0
+    finally:
+        busy.set()
+        reader.close()
+
+
 @pytest.mark.skipif(not laz_pool.available(), reason="decoder processes are for Linux")
 def test_nodes_fetched_over_http_are_decoded_by_the_processes(sample_copc, monkeypatch):
     """A URL's nodes, once fetched, go to the decoder processes with their jobs (the
