@@ -116,8 +116,8 @@ class NodeReader:
         if self.prepare is not None and isinstance(got, Batch):
             try:
                 prepared = self.prepare(got)
-            except Exception:       # the frame loop encodes the node itself (and says what is wrong)
-                prepared = None
+            except Exception:       # none: the frame loop encodes the node itself (and says what is wrong)
+                pass
         with self._lock:
             self._futures.pop(row, None)
             if self._closed:

@@ -506,8 +506,10 @@ class EncodedNode:
     hidden: int
 
     def batches(self, lo: int, hi: int) -> EncodedNode:
-        """Its batches [lo, hi) (their points, its rows [lo·B, hi·B)), where none of its
-        points is hidden (how many a run hides is not kept)."""
+        """Its batches [lo, hi) (their points, its rows [lo·B, hi·B)): all of them, or
+        some where none of its points is hidden (how many a run hides is not kept)."""
+        if lo == 0 and hi == self.frames.shape[0]:
+            return self
         if self.hidden:
             raise ValueError("a node with hidden points is written whole")
         pick = slice(lo, hi)

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from progressive.batches import runs
 from progressive.loaders.copc_choice import View
 from progressive.loaders.copc_residency import PlanOptions, Residency, Status, ViewPart, plan
 from progressive.loaders.copc_stream import NodeReader
@@ -175,17 +176,16 @@ class Streamer:
         """Node `row`'s points into its batches: its i-th takes points [i·B, (i+1)·B)."""
         batch = self._arrived.pop(row)
         encoded = self._encoded.pop(row, None)
-        placed = self.state.batches[row]
-        whole = all(b == placed[0] + i for i, b in enumerate(placed))
-        if encoded is not None and encoded.hidden and not whole:
+        placed = self.state.batches[row]            # ascending: Residency takes the lowest free in turn
+        consecutive = runs(placed)
+        if encoded is not None and encoded.hidden and len(consecutive) > 1:
             encoded = None          # how many points each run hides is not kept: encoded here
-        run = 0
-        for i in range(1, len(placed) + 1):         # each run of consecutive batches in one write
-            if i == len(placed) or placed[i] != placed[i - 1] + 1:
-                piece = None if encoded is None else encoded if whole else encoded.batches(run, i)
-                self.scene.write_store_batches(batch.rows(run * BATCH_POINTS, min(i * BATCH_POINTS, batch.count)),
-                                               placed[run], piece)
-                run = i
+        i = 0
+        for lo, hi in consecutive:                  # each run of consecutive batches in one write
+            j = i + hi - lo
+            self.scene.write_store_batches(batch.rows(i * BATCH_POINTS, min(j * BATCH_POINTS, batch.count)), lo,
+                                           encoded and encoded.batches(i, j))
+            i = j
         self.written.extend(placed)
         if self.keep:
             self._kept[row] = batch
