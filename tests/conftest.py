@@ -11,6 +11,8 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(os.environ.get("PROGRESSIVE_SHARED_DATA", REPO.parent / "shared" / "data"))
 SAMPLE = REPO / "progressive" / "data" / "autzen_trim.las"
+BUNNY = REPO / "tests" / "data" / "bunnyDouble.e57"
+"""The bundled E57 (tests/data/README.md), so the GPU machine need not carry the shared copy."""
 LAS_SUFFIXES = (".las", ".laz")
 RECORDS = pytest.mark.parametrize("winners", [False, True], ids=["gathered", "winners pass"])
 """Prepare's records from hints and gathers, or from the raster's winners pass

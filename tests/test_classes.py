@@ -4,19 +4,16 @@ the float64 render contract of the remaining points says."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import laspy
 import numpy as np
 import pytest
 
-from conftest import SAMPLE, shared_file
+from conftest import BUNNY, SAMPLE, shared_file
 from progressive.camera import auto_camera
 from progressive.cli import main
 from progressive.reference import EMPTY, subset_reference_ids
 
 W, H = 160, 120
-HERE = Path(__file__).resolve().parent
 
 
 def render_ids(tmp_path, path, *args) -> np.ndarray:
@@ -69,7 +66,7 @@ def test_real_file_with_several_classes(tmp_path):
 
 def test_hiding_classes_of_a_cloud_without_them_is_one_line(tmp_path, capsys):
     capsys.readouterr()
-    assert main(["render", str(HERE / "data" / "bunnyDouble.e57"), "--out", str(tmp_path / "x.png"),
+    assert main(["render", str(BUNNY), "--out", str(tmp_path / "x.png"),
                  "--hide-classes", "2"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("progressive: error: ") and err.count("\n") == 1 and not (tmp_path / "x.png").exists()

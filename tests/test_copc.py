@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from laspy.copc import load_octree_for_query
 
-from conftest import SAMPLE, shared_file
+from conftest import BUNNY, SAMPLE, shared_file
 from progressive import memory
 from progressive.camera import Camera
 from progressive.cli import main
@@ -234,7 +234,7 @@ def bad_convert(tmp_path, capsys, *args) -> str:
 
 def test_convert_bad_input(tmp_path, capsys):
     out = tmp_path / "out.copc.laz"
-    e57 = shared_file("bunnyDouble.e57")
+    e57 = BUNNY
     assert "COPC is written from LAS/LAZ" in bad_convert(tmp_path, capsys, SAMPLE, e57, out)
     cut = tmp_path / "cut.laz"
     data = shared_file("TO_core_last_zoom.laz").read_bytes()

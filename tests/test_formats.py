@@ -15,11 +15,10 @@ import pytest
 from pye57 import libe57
 from test_hard_input import assert_one_error_line, cli
 
-from conftest import SAMPLE
+from conftest import BUNNY, SAMPLE
 from progressive.loaders import CloudLoader
 from progressive.loaders.lookup import read_point
 
-BUNNY = Path(__file__).parent / "data" / "bunnyDouble.e57"
 SMALL = ("--width", "96", "--height", "64")
 
 
