@@ -14,7 +14,6 @@ import os
 import queue
 import threading
 import urllib.parse
-from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
@@ -47,9 +46,7 @@ class NodeReader:
     without waiting. Reads may finish in any order. `decoders`:
     decoder processes for the nodes, one read at a time each (their decoding then leaves
     the GIL to the frame loop; a URL's node goes to its process once fetched); the
-    reader closes them. `prepare`, where set: called on the reading thread with each node
-    read, what it returns kept for `prepared(row)` (the core's encoding of the node, so
-    that the frame loop only copies it)."""
+    reader closes them."""
 
     def __init__(self, sources: tuple[CopcSource, ...], origin: np.ndarray, names: tuple[str, ...], threads: int,
                  decoders: DecoderPool | None = None):
@@ -73,8 +70,6 @@ class NodeReader:
             self._lanes.put(lane)
         self._done: queue.SimpleQueue = queue.SimpleQueue()
         self._futures: dict[int, Future] = {}
-        self._prepared: dict[int, object] = {}
-        self.prepare: Callable[[Batch], object] | None = None
         self._lock = threading.Lock()
         self._closed = False
 
@@ -112,24 +107,11 @@ class NodeReader:
         finally:
             if lane is not None:
                 self._lanes.put(lane)
-        prepared = None
-        if self.prepare is not None and isinstance(got, Batch):
-            try:
-                prepared = self.prepare(got)
-            except Exception:       # none: the frame loop encodes the node itself (and says what is wrong)
-                pass
         with self._lock:
             self._futures.pop(row, None)
             if self._closed:
                 return
-            if prepared is not None:
-                self._prepared[row] = prepared
         self._done.put((row, got))
-
-    def prepared(self, row: int) -> object | None:
-        """What `prepare` made of node `row`'s last read (taken: asked once), or None."""
-        with self._lock:
-            return self._prepared.pop(row, None)
 
     def arrivals(self) -> list[tuple[int, Batch | str]]:
         out = []

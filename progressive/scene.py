@@ -123,26 +123,15 @@ class Scene:
         """Every point there will be is on the GPU (streamed: for the view, `settled`)."""
         return self.settled if self.streamed else self.loaded >= self.info.points
 
-    def write_store_batches(self, part: Batch, first: int, encoded: EncodedNode | None = None) -> None:
+    def write_store_batches(self, part: Batch, first: int) -> None:
         """Streamed: the empty store batches first, first + 1, ... hold `part` from now on
         (its points [i·B, (i+1)·B) in the i-th; numbered from `part.start` by their cloud
         indices, which ids report). One write for a node's consecutive batches, each
-        write having a fixed cost of its own. `encoded`: encode_node's of these points,
-        copied as it is where it holds the attribute shown."""
+        write having a fixed cost of its own."""
         at = first * BATCH_POINTS
         self.store.reorder(at, np.arange(part.start, part.start + part.count, dtype=np.uint32))
         placed = replace(part, start=at)
-        if encoded is not None and self.assembler is not None and encoded.attribute == self.attribute:
-            self.store.set_frames(first, encoded.frames, encoded.boxes, encoded.least, encoded.shift)
-            records = encoded.records
-
-            def copy(out: np.ndarray, lo: int, hi: int) -> int:
-                out[...] = records[lo:hi]
-                return 0
-
-            self.distribute.upload_packed(copy, part.count, at, cells=encoded.least is not None)
-            hidden = encoded.hidden
-        elif self.assembler is not None:
+        if self.assembler is not None:
             hidden = self._encode_group([(at, part.count, [(placed, 0, part.count)])])
         else:
             hidden = self._upload_records(placed, self.attribute)
@@ -213,25 +202,6 @@ class Scene:
         k = (group[-1][0] + group[-1][1] - 1) // BATCH_POINTS - first + 1
         self.store.set_frames(first, *frame_parts(parts, first, k, self.info.origin))
         return sum(self._upload_records(part, self.attribute) for part in parts)
-
-    def encode_node(self, part: Batch) -> EncodedNode | None:
-        """A streamed node's points as write_store_batches would stage them, computed
-        from the node alone (its batches are its own, whichever they are): for a reader
-        thread, so that the frame loop only copies them. Reads nothing that changes but
-        the attribute shown, which the encoding names; None without the word store."""
-        attribute, n = self.attribute, part.count
-        if self.assembler is None or (attribute.name != ELEVATION and attribute.name not in part.attributes):
-            return None     # (read before a switch to another attribute: written again after it)
-        local = replace(part, start=0)
-        frames, boxes, least, shift = frame_parts([local], 0, -(-n // BATCH_POINTS), self.info.origin)
-        words = batch_words(local, attribute, float(self.info.origin[2]))
-        records = np.empty((n, 4), dtype=np.uint32)
-        if least is None:
-            hidden = pack_into(records, local, attribute, words, 0, n)
-        else:
-            hidden = pack_cells(records, local, (least & 0xFFFFFFFF).astype(np.uint32), shift.astype(np.uint32),
-                                words, attribute, 0, n)
-        return EncodedNode(attribute, frames, boxes, least, shift, records, hidden)
 
     def _upload_records(self, batch: Batch, attribute: AttributeInfo) -> int:
         """Pack the batch's records straight into the distribute pass's staging memory
@@ -489,34 +459,6 @@ def _copied_rows(batch: Batch, lo: int, hi: int) -> Batch:
     grid = None if part.grid is None else replace(part.grid, cells=part.grid.cells.copy())
     return replace(part, positions=part.positions.copy(), attributes={k: v.copy() for k, v in part.attributes.items()},
                    records=None if part.records is None else part.records.copy(), grid=grid)
-
-
-@dataclass(frozen=True, eq=False)
-class EncodedNode:
-    """A streamed node encoded off the frame loop (Scene.encode_node) for `attribute`:
-    its batches' frames and boxes, least integers and shifts (None: framed by its boxes),
-    its records as staged (cells where least is given) and the points never drawn."""
-
-    attribute: AttributeInfo
-    frames: np.ndarray
-    boxes: np.ndarray
-    least: np.ndarray | None
-    shift: np.ndarray | None
-    records: np.ndarray
-    hidden: int
-
-    def batches(self, lo: int, hi: int) -> EncodedNode:
-        """Its batches [lo, hi) (their points, its rows [lo·B, hi·B)): all of them, or
-        some where none of its points is hidden (how many a run hides is not kept)."""
-        if lo == 0 and hi == self.frames.shape[0]:
-            return self
-        if self.hidden:
-            raise ValueError("a node with hidden points is written whole")
-        pick = slice(lo, hi)
-        return EncodedNode(self.attribute, self.frames[pick], self.boxes[pick],
-                           None if self.least is None else self.least[pick],
-                           None if self.shift is None else self.shift[pick],
-                           self.records[lo * BATCH_POINTS: hi * BATCH_POINTS], 0)
 
 
 def frame_parts(parts: list[Batch], first: int, k: int, origin: np.ndarray) -> tuple:

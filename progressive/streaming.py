@@ -26,7 +26,7 @@ from progressive.loaders.copc_residency import PlanOptions, Residency, Status, V
 from progressive.loaders.copc_stream import NodeReader
 from progressive.loaders.types import Batch
 from progressive.permutation import BATCH_POINTS
-from progressive.scene import EncodedNode, Scene
+from progressive.scene import Scene
 
 WRITE_SECONDS = 0.004
 """Time a frame of a moving camera spends writing arrived nodes to the GPU at most (at
@@ -93,13 +93,8 @@ class Streamer:
     def __init__(self, scene: Scene, reader: NodeReader, state: Residency, options: PlanOptions = PLAN,
                  keep: bool = False):
         self.scene, self.reader, self.state, self.options = scene, reader, state, options
-        if reader.decoders is not None:
-            # processes decode, so the reading threads have the time to encode and the frame loop copies;
-            # where the threads decode (under 4 cores), encoding there only takes cores from the frames
-            reader.prepare = scene.encode_node
         self.keep = keep
         self._arrived: dict[int, Batch] = {}
-        self._encoded: dict[int, EncodedNode | None] = {}     # the reading thread's encoding of each
         self._kept: dict[int, Batch] = {}           # keep: each resident node's points
         self._to_write: deque[int] = deque()
         self._to_rewrite: deque[int] = deque()      # resident nodes to write again with the attribute shown
@@ -130,14 +125,11 @@ class Streamer:
                 self.warnings.append(failure.warning)
                 for p in failure.dropped:
                     self._arrived.pop(p.row, None)
-                    self._encoded.pop(p.row, None)
                 self.reader.cancel([p.row for p in failure.dropped])     # those not begun come back at once
                 continue
             arrival = self.state.arrived(row)
-            encoded = self.reader.prepared(row)
             if arrival.keep:
                 self._arrived[row] = got
-                self._encoded[row] = encoded
                 self._to_write.extend(arrival.shown)
         self._asked = view
         moved = view != self._view
@@ -177,16 +169,12 @@ class Streamer:
     def _write(self, row: int) -> None:
         """Node `row`'s points into its batches: its i-th takes points [i·B, (i+1)·B)."""
         batch = self._arrived.pop(row)
-        encoded = self._encoded.pop(row, None)
         placed = self.state.batches[row]            # ascending: Residency takes the lowest free in turn
         consecutive = runs(placed)
-        if encoded is not None and encoded.hidden and len(consecutive) > 1:
-            encoded = None          # how many points each run hides is not kept: encoded here
         i = 0
         for lo, hi in consecutive:                  # each run of consecutive batches in one write
             j = i + hi - lo
-            self.scene.write_store_batches(batch.rows(i * BATCH_POINTS, min(j * BATCH_POINTS, batch.count)), lo,
-                                           encoded and encoded.batches(i, j))
+            self.scene.write_store_batches(batch.rows(i * BATCH_POINTS, min(j * BATCH_POINTS, batch.count)), lo)
             i = j
         self.written.extend(placed)
         if self.keep:
@@ -219,7 +207,6 @@ class Streamer:
         self.reader.cancel([p.row for p in given_up])      # reads queued, not begun, come back at once
         self.scene.clear_store_batches([b for p in given_up for b in p.batches])
         self._arrived.clear()
-        self._encoded.clear()
         self._to_write.clear()
         self._events = True
         return StoreChange.EMPTIED

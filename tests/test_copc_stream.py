@@ -26,7 +26,7 @@ from progressive.camera import Camera
 from progressive.cli import main
 from progressive.frame_loop import ProgressiveOptions
 from progressive.loaders import laz_pool
-from progressive.loaders.copc import open_copc
+from progressive.loaders.copc import CopcSource, open_copc
 from progressive.loaders.copc_residency import Status
 from progressive.loaders.copc_stream import NodeReader
 from progressive.loaders.laz_pool import DecoderPool
@@ -185,41 +185,17 @@ def test_nodes_read_alone_equal_laspy(name, processes):
     assert len(pids) == (2 if processes else 0) and not any(os.path.exists(f"/proc/{pid}") for pid in pids)
 
 
-def test_what_the_reading_threads_prepare_is_kept_a_failure_to_prepare_only_loses_it():
-    """NodeReader.prepare runs on the reading thread for every node read; what it returns
-    is there once for prepared(row); where it raises, the node still arrives whole and
-    nothing is prepared (the frame loop encodes it: a streamed switch can change the
-    attribute under a read of the old one)."""
-    path = shared_file(LONE_STAR)
-    las, xyz = las_xyz(path)
-    for fails in (False, True):
-        reader = NodeReader((open_copc(path),), np.zeros(3), ("intensity",), threads=2)
-
-        def prepare(batch, fails=fails):
-            if fails:
-                raise KeyError("intensity")
-            return batch.count
-
-        reader.prepare = prepare
-        try:
-            rows = range(reader.nodes.level.size)
-            got = read_all(reader, rows)
-            assert_every_node_is_laspys(reader, got, las, xyz)
-            assert [reader.prepared(r) for r in rows] == [None if fails else got[r].count for r in rows]
-            assert all(reader.prepared(r) is None for r in rows)       # taken once
-        finally:
-            reader.close()
-
-
-def test_reads_cancelled_before_they_begin_come_back_at_once():
+def test_reads_cancelled_before_they_begin_come_back_at_once(monkeypatch):
     """NodeReader.cancel: the queued reads of the rows given arrive at once as (row, None)
     and are not read; the read under way ends as it would (one thread, held busy)."""
     import threading
 
     path = shared_file(LONE_STAR)
+    busy, began = threading.Event(), []
+    plain = CopcSource.node_batch
+    monkeypatch.setattr(CopcSource, "node_batch",
+                        lambda self, k, *args: began.append(k) or busy.wait(READ_BOUND_S) and plain(self, k, *args))
     reader = NodeReader((open_copc(path),), np.zeros(3), ("intensity",), threads=1)
-    busy, prepared = threading.Event(), []
-    reader.prepare = lambda batch: prepared.append(batch.start) or busy.wait(READ_BOUND_S)
     try:
         rows = list(range(reader.nodes.level.size))
         for row in rows:
@@ -232,7 +208,7 @@ def test_reads_cancelled_before_they_begin_come_back_at_once():
         while not got and time.monotonic() < deadline:
             got = reader.arrivals()
             time.sleep(0.005)
-        assert [row for row, _ in got] == [0] and got[0][1].count > 0 and len(prepared) == 1
+        assert [row for row, _ in got] == [0] and got[0][1].count > 0 and len(began) == 1
         assert reader.reading == 0
     finally:
         busy.set()
@@ -387,28 +363,6 @@ def test_the_detail_still_missing_shrinks_to_nothing_as_a_still_view_settles():
         converge(s, close_up(path))
         converge(s, camera)
         assert s.status().stream.settled and s.status().stream.missing_px == 0
-
-
-def test_nodes_are_encoded_on_the_reading_threads_and_the_view_stays_exact(monkeypatch):
-    """With decoder processes (on 4 cores or more) every node of a still overview is
-    written from its reading thread's encoding (Scene.encode_node), none encoded again in
-    the frame loop, and the view is exact; on fewer, the frame loop encodes them."""
-    from progressive.scene import Scene
-
-    path = shared_file(LONE_STAR)
-    _, xyz = las_xyz(path)
-    writes = []
-    plain = Scene.write_store_batches
-    monkeypatch.setattr(Scene, "write_store_batches",
-                        lambda self, part, first, encoded=None: writes.append(encoded is not None)
-                        or plain(self, part, first, encoded))
-    with streamed(path, limit_for(250_000)) as s:
-        assert (s.streamer.reader.prepare is not None) == (s.streamer.reader.decoders is not None)
-        s.streamer.reader.prepare = s.streamer.scene.encode_node     # what the processes' cores bring
-        camera = s.auto_camera()
-        converge(s, camera)
-        assert writes and all(writes), writes
-        assert_exact(s, camera, xyz)
 
 
 def test_a_moving_camera_plans_its_new_views_at_most_every_plan_seconds(monkeypatch):

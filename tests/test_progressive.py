@@ -330,52 +330,6 @@ def test_fill_pieces_walk_batches_frame_for_frame(gl, cloud, brute, view):
     assert np.array_equal(reference[-1], brute(cam))
 
 
-@pytest.mark.parametrize("kind", ["integers", "floats"])
-@pytest.mark.parametrize("attribute", ["default", "intensity"])
-def test_a_node_encoded_off_the_frame_loop_writes_what_it_would_have(gl, kind, attribute):
-    """Scene.encode_node (a streamed node's encoding, made on a reading thread) written
-    through write_store_batches leaves the store as the frame loop's own encoding does:
-    the records, frames, boxes and integers, whole or split into runs of batches
-    (EncodedNode.batches), for a LAS grid's cells and for positions framed by boxes."""
-    from dataclasses import replace
-
-    from progressive.loaders import CloudLoader
-    from progressive.permutation import BATCH_POINTS
-    from progressive.scene import Scene
-
-    with CloudLoader([SAMPLE], batch_points=3 * BATCH_POINTS) as loader:
-        info = loader.info
-        loader.start()
-        nodes = sorted(loader, key=lambda b: b.start)
-    if kind == "floats":
-        nodes = [replace(n, grid=None) for n in nodes]
-    shown = default_attribute(info) if attribute == "default" else next(a for a in info.attributes if a.name == attribute)
-    scenes = []
-    for encoded in (False, True):
-        scene = Scene(gl, info, shown, streamed=True)
-        for k, node in enumerate(nodes[:2]):
-            enc = scene.encode_node(node) if encoded else None
-            assert not encoded or (enc is not None and enc.attribute == shown)
-            if k == 0:          # whole, into batches 0-2
-                scene.write_store_batches(node, 0, enc)
-            else:               # in two runs, batches 4 and 6-7
-                scene.write_store_batches(node.rows(0, BATCH_POINTS), 4, enc and enc.batches(0, 1))
-                scene.write_store_batches(node.rows(BATCH_POINTS, node.count), 6, enc and enc.batches(1, 3))
-        gl.check()
-        scenes.append(scene)
-    if shown.name in nodes[0].attributes:       # a node read before a switch to another attribute: not encoded
-        assert scenes[1].encode_node(replace(nodes[0], attributes={})) is None
-    plain, encoded = (sc.store for sc in scenes)
-    assert np.array_equal(plain.raw_words(), encoded.raw_words())
-    assert np.array_equal(plain.frames, encoded.frames) and np.array_equal(plain.boxes, encoded.boxes)
-    assert np.array_equal(plain.integer, encoded.integer) and plain.integer[:3].all() == (kind == "integers")
-    assert np.array_equal(plain.least_cells, encoded.least_cells)
-    assert np.array_equal(plain.cell_shifts, encoded.cell_shifts)
-    assert scenes[0].loaded == scenes[1].loaded and scenes[0].skipped == scenes[1].skipped
-    for scene in scenes:
-        scene.release()
-
-
 @RECORDS
 def test_batches_written_into_a_still_view_are_drawn_whole(gl, brute, winners):
     """A streamed store (progressive/streaming.py) whose nodes arrive while the camera
