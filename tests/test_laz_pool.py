@@ -25,7 +25,7 @@ from progressive.loaders import CloudLoader, laz_pool
 from progressive.loaders.copc import CopcSource
 from progressive.loaders.las import open_las
 from progressive.loaders.laz import decode_chunks
-from progressive.loaders.laz_pool import DecoderPool, Decoders, LazOptions, runs
+from progressive.loaders.laz_pool import NICENESS, DecoderPool, Decoders, LazOptions, runs
 from progressive.loaders.types import BATCH_POINTS
 
 pytestmark = pytest.mark.skipif(not laz_pool.available(), reason="no decoder processes on this platform")
@@ -104,6 +104,18 @@ def test_pool_decode_equals_in_process_for_one_and_several_workers(name):
                                                            selected.to_lazrs())))
             for field in ("X", "Y", "Z"):
                 np.testing.assert_array_equal(layered[field], in_process[field])
+
+
+def test_workers_yield_the_cores_to_the_loaders_process():
+    """Each worker runs NICENESS above the loader's nice value (capped at 19), so the frame
+    loop and the parser threads are scheduled before the decode."""
+    path = shared_file(CHUNKED[0])
+    source = open_las(path)
+    with DecoderPool(2) as pool:
+        assert list(pool.decode(str(path), source.laz, 1000, 1000, source.records.dtype, 1000))
+        ours = os.getpriority(os.PRIO_PROCESS, 0)
+        assert [os.getpriority(os.PRIO_PROCESS, pid) for pid in pool.pids()] == [min(ours + NICENESS, 19)] * 2
+    assert ours == os.getpriority(os.PRIO_PROCESS, 0)
 
 
 def test_jobs_are_runs_of_whole_chunks():
