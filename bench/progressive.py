@@ -21,7 +21,7 @@ from progressive.budget import BudgetParams
 from progressive.camera import Camera, auto_camera
 from progressive.context import GLContext, create_context
 from progressive.encoding import Encoding
-from progressive.frame_loop import FrameStats, ProgressiveOptions, ProgressiveRenderer
+from progressive.frame_loop import COLD_TIMES, FrameStats, ProgressiveOptions, ProgressiveRenderer
 from progressive.passes.raster_compute import DEFAULT_TUNING, ComputeTuning
 from progressive.pointstore import RecordOrder
 from progressive.renderer import Renderer
@@ -97,7 +97,29 @@ def summarize(stats: list[FrameStats], points: int, target_ms: float | None, mot
         "converged_frame": converged,
         "frames_to_converge": converged - motion + 1 if converged is not None else None,
         "ms_to_converge": float(sum(s.gpu_ms["frame"] for s in after)) if converged is not None else None,
+        "cold_frame": cold_frame(timed),
     }
+
+
+COLD_PARTS = (*COLD_TIMES, "fill later passes")
+
+
+def cold_frame(timed: list[FrameStats]) -> dict | None:
+    """The run's first cold frame (no fill rate known: the growth stages ran): its points
+    and the GPU milliseconds of each part of its first pass and of its later passes."""
+    cold = next((s for s in timed if COLD_PARTS[-2] in s.gpu_ms), None)
+    if cold is None:
+        return None
+    return {"points": cold.first_fill + cold.budget, "frame_ms": cold.gpu_ms["frame"],
+            "ms": {k: cold.gpu_ms[k] for k in COLD_PARTS}}
+
+
+def cold_parts(cold: dict | None) -> str | None:
+    """'first fill / adaptive / grow 1 / grow 2 + later passes' in ms, for the table."""
+    if cold is None:
+        return None
+    ms = cold["ms"]
+    return " / ".join(f"{ms[k]:.2f}" for k in COLD_PARTS[:-1]) + f" + {ms[COLD_PARTS[-1]]:.2f}"
 
 
 def run_case(glc: GLContext, scene: Scene, cloud: TiledCloud, size: tuple[int, int], budget: Budget,
@@ -203,7 +225,8 @@ def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], ta
                   f"{SAMPLE.name} tiled on a grid", f"{points:,}", (
                       "store", "budget", "camera", "fill work group", "records", "frame ms median", "p95", "max", "target ms",
                       "frames over target", "reproject", "fill", "prepare", "resolve", "fill share", "points/frame",
-                      "gathered/frame", "frames to converge", "ms to converge"))
+                      "gathered/frame", "frames to converge", "ms to converge", "cold frame ms", "cold frame points",
+                      "cold frame parts ms"))
     for r in rows:
         p = r["pass_ms_median"]
         table.rows.append((r["store"], r["budget"], r["path"], "batch" if r["batch_groups"] else "256 slots",
@@ -211,7 +234,9 @@ def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], ta
                            r["target_ms"], f"{r['over_target']:.0%}" if r["over_target"] is not None else None,
                            p["reproject"], p["fill"], p["prepare"], p["resolve"], f"{r['fill_share_median']:.0%}",
                            round(r["points_per_frame_median"]), round(r["gathered_median"]),
-                           r["frames_to_converge"] or "no", r["ms_to_converge"]))
+                           r["frames_to_converge"] or "no", r["ms_to_converge"],
+                           *((c["frame_ms"], c["points"]) if (c := r["cold_frame"]) else (None, None)),
+                           cold_parts(r["cold_frame"])))
     table.notes = [
         "One brute-force frame (compute, every point) takes " + ", ".join(
             f"{ms:.2f} ms ({store})" for store, ms in brute.items()) + " here, same camera.",
@@ -231,7 +256,10 @@ def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], ta
          f"prepare takes the records of the points visible now, for the next frame's reprojection and resolve: "
          f"winners pass = the raster's last pass over the frame's points leaves each pixel's record (its time "
          f"is in the fill column), gathered = from the last list where a hint finds it, else from the store at "
-         f"random; gathered/frame = median records a frame read from the store that way.")]
+         f"random; gathered/frame = median records a frame read from the store that way. Cold frame: the "
+         f"case's first frame, which knows no fill rate yet and so adds the growth stages (budget.grow); its "
+         f"parts: the first pass's first fill / adaptive part / grow 1 / grow 2, + the later passes over the "
+         f"same points (the 32-bit path's index pass, the winners pass).")]
     table.raw = {"brute_ms": brute, "rows": rows, "frames": frames}
     return table
 

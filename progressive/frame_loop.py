@@ -32,7 +32,12 @@ from progressive.shading import Shading
 
 PASS_TIMES = {"reproject": (Stamp.FRAME, Stamp.FILL), "fill": (Stamp.FILL, Stamp.FILL_END),
               "prepare": (Stamp.FILL_END, Stamp.PREPARE_END), "resolve": (Stamp.PREPARE_END, Stamp.END),
-              "frame": (Stamp.FRAME, Stamp.END)}
+              "frame": (Stamp.FRAME, Stamp.END),
+              "fill first pass": (Stamp.FILL, Stamp.PASS_END), "fill later passes": (Stamp.PASS_END, Stamp.FILL_END)}
+COLD_TIMES = {"first fill": (Stamp.FILL, Stamp.FIRST_END), "adaptive": (Stamp.FIRST_END, Stamp.GROW_1),
+              "grow 1": (Stamp.GROW_1, Stamp.GROW_2), "grow 2": (Stamp.GROW_2, Stamp.PASS_END)}
+"""A cold frame's parts of its first pass (budget.GROW_STAGES), whose stamps only it writes:
+where the time of the frame that fills before it knows a rate goes."""
 
 
 @dataclass(frozen=True)
@@ -71,6 +76,7 @@ class FrameTag:
     pixels: int
     reference: bool
     complete: bool          # every point there will be was on the GPU (Scene.complete)
+    cold: bool = False      # no fill rate known: the growth stages ran (COLD_TIMES)
 
 
 @dataclass(frozen=True)
@@ -302,6 +308,8 @@ class ProgressiveRenderer:
                 raster.draw_piece(view, pieces, 3 + 2 * stage, p)
             for first, end in fresh:
                 raster.draw_batches(view, first, end - first, p)
+            if p == 0:
+                b.stamp(Stamp.PASS_END)
         raster.end_frame(view)
         b.stamp(Stamp.FILL_END)
         self.prepare.run(regather=self._regather, winners=raster.winners)
@@ -315,7 +323,7 @@ class ProgressiveRenderer:
             self.compare.run(view)
             passes.append("reference")
         tag = FrameTag(self.frame_index, self.change, tuple(passes), self.scene.loaded, self.vis.pixels, reference,
-                       self.scene.complete)
+                       self.scene.complete, stages > 0)
         self.stats_ring.record(tag, b.state, b.stamps, b.parity * TIMESTAMP_SLOTS * 8, self.prepare.previous.meta,
                                self.compare.counter if reference else None)
         b.end_frame(complete=True)
@@ -347,7 +355,7 @@ class ProgressiveRenderer:
             if tag.change == self.change and tag.complete and filled >= self.store.capacity:
                 self.converged_change = tag.change
             t = r.stamps.astype(np.int64)
-            gpu_ms = {name: (t[b] - t[a]) / 1e6 for name, (a, b) in PASS_TIMES.items()}
+            gpu_ms = {name: (t[b] - t[a]) / 1e6 for name, (a, b) in (PASS_TIMES | (COLD_TIMES if tag.cold else {})).items()}
             equal = r.equal / tag.pixels if tag.reference else None
             self.history.append(FrameStats(tag.frame, tag.passes, tag.points_loaded, int(r.state[StateWord.FIRST]),
                                            int(r.state[StateWord.BUDGET]), filled, r.visible, r.gathered, gpu_ms, equal))

@@ -12,7 +12,7 @@ from conftest import RECORDS, SAMPLE
 from progressive.attributes import default_attribute
 from progressive.budget import BudgetParams
 from progressive.camera import Camera, auto_camera
-from progressive.frame_loop import ProgressiveOptions, ProgressiveRenderer
+from progressive.frame_loop import COLD_TIMES, ProgressiveOptions, ProgressiveRenderer
 from progressive.passes.raster_compute import DEFAULT_TUNING, ComputeTuning
 from progressive.permutation import LAYOUT, Permutation
 from progressive.reference import EMPTY
@@ -160,6 +160,28 @@ def test_adaptive_budget_fills_beyond_the_first_fill(gl, cloud):
     assert all(s.first_fill == 2000 for s in stats)
     assert max(s.budget for s in stats) > 2000
     assert all(s.gpu_ms["frame"] > 0 and s.gpu_ms["fill"] > 0 for s in stats)
+    pr.release()
+
+
+def test_a_cold_frame_times_its_stages_and_every_frame_its_passes(gl, cloud):
+    """The first frame knows no rate: its first pass's parts (first fill, adaptive part,
+    both growth stages) are timed and add up to that pass, and with the later passes to
+    the fill; frames after it time only their two parts of the fill."""
+    info, _ = cloud
+    cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
+    pr = make(gl, cloud, budget=BudgetParams(target_ns=200_000_000, first_fill=2000))
+    style = pr.scene.style()
+    for k in range(3):
+        pr.frame(orbit(cam, k), style)
+    stats = [s for s in pr.flush() if s.gpu_ms]
+    assert [set(COLD_TIMES) <= set(s.gpu_ms) for s in stats] == [True] + [False] * (len(stats) - 1)
+    for s in stats:
+        ms = s.gpu_ms
+        assert ms["fill first pass"] > 0 and ms["fill later passes"] >= 0
+        assert ms["fill first pass"] + ms["fill later passes"] == pytest.approx(ms["fill"], abs=1e-6)
+    cold = stats[0].gpu_ms
+    assert all(cold[k] >= 0 for k in COLD_TIMES)
+    assert sum(cold[k] for k in COLD_TIMES) == pytest.approx(cold["fill first pass"], abs=1e-6)
     pr.release()
 
 

@@ -89,13 +89,14 @@ class Stamp(enum.IntEnum):
     END = 5
     GROW_1 = 6          # a cold frame's ends of its adaptive part and of its first growth stage
     GROW_2 = 7
+    PASS_END = 8        # the end of the frame's first pass over its points (the fill's later passes follow)
 
 
 GROW_STAMPS = (Stamp.GROW_1, Stamp.GROW_2)
 """The stamp before each growth stage (budget.GROW_STAGES of them)."""
 
 
-TIMESTAMP_SLOTS = 8        # a frame's block of timestamps (two blocks, alternate frames)
+TIMESTAMP_SLOTS = 9        # a frame's block of timestamps (two blocks, alternate frames)
 FILL_PIECES = 2 * (2 + GROW_STAGES)   # first fill, adaptive fill, a cold frame's growth stages: each maybe wrapped in two
 ARGS_BYTES = 12            # one DispatchIndirectCommand
 DRAW_ARGS_WORD = FILL_PIECES * 3
