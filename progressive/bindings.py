@@ -43,6 +43,7 @@ class Binding(enum.IntEnum):
     BATCH_FLAGS = 29        # batched layout: each batch in view this frame (passes/cull.py)
     CLASSES = 30            # per slot, its classification code: a byte each (pointstore.py class filter)
     BATCH_FRAMES = 31       # word store: each batch's base and step (progressive/encoding.py)
+    GATHERS = 32            # prepare: the list entries and pixels whose records come from the store
 
     @classmethod
     def points(cls, chunk: int) -> Binding:

@@ -35,6 +35,7 @@ class Capabilities:
     version: str
     atomic_int64: bool          # GL_NV_shader_atomic_int64: one 64-bit atomicMin per point
     shader_int64: bool          # GL_ARB_gpu_shader_int64: exact 64-bit permutation arithmetic
+    shader_ballot: bool         # GL_ARB_shader_ballot: a subgroup's invocations meet without a barrier
     query_buffer: bool          # GL_ARB_query_buffer_object: timestamps into buffers
     timer_query: bool
     max_ssbo_bytes: int
@@ -68,6 +69,7 @@ def read_capabilities(ctx: moderngl.Context, gl: GLFunctions) -> Capabilities:
         version=info["GL_VERSION"],
         atomic_int64="GL_NV_shader_atomic_int64" in ext,
         shader_int64="GL_ARB_gpu_shader_int64" in ext,
+        shader_ballot="GL_ARB_shader_ballot" in ext,
         query_buffer="GL_ARB_query_buffer_object" in ext or ctx.version_code >= 440,
         timer_query="GL_ARB_timer_query" in ext or ctx.version_code >= 330,
         max_ssbo_bytes=_positive_limit(info["GL_MAX_SHADER_STORAGE_BLOCK_SIZE"]),

@@ -200,23 +200,35 @@ def test_gpu_equal_fraction_matches_cpu(gl, cloud, brute):
     pr.release()
 
 
+@pytest.mark.parametrize("ballot", [True, False], ids=["ballot", "barriers"])
 @pytest.mark.parametrize("winners", [True, False], ids=["winners pass", "hints"])
-def test_reprojection_list_holds_record_copies_and_avoids_gathers(gl, cloud, winners):
-    """Prepare copies visible records into the list (read sequentially by reprojection).
-    With the winners pass, every record comes from it: none is gathered from the store.
-    With hints, the first frame gathers every record and, with a still camera, winners
-    that were reprojected come from the list, not the store."""
+def test_reprojection_list_holds_record_copies_and_avoids_gathers(gl, cloud, winners, ballot, monkeypatch):
+    """Prepare copies visible records into the list (read sequentially by reprojection)
+    and each covered pixel's attribute word into the pixel words, whether a subgroup's
+    pixels take their entries by ballot or a work group's after a barrier. With the
+    winners pass, every record comes from it: none is gathered from the store. With
+    hints, the first frame gathers every record and, with a still camera, winners that
+    were reprojected come from the list, not the store."""
+    from dataclasses import replace
+
+    if ballot and not gl.caps.shader_ballot:
+        pytest.skip("no GL_ARB_shader_ballot")
+    monkeypatch.setattr(gl, "caps", replace(gl.caps, shader_ballot=ballot))
     info, _ = cloud
     cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
     pr = make(gl, cloud, budget=BudgetParams(fixed=2000), tuning=ComputeTuning(winners=winners))
-    assert (pr.raster.winners is not None) == winners
+    assert (pr.raster.winners is not None) == winners and pr.prepare.ballot == ballot
     style = pr.scene.style()
     for _ in range(6):
         pr.frame(cam, style)
     slots, records = pr.prepare.previous.read()
-    assert slots.size == np.count_nonzero(pr.read_slots() != EMPTY)
+    shown = pr.read_slots()
+    assert slots.size == np.count_nonzero(shown != EMPTY)
+    assert np.array_equal(np.sort(slots), np.sort(shown[shown != EMPTY]))
     store = pr.store.read_records()
     assert np.array_equal(records, store[slots])
+    words = np.frombuffer(pr.prepare.pixel_words.read(), dtype=np.uint32).reshape(shown.shape)
+    assert np.array_equal(words[shown != EMPTY], store[shown[shown != EMPTY], 3])
     stats = [s for s in pr.flush() if s.gpu_ms]
     if winners:
         assert [s.gathered for s in stats] == [0] * len(stats) and stats[0].covered_pixels > 0

@@ -112,6 +112,7 @@ class Meta(enum.IntEnum):
     DISPATCH = 1     # 3 words: the next reprojection's dispatch arguments
     DRAW = 4         # 4 words: the same as draw arguments
     GATHERS = 8      # records that had to come from the shuffled store
+    GATHER_DISPATCH = 9     # 3 words: the dispatch arguments of prepare's gathers
     WORDS = 12
 
     @classmethod

@@ -13,6 +13,9 @@ from progressive.loaders.records import RECORD_BYTES
 from progressive.passes.handles import Meta, Reprojection, Visibility, Winners
 from progressive.pointstore import PointStore
 
+GATHER_BYTES = 8
+"""A gather: the list entry its record fills and its pixel (two words)."""
+
 
 class SlotList:
     """Visible points: meta words then slots in one buffer (`meta`), and record copies.
@@ -48,23 +51,32 @@ class SlotList:
         self.records.release()
 
 
+BALLOT_EXTENSIONS = ("GL_ARB_shader_ballot", "GL_ARB_gpu_shader_int64")
+
+
 class PreparePass:
-    def __init__(self, glc: GLContext, store: PointStore, vis: Visibility, winners: bool = False):
+    def __init__(self, glc: GLContext, store: PointStore, vis: Visibility, winners: bool = False,
+                 ballot: bool | None = None):
         """winners: the raster leaves each pixel's record (Winners, given to each run)
-        in place of the hints into the last list."""
+        in place of the hints into the last list. ballot: a subgroup's pixels take their
+        list entries together, without a barrier (None: where GL_ARB_shader_ballot is)."""
         self.glc, self.store, self.vis = glc, store, vis
         self.winners = winners
-        defines = dict(store.defines, **Meta.defines(), **dispatch_defines())
-        self.append = shaderlib.compute(glc.ctx, "prepare.comp", dict(defines, ARGS=0, WINNERS=int(winners)),
-                                        label="prepare")
+        self.ballot = glc.caps.shader_ballot if ballot is None else ballot
+        defines = dict(Meta.defines(), **dispatch_defines())
+        self.append = shaderlib.compute(glc.ctx, "prepare.comp",
+                                        dict(defines, ARGS=0, GATHER=0, WINNERS=int(winners), BALLOT=int(self.ballot)),
+                                        BALLOT_EXTENSIONS if self.ballot else (), label="prepare")
         self.args = shaderlib.compute(glc.ctx, "prepare.comp", dict(defines, ARGS=1), label="prepare args")
+        self.gather = shaderlib.compute(glc.ctx, "prepare.comp", dict(store.defines, **defines, ARGS=0, GATHER=1),
+                                        label="prepare gathers")
         self.lists: list[SlotList] = []
-        self.hint = self.pixel_words = None
+        self.hint = self.pixel_words = self.gathers = None
         self.current = 0
         self._allocate()
 
     def _allocate(self) -> None:
-        for obj in (*self.lists, self.hint, self.pixel_words):
+        for obj in (*self.lists, self.hint, self.pixel_words, self.gathers):
             if obj is not None:
                 obj.release()
         self.capacity = self.vis.pixels
@@ -73,6 +85,8 @@ class PreparePass:
         self.hint.label = "reprojection hints"
         self.pixel_words = self.glc.ctx.buffer(reserve=self.capacity * 4)
         self.pixel_words.label = "pixel words"
+        self.gathers = self.glc.ctx.buffer(reserve=self.capacity * GATHER_BYTES)
+        self.gathers.label = "prepare gathers"
 
     @property
     def previous(self) -> SlotList:
@@ -107,9 +121,9 @@ class PreparePass:
             self.reprojection.bind()
         out.bind_output()
         self.vis.bind()
-        self.store.bind()
         self.pixel_words.bind_to_storage_buffer(Binding.PIXEL_WORDS)
-        for p in (self.append, self.args):
+        self.gathers.bind_to_storage_buffer(Binding.GATHERS)
+        for p in (self.append, self.args, self.gather):
             p["u_capacity"] = self.capacity
         self.append["u_size"] = (self.vis.width, self.vis.height)
         self.append["u_regather"] = int(regather)
@@ -117,8 +131,11 @@ class PreparePass:
         self.glc.ctx.memory_barrier()
         self.args.run(1, 1, 1)
         self.glc.ctx.memory_barrier()
+        self.store.bind()
+        self.gather.run_indirect(out.meta, offset=Meta.GATHER_DISPATCH * 4)
+        self.glc.ctx.memory_barrier()
         self.current = 1 - self.current
 
     def release(self) -> None:
-        for obj in (*self.lists, self.hint, self.pixel_words, self.append, self.args):
+        for obj in (*self.lists, self.hint, self.pixel_words, self.gathers, self.append, self.args, self.gather):
             obj.release()
