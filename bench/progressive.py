@@ -124,10 +124,11 @@ def cold_parts(cold: dict | None) -> str | None:
 
 def run_case(glc: GLContext, scene: Scene, cloud: TiledCloud, size: tuple[int, int], budget: Budget,
              path: CameraPath, motion: int, max_frames: int,
-             tuning: ComputeTuning = DEFAULT_TUNING) -> tuple[dict, list[dict]]:
+             tuning: ComputeTuning = DEFAULT_TUNING, prepare_ballot: bool | None = None) -> tuple[dict, list[dict]]:
     width, height = size
     r = ProgressiveRenderer(glc, cloud.info, cloud.attribute, ProgressiveOptions(
-        width, height, budget=budget.params, frames_in_flight=2, tuning=tuning), scene=scene)
+        width, height, budget=budget.params, frames_in_flight=2, tuning=tuning, prepare_ballot=prepare_ballot),
+        scene=scene)
     lo, hi = cloud.info.bounds_min, cloud.info.bounds_max
     base = auto_camera(lo, hi, width / height)
     style = scene.style()
@@ -144,7 +145,7 @@ def run_case(glc: GLContext, scene: Scene, cloud: TiledCloud, size: tuple[int, i
     summary.update(budget=budget.label, target_ms=budget.target_ms, path=path.value, motion_frames=motion,
                    cpu_frame_ms_median=float(np.median(cpu_ms)), pacing_waits=r.pacing_waits,
                    batch_groups=r.raster.batch_groups if hasattr(r.raster, "batch_groups") else False,
-                   winners=r.raster.winners is not None)
+                   winners=r.raster.winners is not None, prepare=PREPARE_LABELS[r.prepare.ballot])
     r.release()
     return summary, [s.as_dict() for s in stats]
 
@@ -191,17 +192,21 @@ RECORD_ORDER_LABELS = {RecordOrder.SLOTS: ", records in slot order", RecordOrder
 the renderer's (ProgressiveOptions.records)."""
 RECORDS_LABELS = {True: "winners pass", False: "gathered"}
 """The records column: where prepare takes new winners' records (ComputeTuning.winners)."""
+PREPARE_LABELS = {True: "ballot", False: "barriers"}
+"""The prepare column: how its pixels take list entries (ProgressiveOptions.prepare_ballot)."""
 
 
 def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], targets_ms: list[float],
         paths: list[CameraPath], motion: int, max_frames: int, compare_walk: bool = False,
         encodings: tuple[Encoding, ...] = (Encoding.WORDS,), winners: tuple[bool | None, ...] = (None,),
-        record_orders: tuple[RecordOrder, ...] = (RECORD_ORDER,)) -> Table:
+        record_orders: tuple[RecordOrder, ...] = (RECORD_ORDER,),
+        prepare: tuple[bool | None, ...] = (None,)) -> Table:
     """compare_walk: also run every case with fill pieces walked one invocation a slot
     (ComputeTuning.batch_groups off), side by side with the renderer's batch walk;
     encodings and record_orders: the stores to run every case on, one after the other
     in this run; winners: with and/or without the winners pass, each case side by side
-    (None: the renderer's choice for the store)."""
+    (None: the renderer's choice for the store); prepare: prepare's list entries by
+    ballot and/or after barriers, side by side (None: the renderer's choice)."""
     walks = (True, False) if compare_walk else (True,)
     tunings = [ComputeTuning(batch_groups=g, winners=w) for g in walks for w in winners]
     cloud = tiled(str(SAMPLE), points)
@@ -213,24 +218,29 @@ def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], ta
         brute[store] = brute_ms(glc, scene, cloud, size)
         for budget in budgets(fixed, targets_ms):
             for path in paths:
-                for tuning in tunings:
+                for tuning, ballot in ((t, b) for t in tunings for b in prepare):
                     warm_up(glc, scene, cloud, size, CASE_WARM_UP_S)
-                    summary, stats = run_case(glc, scene, cloud, size, budget, path, motion, max_frames, tuning)
+                    summary, stats = run_case(glc, scene, cloud, size, budget, path, motion, max_frames, tuning,
+                                              ballot)
                     summary.update(store=store, upload_s=upload_s)
                     rows.append(summary)
                     walk = "" if tuning.batch_groups else ", one invocation a slot"
-                    frames[f"{store}, {budget.label}, {path.value}{walk}, {RECORDS_LABELS[summary['winners']]}"] = stats
+                    entries = "" if prepare == (None,) else f", prepare by {summary['prepare']}"
+                    frames[f"{store}, {budget.label}, {path.value}{walk}, {RECORDS_LABELS[summary['winners']]}"
+                           f"{entries}"] = stats
         scene.release()
     table = Table(f"progressive_{points}", f"Progressive frames, {size[0]}x{size[1]}",
                   f"{SAMPLE.name} tiled on a grid", f"{points:,}", (
-                      "store", "budget", "camera", "fill work group", "records", "frame ms median", "p95", "max", "target ms",
+                      "store", "budget", "camera", "fill work group", "records", "prepare entries", "frame ms median", "p95",
+                      "max", "target ms",
                       "frames over target", "reproject", "fill", "prepare", "resolve", "fill share", "points/frame",
                       "gathered/frame", "frames to converge", "ms to converge", "cold frame ms", "cold frame points",
                       "cold frame parts ms"))
     for r in rows:
         p = r["pass_ms_median"]
         table.rows.append((r["store"], r["budget"], r["path"], "batch" if r["batch_groups"] else "256 slots",
-                           RECORDS_LABELS[r["winners"]], r["frame_ms_median"], r["frame_ms_p95"], r["frame_ms_max"],
+                           RECORDS_LABELS[r["winners"]], r["prepare"], r["frame_ms_median"], r["frame_ms_p95"],
+                           r["frame_ms_max"],
                            r["target_ms"], f"{r['over_target']:.0%}" if r["over_target"] is not None else None,
                            p["reproject"], p["fill"], p["prepare"], p["resolve"], f"{r['fill_share_median']:.0%}",
                            round(r["points_per_frame_median"]), round(r["gathered_median"]),
@@ -256,7 +266,9 @@ def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], ta
          f"prepare takes the records of the points visible now, for the next frame's reprojection and resolve: "
          f"winners pass = the raster's last pass over the frame's points leaves each pixel's record (its time "
          f"is in the fill column), gathered = from the last list where a hint finds it, else from the store at "
-         f"random; gathered/frame = median records a frame read from the store that way. Cold frame: the "
+         f"random; gathered/frame = median records a frame read from the store that way. Prepare entries: how "
+         f"prepare's pixels take their places in the list, a subgroup at a time by ballot (GL_ARB_shader_ballot) or "
+         f"a work group at a time after a barrier. Cold frame: the "
          f"case's first frame, which knows no fill rate yet and so adds the growth stages (budget.grow); its "
          f"parts: the first pass's first fill / adaptive part / grow 1 / grow 2, + the later passes over the "
          f"same points (the 32-bit path's index pass, the winners pass).")]
@@ -277,6 +289,8 @@ def main(argv=None) -> int:
                     help="run every case on each store in turn")
     ap.add_argument("--records", nargs="+", choices=list(RECORDS_LABELS.values()),
                     help="run every case with prepare's records from each source in turn (default: the renderer's choice)")
+    ap.add_argument("--prepare", nargs="+", choices=list(PREPARE_LABELS.values()),
+                    help="run every case with prepare's list entries taken each way in turn (default: the renderer's)")
     ap.add_argument("--record-orders", nargs="+", choices=[o.value for o in RecordOrder], default=[RECORD_ORDER.value],
                     help="run every case with the store's records in each order in turn")
     ap.add_argument("--out", default="bench/results/local")
@@ -287,7 +301,8 @@ def main(argv=None) -> int:
                 args.max_frames, args.compare_walk,
                 tuple(e for e, label in STORE_LABELS.items() if label in args.stores),
                 tuple(w for w, label in RECORDS_LABELS.items() if label in args.records) if args.records else (None,),
-                tuple(RecordOrder(o) for o in args.record_orders))
+                tuple(RecordOrder(o) for o in args.record_orders),
+                tuple(b for b, label in PREPARE_LABELS.items() if label in args.prepare) if args.prepare else (None,))
     info = RunInfo.from_caps(glc.caps, "progressive only")
     table.write(Path(args.out), info)
     print(table.markdown(info))

@@ -63,6 +63,11 @@ class ProgressiveOptions:
     together, and a still view from a cold start was exact after 3 frames against 5;
     brute force walks batch by batch and keeps RecordOrder.BATCHES (8.52 ms against
     6.11 ms; bench/results/nvidia-h200/record_order/)."""
+    prepare_ballot: bool | None = None
+    """Prepare's pixels take their list entries a subgroup at a time by ballot, without
+    barriers, instead of a work group at a time after one (PreparePass); None: where
+    GL_ARB_shader_ballot is. The same lists either way; bench.progressive --prepare
+    compares them."""
 
 
 @dataclass(frozen=True)
@@ -136,7 +141,8 @@ class ProgressiveRenderer:
         self.vis = VisibilityBuffer(glc, options.width, options.height)
         self.raster = make_raster(glc, self.store, self.vis, options.raster, options.tuning)
         self.budget = BudgetPass(glc, self.store.capacity, options.budget, self.store.permutation.batches)
-        self.prepare = PreparePass(glc, self.store, self.vis, winners=self.raster.winners is not None)
+        self.prepare = PreparePass(glc, self.store, self.vis, winners=self.raster.winners is not None,
+                                   ballot=options.prepare_ballot)
         self.shading = Shading(glc, self.store, self.vis, pixel_words=True)
         self.compare = ReferenceCheck(glc, self.store, self.vis) if options.reference else None
         self.stats_ring = StatsRing(glc)

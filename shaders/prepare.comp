@@ -12,10 +12,10 @@
 // records it has; the pixels it cannot fill go to a list of gathers. ARGS (1x1x1) turns
 // the counts into indirect arguments: the next reprojection's (dispatch at word 1, draw
 // at word 4) and the gathers' (word 9). GATHER reads those records from the store, one
-// invocation each, so a vector of invocations is whole: on llvmpipe, which runs every
-// branch any lane takes for all of them, gathers among the pixels cost prepare 5 of
-// 11.5 ms at 1280x720 (a quarter of llvmpipe's frame there). A list's meta words head
-// its slot buffer: NVIDIA allows 16 storage blocks a shader and 8 hold the store.
+// invocation each, so its vectors of invocations are whole: llvmpipe runs a branch any
+// lane takes for all lanes, so gathers scattered among the pixels made most vectors
+// run the store's decoding. A list's meta words head its slot buffer: NVIDIA allows
+// 16 storage blocks a shader and 8 hold the store.
 #if ARGS
 layout(local_size_x = 1) in;
 #elif GATHER
@@ -79,8 +79,8 @@ uniform uint u_regather;
 #if BALLOT
 // Entries of out_meta[WORD]'s list for the invocations of a subgroup that take one, in
 // one atomicAdd and no barrier (llvmpipe runs a work group that meets at a barrier as
-// coroutines: the group's barriers cost prepare 3.3 of 15 ms at 1280x720 there). Every
-// invocation of the subgroup runs it; `index` is set where `take`.
+// coroutines; bench.progressive --prepare compares both). Every invocation of the
+// subgroup runs it; `index` is set where `take`.
 #define TAKE_ENTRY(WORD, take, index) {                                                    \
         uvec2 taking = unpackUint2x32(ballotARB(take));                                \
         uvec2 below = unpackUint2x32(gl_SubGroupLtMaskARB) & taking;                   \

@@ -38,11 +38,11 @@ def brute(gl, cloud):
 
 
 def make(gl, cloud, *, budget=BudgetParams(fixed=B), batches_per_frame=100, reference=False, load=True,
-         tuning=DEFAULT_TUNING):
+         tuning=DEFAULT_TUNING, prepare_ballot=None):
     info, batches = cloud
     pr = ProgressiveRenderer(gl, info, default_attribute(info),
                              ProgressiveOptions(W, H, budget=budget, batches_per_frame=batches_per_frame, reference=reference,
-                                                tuning=tuning))
+                                                tuning=tuning, prepare_ballot=prepare_ballot))
     if load:
         for b in batches:
             pr.add_batch(b)
@@ -202,21 +202,18 @@ def test_gpu_equal_fraction_matches_cpu(gl, cloud, brute):
 
 @pytest.mark.parametrize("ballot", [True, False], ids=["ballot", "barriers"])
 @pytest.mark.parametrize("winners", [True, False], ids=["winners pass", "hints"])
-def test_reprojection_list_holds_record_copies_and_avoids_gathers(gl, cloud, winners, ballot, monkeypatch):
+def test_reprojection_list_holds_record_copies_and_avoids_gathers(gl, cloud, winners, ballot):
     """Prepare copies visible records into the list (read sequentially by reprojection)
     and each covered pixel's attribute word into the pixel words, whether a subgroup's
     pixels take their entries by ballot or a work group's after a barrier. With the
     winners pass, every record comes from it: none is gathered from the store. With
     hints, the first frame gathers every record and, with a still camera, winners that
     were reprojected come from the list, not the store."""
-    from dataclasses import replace
-
     if ballot and not gl.caps.shader_ballot:
         pytest.skip("no GL_ARB_shader_ballot")
-    monkeypatch.setattr(gl, "caps", replace(gl.caps, shader_ballot=ballot))
     info, _ = cloud
     cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
-    pr = make(gl, cloud, budget=BudgetParams(fixed=2000), tuning=ComputeTuning(winners=winners))
+    pr = make(gl, cloud, budget=BudgetParams(fixed=2000), tuning=ComputeTuning(winners=winners), prepare_ballot=ballot)
     assert (pr.raster.winners is not None) == winners and pr.prepare.ballot == ballot
     style = pr.scene.style()
     for _ in range(6):

@@ -63,6 +63,8 @@ class PreparePass:
         self.glc, self.store, self.vis = glc, store, vis
         self.winners = winners
         self.ballot = glc.caps.shader_ballot if ballot is None else ballot
+        if self.ballot and not glc.caps.shader_ballot:
+            raise ValueError("prepare by ballot needs GL_ARB_shader_ballot")
         defines = dict(Meta.defines(), **dispatch_defines())
         self.append = shaderlib.compute(glc.ctx, "prepare.comp",
                                         dict(defines, ARGS=0, GATHER=0, WINNERS=int(winners), BALLOT=int(self.ballot)),
