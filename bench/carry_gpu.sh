@@ -8,7 +8,8 @@
 # files run there too (they skipped without it). The checkout and what it carries must stay under 64 MiB:
 # the data leaves out autzen_trim.las and bunnyDouble.e57 (the tests read the bundled copies) and the wheels PyOpenGL (only the
 # windowed viewer imports it, and that machine has no display); the benches write their JSON compact
-# (bench/report.py). With that: tracked files 18.1 MB, .gpu without the data 31.5 MB, the data 17.1 MB (66.7 MB of the 67.1).
+# (bench/report.py). With that: tracked files 15.0 MB (the largest JSON of earlier runs only in git history), .gpu without the
+# data 31.5 MB, the data 17.1 MB (63.6 MB of the 67.1).
 # Run here, then `run` with carry [".gpu"] and `source .gpu/env.sh` there.
 #   bash bench/carry_gpu.sh
 set -euo pipefail

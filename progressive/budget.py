@@ -27,7 +27,7 @@ A cold frame (the renderer's first: no rate known) measures only its first fill,
 fixed costs hide the rate: on the H200 at 1 B points the first frame filled 14 M points
 in 0.87 ms, the next 183 M in 2.9 ms and the next 810 M in 13.3 ms, the rate growing
 with the fill (fixed fills of 1 M points took 0.35 ms each;
-bench/results/nvidia-h200/progressive_1000000000.json), so a still view took four
+bench/results/nvidia-h200/progressive_1000000000.json at 64481f5), so a still view took four
 frames to be exact. So a cold frame adds GROW_STAGES stages
 after its adaptive part, each filling the time left at the rate of the stage before it
 (grow): each stage is larger, so its rate is nearer the true one.
