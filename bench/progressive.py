@@ -107,7 +107,7 @@ COLD_PARTS = (*COLD_TIMES, "fill later passes")
 def cold_frame(timed: list[FrameStats]) -> dict | None:
     """The run's first cold frame (no fill rate known: the growth stages ran): its points
     and the GPU milliseconds of each part of its first pass and of its later passes."""
-    cold = next((s for s in timed if COLD_PARTS[-2] in s.gpu_ms), None)
+    cold = next((s for s in timed if COLD_TIMES.keys() <= s.gpu_ms.keys()), None)
     if cold is None:
         return None
     return {"points": cold.first_fill + cold.budget, "frame_ms": cold.gpu_ms["frame"],

@@ -14,7 +14,8 @@ from progressive.loaders.records import RECORD_BYTES
 from progressive.loaders.types import BATCH_POINTS
 from progressive.pointstore import BLOCK_RECORDS
 
-PIXEL_BYTES = 8 + 8 + 2 * (4 + 16) + 4 + 4 + 4 + 16 + 4   # visibility, reference, two lists, hint, words, image, winners
+# visibility, reference, two lists, hint, words, image, winners, prepare's gathers (passes/prepare.py GATHER_BYTES)
+PIXEL_BYTES = 8 + 8 + 2 * (4 + 16) + 4 + 4 + 4 + 16 + 4 + 8
 HEADROOM = 0.9                                     # of the free memory the driver reports
 
 
