@@ -17,6 +17,7 @@ from matplotlib.figure import Figure
 
 from bench.progressive import Budget, CameraPath, camera_at
 from bench.report import Table, finite
+from progressive.attributes import default_attribute
 from progressive.camera import Camera, auto_camera, view_uniforms
 from progressive.context import GLContext
 from progressive.frame_loop import ProgressiveOptions, ProgressiveRenderer
@@ -37,9 +38,7 @@ def file_scenes(glc: GLContext, path: Path) -> tuple[CloudInfo, SceneMaker]:
         info = loader.info
         loader.start()
         batches = sorted(loader, key=lambda b: b.start)
-    from progressive.attributes import default_choice
-
-    attribute, _ = default_choice(info, batches[0])
+    attribute = default_attribute(info)
 
     def make(order: FillOrder) -> Scene:
         scene = Scene(glc, info, attribute, order=order)

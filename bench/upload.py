@@ -42,7 +42,9 @@ def child(staging: str, path: str, width: int, height: int) -> dict:
     glc = create_context()
     context = time.perf_counter()
     with Session([path], SessionOptions(width=width, height=height), glc=staged(glc, staging)) as s:
-        s.frame(s.auto_camera())
+        camera = s.auto_camera()
+        while s.first_image_seconds is None:
+            s.frame(camera)
         s.glc.ctx.finish()
         done = time.perf_counter()
         used = s.status().staging.value

@@ -647,7 +647,7 @@ def _remote_source(remote: RemoteFile, partial: bool) -> CopcSource:
         path=url, format="LAZ", version=f"{raw.version[0]}.{raw.version[1]}", point_format=raw.point_format,
         points=count, scale=tuple(float(v) for v in header.scales), offset=tuple(float(v) for v in header.offsets),
         bounds_min=tuple(float(v) for v in header.mins), bounds_max=tuple(float(v) for v in header.maxs),
-        rgb_16bit=None, crs=las.crs_name(header), copc_levels=hierarchy.levels, copc_nodes=int(hierarchy.nodes.size),
+        rgb_max=None, crs=las.crs_name(header), copc_levels=hierarchy.levels, copc_nodes=int(hierarchy.nodes.size),
         copc_points=count, levels_kept=hierarchy.levels, nodes_kept=int(hierarchy.nodes.size), fetches=remote.tally,
         remote=RemoteCopc(url, remote.options, remote.tally, hierarchy, laz.vlr_data, pf,
                           np.asarray(header.scales, np.float64), np.asarray(header.offsets, np.float64)))
@@ -658,7 +658,7 @@ def _remote_source(remote: RemoteFile, partial: bool) -> CopcSource:
         lo, hi = _node_bounds(source, partial)
         info = dataclasses.replace(info, bounds_min=lo, bounds_max=hi)
         warnings.append(f"{shown(url)}: header bounds {wrong}; ignored them and used the bounds of the points")
-    info = dataclasses.replace(info, rgb_16bit=max_rgb > RGB8_MAX if has_rgb else None, reads=NodeReads())
+    info = dataclasses.replace(info, rgb_max=max_rgb if has_rgb else None, reads=NodeReads())
     names = tuple(n for n in las.STANDARD if n in columns or n in ("scan_angle", "elevation")
                   or (n == "rgb" and has_rgb)) + tuple(n for n in columns if n not in las.STANDARD)
     source = dataclasses.replace(source, info=info, warnings=tuple(warnings),

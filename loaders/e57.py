@@ -19,7 +19,6 @@ import numpy as np
 from progressive.errors import InputError
 from progressive.loaders.types import (
     BATCH_POINTS,
-    RGB8_MAX,
     AttributeInfo,
     AttributeKind,
     Batch,
@@ -291,7 +290,7 @@ def open_e57(path: str | os.PathLike, *, partial: bool = False) -> E57Source:
         path=path, format="E57", version=version, point_format=-1, points=total,
         scale=(1.0, 1.0, 1.0), offset=(0.0, 0.0, 0.0),
         bounds_min=tuple(map(float, lo)), bounds_max=tuple(map(float, hi)),
-        rgb_16bit=max_rgb > RGB8_MAX if "rgb" in names else None, crs=crs,
+        rgb_max=max_rgb if "rgb" in names else None, crs=crs,
         scans=tuple(s.info for s in scans),
     )
     kinds = {"rgb": (AttributeKind.RGB, np.uint8), "intensity": (AttributeKind.SCALAR, np.float32),

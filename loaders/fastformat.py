@@ -164,7 +164,7 @@ def open_fast(path: str | os.PathLike, *, partial: bool = False) -> FastSource:
     origin, lo, hi = (tuple(floats[i:i + 3]) for i in (0, 3, 6))
     info = FileInfo(path=path, format="PRGS", version=str(version), point_format=-1, points=count,
                     scale=(1.0, 1.0, 1.0), offset=(0.0, 0.0, 0.0), bounds_min=lo, bounds_max=hi,
-                    rgb_16bit=None)
+                    rgb_max=None)
     attribute = AttributeInfo(name, kind, np.dtype(KIND_DTYPES[kind]), attr_offset)
     source = FastSource(info, attribute, np.array(origin, dtype=np.float64))
     seen = source.record_bounds(BOUNDS_SAMPLE)

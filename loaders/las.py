@@ -502,7 +502,7 @@ def open_las(path: str | os.PathLike, *, partial: bool = False, keep: bool = Fal
         offset=tuple(float(v) for v in header.offsets),
         bounds_min=tuple(float(v) for v in header.mins),
         bounds_max=tuple(float(v) for v in header.maxs),
-        rgb_16bit=max_rgb > RGB8_MAX if has_rgb else None,
+        rgb_max=max_rgb if has_rgb else None,
         crs=crs_name(header),
     )
     names = tuple(n for n in STANDARD if n in columns or n in ("scan_angle", "elevation")

@@ -19,7 +19,6 @@ import plyfile
 from progressive.errors import InputError
 from progressive.loaders.types import (
     BATCH_POINTS,
-    RGB8_MAX,
     AttributeInfo,
     AttributeKind,
     Batch,
@@ -218,7 +217,7 @@ def open_ply(path: str | os.PathLike, *, partial: bool = False) -> PlySource:
         path=path, format="PLY", version=f"{VERSION} {_encoding(data)}", point_format=-1,
         points=len(vertices), scale=(1.0, 1.0, 1.0), offset=(0.0, 0.0, 0.0),
         bounds_min=tuple(map(float, lo)), bounds_max=tuple(map(float, hi)),
-        rgb_16bit=max_rgb > RGB8_MAX if "rgb" in columns else None,
+        rgb_max=max_rgb if "rgb" in columns else None,
     )
     names = [n for n in ORDER if n in columns or n == "elevation"] + [n for n in columns if n not in ORDER]
     attributes = tuple(

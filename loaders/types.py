@@ -76,11 +76,10 @@ class FileInfo:
     offset: tuple[float, float, float]
     bounds_min: tuple[float, float, float]
     bounds_max: tuple[float, float, float]
-    rgb_16bit: bool | None
-    """None: no RGB. True iff some R, G or B among the file's first BATCH_POINTS points
-    exceeds 255; then every channel is shifted right by 8 bits. False: 8-bit, and any
-    later value above 255 is clipped to 255. Decided once per file, so the colours do
-    not depend on the loader's batch size."""
+    rgb_max: int | None
+    """None: no RGB. Else the greatest R, G or B among the file's first BATCH_POINTS
+    points, read until one exceeds 255 (the probe stops there): what rgb_16bit and
+    rgb_zero are decided by, once per file, so neither depends on the loader's batches."""
     crs: str | None = None
     scans: tuple[ScanInfo, ...] = ()
     """E57 only: the file's scans (data3D entries), in the order their points are loaded."""
@@ -88,6 +87,19 @@ class FileInfo:
     """A COPC file read down to a level of detail (loaders/copc.py): the (first, count)
     runs of the file's points the cloud holds, in file order; `points` counts only them
     and the cloud numbers them from 0. Empty: every point, in file order."""
+
+    @property
+    def rgb_16bit(self) -> bool | None:
+        """None: no RGB. True iff some R, G or B among the file's first BATCH_POINTS points
+        exceeds 255; then every channel is shifted right by 8 bits. False: 8-bit, and any
+        later value above 255 is clipped to 255."""
+        return None if self.rgb_max is None else self.rgb_max > RGB8_MAX
+
+    @property
+    def rgb_zero(self) -> bool:
+        """RGB is zero in every one of the first BATCH_POINTS points (scanners that write
+        empty colour fields): the default colouring passes it over."""
+        return self.rgb_max == 0
 
     def file_index(self, local: int) -> int:
         """The index in the file of the file's `local`-th point in the cloud."""

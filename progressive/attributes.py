@@ -4,10 +4,8 @@ from __future__ import annotations
 
 import re
 
-import numpy as np
-
 from progressive.errors import ProgressiveError
-from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, CloudInfo
+from progressive.loaders.types import BATCH_POINTS, AttributeInfo, AttributeKind, CloudInfo
 
 ALIASES = {
     "color": "rgb", "colour": "rgb", "red": "rgb", "green": "rgb", "blue": "rgb",
@@ -39,24 +37,25 @@ DEFAULT_ORDER = ("rgb", "elevation")
 as noise at a first look, elevation reads as the terrain (issue 13)."""
 
 
-def default_attribute(info: CloudInfo, sample: Batch | None = None) -> AttributeInfo:
-    """RGB where the files have it, else elevation; with a sample batch, RGB that is
-    all zero there is passed over (see default_choice)."""
-    return default_choice(info, sample)[0]
+def default_attribute(info: CloudInfo) -> AttributeInfo:
+    """RGB where the files have it and it is not all zero, else elevation (default_choice)."""
+    return default_choice(info)[0]
 
 
-def default_choice(info: CloudInfo, sample: Batch | None = None) -> tuple[AttributeInfo, str | None]:
-    """The default attribute and, when RGB was passed over for being all zero in the
-    sample (scanners that write empty RGB), a sentence saying so."""
+def default_choice(info: CloudInfo) -> tuple[AttributeInfo, str | None]:
+    """The default attribute and, when RGB was passed over for being zero in every file's
+    first points (FileInfo.rgb_zero: scanners that write empty colour fields), a
+    sentence saying so. Decided from the files' probes, before any batch is loaded, so
+    a session that shows only this attribute loads only it."""
     by_name = {a.name: a for a in info.attributes}
     skipped = []
     for name in DEFAULT_ORDER:
         if name not in by_name:
             continue
-        values = None if sample is None else sample.attributes.get(name)
-        if values is not None and values.size and not np.any(values):
+        if name == "rgb" and all(f.rgb_zero for f in info.files):
             skipped.append(name)
             continue
-        note = f"{' and '.join(skipped)} all zero in the first {sample.count:,} points; colouring by {name}" if skipped else None
-        return by_name[name], note
+        where = f"the first {min(BATCH_POINTS, info.files[0].points):,} points" if len(info.files) == 1 else \
+            f"the first points of every file (up to {BATCH_POINTS:,} each)"
+        return by_name[name], f"{' and '.join(skipped)} all zero in {where}; colouring by {name}" if skipped else None
     return next(a for a in info.attributes if a.kind is not AttributeKind.RGB), None

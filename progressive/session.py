@@ -161,8 +161,9 @@ def node_view(camera: Camera, width: int, height: int) -> View:
 
 class Session:
     def __init__(self, paths, options: SessionOptions = SessionOptions(), glc: GLContext | None = None):
-        """With `color_by` and not `switchable`, the loader reads only what is shown and
-        what the filters test, so a LAZ of point formats 6-10 decodes only those layers."""
+        """Not `switchable`, the loader reads only what is shown (`color_by`, else the
+        default chosen from the files' probes) and what the filters test, so a LAZ of
+        point formats 6-10 decodes only those layers."""
         if options.precision is not Precision.EXACT and options.method is not Method.BRUTE:
             raise ProgressiveError("adaptive precision is for brute-force renders (--method brute): progressive "
                                    "frames reproject each point at its exact position")
@@ -192,11 +193,10 @@ class Session:
                                       view=view)
         self.streamer: Streamer | None = None
         self._given_range = options.value_range
-        self._early: list = []
         self._notes: list[str] = []
         self.startup: dict[str, float] = {}
-        """Seconds of each phase before the first image: read (the header, and the first
-        batch where the default colouring needs it), context, passes (buffers and
+        """Seconds of each phase before the first image: read (the headers and the files'
+        probes), context, passes (buffers and
         programs), programs (of passes: compiled or loaded), upload and first_frame
         (the frame that showed points first, its distributes included; GPU work queued)."""
         try:
@@ -206,19 +206,15 @@ class Session:
                 plain = next(f.path for f, s in zip(self.info.files, self.loader.sources) if not streamable((s,)))
                 raise ProgressiveError(f"streaming reads COPC files by their octree: {plain} is not one (or its "
                                        "hierarchy cannot be used)")
-            if stream:
-                self.attribute = find_attribute(self.info, options.color_by) if options.color_by else \
-                    default_choice(self.info)[0]
-            elif options.color_by:
+            if options.color_by:
                 self.attribute = find_attribute(self.info, options.color_by)
+            else:
+                self.attribute, note = default_choice(self.info)
+                self._notes += [note] if note else []
+            if not stream:
                 if not options.switchable:
                     self.loader.keep_only(self._needed(self.attribute, options.class_filter))
                 self.loader.start(FIRST_HELD)
-            else:
-                self.loader.start(FIRST_HELD)
-                self._early = self._first_batches()
-                self.attribute, note = default_choice(self.info, self._early[0] if self._early else None)
-                self._notes += [note] if note else []
             t0 = time.perf_counter()
             self.startup["read"] = t0 - self.opened
             self._own_context = glc is None
@@ -240,8 +236,6 @@ class Session:
             raise
         self.startup["passes"] = time.perf_counter() - t1
         self.startup["programs"] = self.glc.programs.stats.seconds - programs_before
-        for batch in self._early:
-            self.renderer.add_batch(batch)
         self.load_seconds: float | None = None
         self.first_image_seconds: float | None = None
         self._last: Frame | None = None
@@ -325,15 +319,6 @@ class Session:
     @property
     def converged(self) -> bool:
         return self.progressive and self.renderer.converged
-
-    def _first_batches(self) -> list:
-        """Wait for the first loaded batch (needed to see anything anyway) to choose
-        a default colouring that is not all zero."""
-        while True:
-            batches = self.loader.poll()
-            if batches or self.loader.done:
-                return batches
-            time.sleep(0.002)
 
     @property
     def warnings(self) -> list[str]:

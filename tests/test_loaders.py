@@ -107,7 +107,11 @@ def test_matches_laspy(path: Path):
     assert (info.files[0].rgb_16bit is None) == (not has_rgb)
     if has_rgb:     # opening decodes only the layers it needs of a LAZ of point format 6-10
         first = slice(0, BATCH_POINTS)
-        assert info.files[0].rgb_16bit == bool(max(las.red[first].max(), las.green[first].max(), las.blue[first].max()) > 255)
+        most = max(las.red[first].max(), las.green[first].max(), las.blue[first].max())
+        assert info.files[0].rgb_16bit == bool(most > 255)
+        assert info.files[0].rgb_zero == (most == 0)
+    else:
+        assert not info.files[0].rgb_zero
 
 
 def test_colour_depth_detection():

@@ -225,13 +225,17 @@ def test_resolve_colours_rgb_from_the_file(gl):
     r.release()
 
 
-@pytest.mark.parametrize("name, color_by, hide", [("lone-star.copc.laz", "intensity", False),
-                                                   ("lone-star.copc.laz", "gps_time", True),
-                                                   ("autzen_trim.las", "intensity", True)])
-def test_a_session_colouring_by_one_attribute_reads_only_it(gl, name, color_by, hide):
-    """With color_by and not switchable the loader keeps the shown attribute (and the
-    class and returns where filters need them); the image and ids equal those of a
-    session that reads every attribute."""
+@pytest.mark.parametrize("name, color_by, hide, default", [("lone-star.copc.laz", "intensity", False, None),
+                                                            ("lone-star.copc.laz", "gps_time", True, None),
+                                                            ("autzen_trim.las", "intensity", True, None),
+                                                            ("autzen_trim.las", None, False, "rgb"),
+                                                            ("TLSSparseCloud_xyzOnly.laz", None, True, "elevation"),
+                                                            ("wires.laz", None, False, "elevation")])
+def test_a_session_colouring_by_one_attribute_reads_only_it(gl, name, color_by, hide, default):
+    """Not switchable, the loader keeps the shown attribute (and the class and returns
+    where filters need them): the one asked for, else the default, chosen before any
+    batch loads (TLSSparseCloud's RGB is all zero, wires.laz has none: MANIFEST); the
+    image and ids equal those of a session that reads every attribute."""
     from progressive.session import Method, Session, SessionOptions
 
     path = SAMPLE if name == "autzen_trim.las" else shared_file(name)
@@ -240,7 +244,8 @@ def test_a_session_colouring_by_one_attribute_reads_only_it(gl, name, color_by, 
         options = SessionOptions(width=W, height=H, color_by=color_by, switchable=switchable, class_filter=hide,
                                  method=Method.BRUTE)
         with Session([str(path)], options, glc=gl) as s:
-            wanted = {color_by, *(("classification", "return_number", "number_of_returns") if hide else ())}
+            assert s.attribute.name == (color_by or default)
+            wanted = {s.attribute.name, *(("classification", "return_number", "number_of_returns") if hide else ())}
             assert (set(s.loader.attributes) <= wanted) != switchable
             s.frame(s.auto_camera(), hidden=frozenset({2}) if hide else frozenset())
             shown[switchable] = (s.ids().copy(), s.image().copy())
