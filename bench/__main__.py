@@ -71,7 +71,7 @@ class Scale:
             accuracy_points=None if self.accuracy_points is None else min(self.accuracy_points, limit))
 
 
-QUICK = Scale("quick", load_points=2_000_000, threads=(1, 2, 4), load_repeats=1, first_image_size=(640, 360),
+QUICK = Scale("quick", load_points=2_000_000, threads=(1, 2, 4), load_repeats=3, first_image_size=(640, 360),
               raster_points=(1_000_000,), raster_sizes=((640, 360), (1280, 720)), raster_repeats=3,
               copy_bytes=64 << 20, progressive_points=(1_000_000,), progressive_size=(640, 360),
               fixed_budgets=(100_000,), targets_ms=(16.6, 11.1), motion_frames=15, max_frames=150,

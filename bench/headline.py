@@ -133,6 +133,7 @@ def load_lines(load: dict) -> list[str]:
         if r["threads"] != threads:
             continue
         decoders = f", decoded by {r['decoders']}" if r.get("decoders") else ""
+        decoders += f", only {r['attributes']} parsed (as `render` keeps)" if r.get("attributes", "every") != "every" else ""
         out.append(f"- Load {r['format']}, {r['points']:,} points, warm cache, {threads} parser threads{which}{decoders}: "
                    f"{r['points_per_s'] / 1e6:.1f} M points/s, {r['gb_per_s']:.2f} GB/s: "
                    f"{_x(r['vs_laspy'])} `laspy.read()` plus conversion ({r['laspy_file']}), "

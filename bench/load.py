@@ -25,7 +25,7 @@ from bench.data import drop_cache
 from bench.report import Table
 from progressive.budget import BudgetParams
 from progressive.context import GLContext
-from progressive.loaders import CloudLoader
+from progressive.loaders import CloudLoader, open_cloud
 from progressive.loaders.copc import is_copc
 from progressive.loaders.laz_pool import MIN_AUTO_PROCESSES, MIN_PROCESS_POINTS, Decoders, LazOptions
 from progressive.loaders.types import available_cores
@@ -77,10 +77,18 @@ LAZ_DECODERS = (Decoders.THREADS, Decoders.PROCESSES)
 """The two ways a LAZ is decoded, side by side in one run."""
 
 
-def pipeline(path: Path, threads: int, decoders: Decoders = Decoders.AUTO) -> None:
-    with CloudLoader([path], parser_threads=threads, laz=LazOptions(decoders)) as loader:
+def pipeline(path: Path, threads: int, decoders: Decoders = Decoders.AUTO, attributes: tuple[str, ...] | None = None) -> None:
+    """The loader over the whole file: every attribute (what a viewer keeps for switching), or only `attributes`."""
+    with CloudLoader([path], parser_threads=threads, laz=LazOptions(decoders), attributes=attributes) as loader:
         for _ in loader:
             pass
+
+
+def shown(path: Path) -> tuple[str, ...]:
+    """The attribute laspy_user converts (RGB where present, else intensity): what the loader parses beside the
+    positions in the rows that compare like with like, as `render` does without --color-by."""
+    names = {a.name for a in open_cloud([path]).attributes}
+    return ("rgb",) if "rgb" in names else ("intensity",)
 
 
 def laspy_user(path: Path) -> None:
@@ -146,7 +154,7 @@ def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats
     cores = available_cores()
     threads = tuple(sorted({*threads, cores}))
     load = Table("load", "Load: points/s and GB/s, against laspy, raw reads and lazrs alone", "", "", (
-        "file", "format", "points", "MB", "cache", "parser threads", "LAZ decoders", "s", "Mpoints/s", "GB/s",
+        "file", "format", "points", "MB", "cache", "parser threads", "LAZ decoders", "attributes", "s", "Mpoints/s", "GB/s",
         "× laspy.read + convert", "share of raw read GB/s", "lazrs alone Mpoints/s", "share of lazrs alone"))
     rows = []
     cold_forced = {}
@@ -162,10 +170,15 @@ def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats
             if cold:
                 cold_forced[f"{case.label} {case.format}"] = raw_s
             pooled = case.format == "LAZ" and not is_copc(case.path)      # COPC nodes are decoded by loaders/copc.py
-            for decoders, t in itertools.product(LAZ_DECODERS if pooled else (None,), threads):
-                s = timed(functools.partial(pipeline, case.path, t, decoders or Decoders.AUTO), case.path, cold, repeats)
+            runs = [(decoders, t, None) for decoders, t in itertools.product(LAZ_DECODERS if pooled else (None,), threads)]
+            if case.format != "fast":       # the fast format's records hold one attribute already
+                runs += [(decoders, cores, shown(case.path)) for decoders in (LAZ_DECODERS if pooled else (None,))]
+            for decoders, t, names in runs:
+                s = timed(functools.partial(pipeline, case.path, t, decoders or Decoders.AUTO, names), case.path, cold,
+                          repeats)
                 row = {"file": case.label, "format": case.format, "scaled": case.scaled, "bytes": size_b, "points": case.points,
                        "cold": cold, "threads": t, "decoders": decoders.value if decoders else None,
+                       "attributes": "every" if names is None else ", ".join(names),
                        "seconds": s, "points_per_s": case.points / s,
                        "gb_per_s": size_b / s / 1e9, "raw_seconds": raw_s, "laspy_seconds": laspy_s,
                        "laspy_file": baseline_path.name if baseline_path else None,
@@ -180,7 +193,7 @@ def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats
         cache = ("cold" if forced else "cold (not forced)") if r["cold"] else "warm"
         r["cold_forced"] = forced if r["cold"] else None
         load.rows.append((r["file"], r["format"], r["points"], r["bytes"] / 1e6, cache, r["threads"], r["decoders"],
-                          r["seconds"],
+                          r["attributes"], r["seconds"],
                           r["points_per_s"] / 1e6, r["gb_per_s"], r["vs_laspy"], f"{r['share_of_raw']:.2g}",
                           r["points"] / r["lazrs_seconds"] / 1e6 if r["lazrs_seconds"] else None,
                           f"{r['share_of_lazrs']:.2g}" if r["share_of_lazrs"] else None))
@@ -192,7 +205,9 @@ def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats
          f"the loader's default for a file with {MIN_PROCESS_POINTS:,} points or more left after its first batches "
          f"where {MIN_AUTO_PROCESSES} cores or more are available; "
          "a COPC file's nodes are decoded in the loader's process, one row). "
-         "Loader: `CloudLoader` (reader thread + parser threads) to float32 positions and attribute arrays. "
+         "Loader: `CloudLoader` (reader thread + parser threads) to float32 positions and attribute arrays: "
+         "every attribute (what a viewer keeps to switch colouring), or only the one laspy converts here (what "
+         "`render` keeps; at the default parser threads). "
         "× laspy = seconds of `laspy.read()` plus float32 positions relative to the bounds' centre and one attribute "
         "(RGB, else intensity), divided by the loader's seconds, same file and cache state, same run; for the fast "
         "format laspy reads the LAS file of the same cloud. Share of raw read = raw read seconds (8 MiB blocks, "
