@@ -304,16 +304,21 @@ class LasSource:
         lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
         attributes: dict[str, np.ndarray] = {}
         step = max(1, PARSE_BLOCK_BYTES // chunk.dtype.itemsize)
+        coords = np.empty(min(n, step))
+        scales, offsets = self.records.scales, self.records.offsets
         with np.errstate(over="ignore", invalid="ignore"):     # overflow is counted, not warned
             for at in range(0, n, step):
                 block = chunk[at:at + step]
                 rows = slice(at, at + len(block))
+                scaled = coords[:len(block)]
                 for axis in range(3):
+                    # as Records.coordinates (laspy's rule), into one buffer, the last
+                    # step written straight to float32 (rounded once, as before)
                     cells[rows, axis] = block["XYZ"[axis]]
-                    coords = self.records.coordinates(block, axis)
-                    lo[axis], hi[axis] = np.minimum(lo[axis], coords.min()), np.maximum(hi[axis], coords.max())
-                    coords -= origin[axis]
-                    positions[rows, axis] = coords
+                    np.multiply(cells[rows, axis], scales[axis], out=scaled)
+                    scaled += offsets[axis]
+                    lo[axis], hi[axis] = np.minimum(lo[axis], scaled.min()), np.maximum(hi[axis], scaled.max())
+                    np.subtract(scaled, origin[axis], out=positions[rows, axis], casting="same_kind")
                 record = laspy.PackedPointRecord(block, self.records.point_format)
                 for name in names:
                     if name != "elevation":
@@ -321,19 +326,28 @@ class LasSource:
                         if name not in attributes:
                             attributes[name] = np.empty((n, *values.shape[1:]), values.dtype)
                         attributes[name][rows] = values
+            # Rounding is monotonic: where the least and greatest coordinates of each axis
+            # are finite as float32 positions, every position is (no pass over them).
+            ends_finite = np.isfinite(np.float32([lo - origin, hi - origin])).all()
         counts = {name: n for name, v in attributes.items() if (n := nonfinite_count(v))}
         for name in counts:
             quiet_nans(attributes[name])
         grid = Grid(cells, tuple(map(float, self.records.scales)), tuple(map(float, self.records.offsets)))
         return Batch(start=start, positions=positions, attributes=attributes, bounds=(lo, hi),
-                     nonfinite_positions=nonfinite_rows(positions), nonfinite_values=counts, grid=grid)
+                     nonfinite_positions=0 if ends_finite else nonfinite_rows(positions), nonfinite_values=counts,
+                     grid=grid)
 
     def _values(self, chunk: laspy.PackedPointRecord, name: str) -> np.ndarray:
         if name == "rgb":
             # The depth is decided once per file (FileInfo.rgb_16bit); 8-bit files clip.
+            # A 16-bit channel's value >> 8 is its high byte: copied from the records as is.
             rgb = np.empty((len(chunk), 3), dtype=np.uint8)
+            raw = chunk.array.view(np.uint8).reshape(len(chunk), -1) if self.info.rgb_16bit else None
             for i, dim in enumerate(("red", "green", "blue")):
-                rgb[:, i] = channel8(chunk[dim], self.info.rgb_16bit)
+                if raw is None:
+                    rgb[:, i] = channel8(chunk[dim], False)
+                else:
+                    rgb[:, i] = raw[:, chunk.array.dtype.fields[dim][1] + 1]
             return rgb
         if name == "scan_angle":
             if self.info.point_format < 6:
@@ -341,9 +355,7 @@ class LasSource:
             return (np.asarray(chunk["scan_angle"], dtype=np.float64) * SCAN_ANGLE_STEP).astype(np.float32)
         column = self.columns[name]
         values = np.asarray(chunk[column.dimension])
-        if column.index is not None:
-            values = values[:, column.index]
-        return np.ascontiguousarray(values)
+        return values if column.index is None else values[:, column.index]     # a view: parse copies it once
 
 
 def layers(names: tuple[str, ...]) -> laspy.DecompressionSelection:
