@@ -37,6 +37,10 @@ cp -r "${SHARED_DATA:-../shared/data}" .gpu/data
 chmod -R u+w .gpu/data
 rm -f .gpu/data/autzen_trim.las .gpu/data/bunnyDouble.e57 .gpu/wheels/pyopengl-*.whl
 echo 'export PROGRESSIVE_SHARED_DATA="$_gpu_here/data"' >> .gpu/env.sh
+# That machine sets PYTHONDONTWRITEBYTECODE=1 and the wheels go in with --no-compile: without this
+# every process compiles each module it imports, which an installed package never does
+# (bench/results/nvidia-h200/startup_compiled/README.md).
+echo 'python3 -m compileall -q -j 0 /tmp/site "$PWD/progressive" "$PWD/loaders" "$PWD/bench" "$PWD/tests" > /dev/null 2>&1 || true' >> .gpu/env.sh
 mkdir -p .git/info
 grep -qx '/.gpu/' .git/info/exclude 2>/dev/null || echo '/.gpu/' >> .git/info/exclude
 ls .gpu/wheels
