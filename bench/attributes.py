@@ -1,8 +1,9 @@
 """Attribute switch (paper 3.5): points per second when the shown attribute changes.
 The scene keeps the loaded struct-of-arrays; a switch packs one 4-byte word a point
-from the attribute's own array (1, 3 or more source components) straight into the
-upload ring, runs of consecutive kept batches at a time, and the distribute words
-program scatters it to the permuted slots. Clouds are the bundled sample
+from the attribute's own array (1, 3 or more source components; RGB's 3 bytes are
+copied as they are, the GPU makes the words) straight into the upload ring, runs of
+consecutive kept batches at a time, and the distribute words program scatters it to
+the permuted slots. Clouds are the bundled sample
 repeated to N points (the arrays are shared, so host memory stays small)."""
 
 from __future__ import annotations
@@ -20,7 +21,8 @@ from progressive.loaders import CloudLoader
 from progressive.scene import Scene
 from progressive.wordpack import PACK_THREADS, WordPacker, WordRun, threaded
 
-CASES = (("intensity", "1 (uint16)"), ("gps_time", "1 (float64)"), ("rgb", "3 (uint8 each, packed to RGBA8)"),
+CASES = (("intensity", "1 (uint16)"), ("gps_time", "1 (float64)"),
+         ("rgb", "3 (uint8 each, staged as bytes, RGBA8 words made on the GPU)"),
          ("classification", "1 (uint8 code)"))
 
 
@@ -75,7 +77,8 @@ def run(glc: GLContext, points: int, repeats: int = 3) -> Table:
     table.notes = [
         ("Each switch: the kept batches in file order as runs of words, each packed on the CPU (numpy, "
          f"progressive/wordpack.py, {PACK_THREADS} threads) straight into a staging slot of the upload ring "
-         f"({pieces:,} words a piece), then scattered by the words program to the batch's records on the GPU "
+         f"({pieces:,} words a piece; RGB: its 3 bytes a point copied there, the words made on the GPU), then "
+         "scattered by the words program to the batch's records on the GPU "
          f"(the batch's prime shuffle), kept in the progressive renderer's order ({ProgressiveOptions().records.value}); timed from the switch to glFinish, best of {repeats}, each switch from "
          "elevation. Words of the previous attribute are overwritten in place; no reload."),
         ("Packing: the same runs packed by the same threads into host memory (no GPU), best of "
@@ -87,11 +90,16 @@ def run(glc: GLContext, points: int, repeats: int = 3) -> Table:
 
 
 def packing_seconds(scene: Scene, attribute, words: np.ndarray, repeats: int) -> float:
-    """Seconds to pack the kept batches' words as a switch does, into `words`."""
+    """Seconds to pack the kept batches' words as a switch does, into `words` (RGB: its
+    bytes copied into them, 3 a point, as the switch stages them)."""
     packer = WordPacker(attribute, float(scene.info.origin[2]))
     kept = sorted(scene.batches, key=lambda b: b.start)
     run = WordRun(packer, [(b, 0, b.count) for b in kept])
-    fill = threaded(run.fill, scene._packing_pool(), PACK_THREADS)
+    if run.rgb_bytes:
+        fill = threaded(run.fill_rgb, scene._packing_pool(), PACK_THREADS)
+        words = words.view(np.uint8)[:3 * run.count].reshape(run.count, 3)
+    else:
+        fill = threaded(run.fill, scene._packing_pool(), PACK_THREADS)
     best = float("inf")
     for _ in range(repeats):
         t0 = time.perf_counter()

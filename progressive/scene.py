@@ -295,8 +295,12 @@ class Scene:
                 self._streamed(sw, batch.count)
             else:
                 run = self._word_run(sw, packer)
-                self.distribute.upload_words(threaded(run.fill, self._packing_pool(), PACK_THREADS), run.start,
-                                             run.count)
+                if run.rgb_bytes:
+                    self.distribute.upload_rgb(threaded(run.fill_rgb, self._packing_pool(), PACK_THREADS), run.start,
+                                               run.count)
+                else:
+                    self.distribute.upload_words(threaded(run.fill, self._packing_pool(), PACK_THREADS), run.start,
+                                                 run.count)
                 self._streamed(sw, run.count, words=True)
         sw.seconds += time.perf_counter() - t0
         return sw.done

@@ -89,14 +89,36 @@ class WordRun:
         """Words [lo, hi) of the run into `out` ((hi - lo, 1) or (hi - lo,) uint32);
         nothing is hidden by a word alone, so 0 (distribute's Fill)."""
         flat = out.reshape(hi - lo)
+        for batch, first, at, end in self._pieces(lo, hi):
+            self.packer.pack(flat[at:end], batch, first, first + end - at)
+        return 0
+
+    @property
+    def rgb_bytes(self) -> bool:
+        """Whether the run's attribute is RGB held as (n, 3) uint8 in every part, so
+        fill_rgb can hand its bytes to the GPU as they are (DistributePass.upload_rgb)."""
+        name = self.packer.attribute.name
+        return self.packer.attribute.kind is AttributeKind.RGB and all(
+            b.attributes[name].dtype == np.uint8 and b.attributes[name].shape[1:] == (3,) for b, _, _ in self.parts)
+
+    def fill_rgb(self, out: np.ndarray, lo: int, hi: int) -> int:
+        """Points [lo, hi)'s R, G, B bytes into `out` ((hi - lo, 3) uint8): a copy, the
+        words made on the GPU (rgb_bytes runs only; distribute's Fill)."""
+        name = self.packer.attribute.name
+        for batch, first, at, end in self._pieces(lo, hi):
+            out[at:end] = batch.attributes[name][first:first + end - at]
+        return 0
+
+    def _pieces(self, lo: int, hi: int):
+        """(batch, its first row, out's first row, out's end) of the parts that hold
+        run items [lo, hi), out's rows counted from lo."""
         k = int(np.searchsorted(self.edges, lo, side="right")) - 1
-        while lo < hi:
+        at = lo
+        while at < hi:
             batch, row_lo, _ = self.parts[k]
             end = min(hi, int(self.edges[k + 1]))
-            first = row_lo + lo - int(self.edges[k])
-            self.packer.pack(flat[: end - lo], batch, first, first + end - lo)
-            flat, lo, k = flat[end - lo:], end, k + 1
-        return 0
+            yield batch, row_lo + at - int(self.edges[k]), at - lo, end - lo
+            at, k = end, k + 1
 
 
 def threaded(fill: Callable[[np.ndarray, int, int], int], pool: Executor | None, threads: int,

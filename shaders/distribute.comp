@@ -1,6 +1,7 @@
 // Scatter a staged batch into its permuted slots (paper section 3.3). With
-// ATTRIBUTE_ONLY the stage holds one word per point and only word 3 is replaced (the
-// word store's attribute plane, written batch by batch: attribute switching); with
+// ATTRIBUTE_ONLY the stage holds one word per point (or RGB_BYTES, three bytes) and only
+// word 3 is replaced (the word store's attribute plane, written batch by batch: attribute
+// switching); with
 // CLASS_WORDS each point's 16 flag bits (class, first and last return) go to the store's flags.
 // The word store's points are encoded here, in their batch's frame (set before the
 // scatter): from float records in float64, as progressive/encoding.py quantize and
@@ -14,6 +15,23 @@ layout(std430, binding = BINDING_DISTRIBUTE) readonly buffer Stage { uint staged
 layout(std430, binding = BINDING_CLASSES) buffer Classes { uint classes[]; };
 #elif ATTRIBUTE_ONLY
 layout(std430, binding = BINDING_DISTRIBUTE) readonly buffer Stage { uint staged[]; };
+
+// Point i's attribute word. RGB_BYTES: the stage holds each point's R, G, B bytes back to
+// back (3 a point: a quarter less to write to the staging memory than words, and nothing
+// packed on the CPU), made the word R | G << 8 | B << 16 | 0xFF000000 here, as
+// loaders/records.py attribute_word makes it.
+uint staged_byte(uint j) {
+    return (staged[j >> 2u] >> ((j & 3u) << 3u)) & 0xFFu;
+}
+
+uint staged_word(uint i) {
+#if RGB_BYTES
+    uint j = 3u * i;
+    return staged_byte(j) | (staged_byte(j + 1u) << 8u) | (staged_byte(j + 2u) << 16u) | 0xFF000000u;
+#else
+    return staged[i];
+#endif
+}
 #else
 layout(std430, binding = BINDING_DISTRIBUTE) readonly buffer Stage { uvec4 staged[]; };
 #endif
@@ -70,7 +88,7 @@ void main() {
     uint slot = piece * (u_batches * SLICE_POINTS) + b * SLICE_POINTS + (shuffled - piece * SLICE_POINTS);
     if (slot >= u_capacity) return;
     uint record = store_batches == 0u ? slot : batch_record(b) + shuffled;
-    set_plane_word(3u, record, staged[i]);
+    set_plane_word(3u, record, staged_word(i));
 #else
     uint slot = slot_of(u_start + i, u_prime, u_rotation, u_batches);
     if (slot >= u_capacity) return;
@@ -78,7 +96,7 @@ void main() {
     // Each slot is written once (the buffer starts at zero), two slots share a word.
     atomicOr(classes[slot >> 1u], (staged[i] & 0xFFFFu) << ((slot & 1u) * 16u));
 #elif ATTRIBUTE_ONLY
-    store_point(slot, uvec4(0u, 0u, 0u, staged[i]), 3);
+    store_point(slot, uvec4(0u, 0u, 0u, staged_word(i)), 3);
 #elif WORD_PLANES
     store_point(slot, encode_words(u_start + i, staged[i]), -1);
 #else

@@ -17,6 +17,7 @@ import pytest
 from progressive.encoding import Encoding
 from progressive.loaders.records import attribute_word
 from progressive.loaders.types import AttributeInfo, AttributeKind, Batch
+from progressive.passes.distribute import Staging, without_buffer_storage
 from progressive.permutation import BATCH_POINTS, FillOrder
 from progressive.pointstore import EMPTY_WORD
 from progressive.scene import Scene
@@ -134,6 +135,13 @@ def test_run_fill_in_pieces_and_threads_equals_the_reference(sample_batches):
         np.testing.assert_array_equal(out[100:], ref[100:])
     with pytest.raises(ValueError):
         WordRun(packer, [parts[0], parts[2]])
+    assert run.rgb_bytes      # the loader's RGB: (n, 3) uint8, handed to the GPU as bytes
+    rgb = np.zeros((run.count, 3), dtype=np.uint8)
+    for lo, hi in zip(cuts, cuts[1:]):
+        run.fill_rgb(rgb[lo:hi], lo, hi)
+    np.testing.assert_array_equal(rgb, np.concatenate([b.attributes["rgb"][lo:hi] for b, lo, hi in parts]))
+    wide = dataclasses.replace(batches[0], attributes={"rgb": batches[0].attributes["rgb"].astype(np.uint16)})
+    assert not WordRun(WordPacker(dataclasses.replace(attribute, dtype=np.uint16), 0.0), [(wide, 0, 10)]).rgb_bytes
 
 
 @pytest.mark.parametrize("encoding", list(Encoding), ids=lambda e: e.name.lower())
@@ -162,6 +170,30 @@ def test_switched_words_equal_the_reference(gl, sample_batches, encoding, name):
     np.testing.assert_array_equal(after[:, :3], before[:, :3])     # positions untouched
     assert scene.switch.streamed == info.points and scene.switch.unchanged == 0
     assert scene.skipped == 0
+    assert (scene.distribute.rgb_words is not None) == (name == "rgb")      # RGB staged as bytes
+    scene.release()
+
+
+@pytest.mark.parametrize("staging", list(Staging), ids=lambda s: s.name.lower())
+@pytest.mark.parametrize("encoding", list(Encoding), ids=lambda e: e.name.lower())
+def test_rgb_switch_staged_as_bytes_through_the_ring_and_copied(gl, sample_batches, staging, encoding):
+    """RGB switches stage 3 bytes a point and the scatter makes the words: equal to the
+    reference through ring slots and through the copy buffer, with pieces whose bytes
+    end inside a word (12,003 points: 36,009 bytes)."""
+    info, batches = sample_batches
+    loaded = resplit(batches)
+    scene = Scene(gl if staging is Staging.RING else without_buffer_storage(gl), info, info.attribute("intensity"),
+                  keep_batches=True, position_encoding=encoding)
+    for b in loaded:
+        scene.add_batch(b)
+    scene.distribute.word_piece = 12_003
+    stats = scene.distribute.stats
+    ring, copied = stats.ring, stats.copied
+    attribute = info.attribute("rgb")
+    switch(scene, attribute)
+    np.testing.assert_array_equal(scene.store.read_words()[:, 3], expected_words(scene, loaded, attribute))
+    assert scene.distribute.rgb_words is not None
+    assert (stats.ring - ring > 0) == (staging is Staging.RING) and (stats.copied - copied > 0) == (staging is Staging.COPY)
     scene.release()
 
 

@@ -34,8 +34,9 @@ worth (2 M words) split over 8 threads, packing threads spent about as long star
 and joining as packing (bench/results/nvidia-h200/packing.md, words a call)."""
 
 Fill = Callable[[np.ndarray, int, int], int]
-"""fill(out, lo, hi) writes items [lo, hi) into `out` ((hi - lo, width) uint32, maybe
-mapped memory: written, never read) and returns a count the caller sums (hidden points)."""
+"""fill(out, lo, hi) writes items [lo, hi) into `out` ((hi - lo, width) uint32, or
+(hi - lo, item_bytes) uint8 for items of bytes; maybe mapped memory: written, never
+read) and returns a count the caller sums (hidden points)."""
 
 
 class Staging(enum.Enum):
@@ -125,11 +126,12 @@ class DistributePass:
         int64 = glc.caps.shader_int64
         defines = dict(store.defines, PERMUTE_INT64=1) if int64 else dict(store.defines)
         ext = ("GL_ARB_gpu_shader_int64",) if int64 else ()
-        self._build = lambda only, label, classes=0, cells=0: shaderlib.compute(
-            glc.ctx, "distribute.comp", dict(defines, ATTRIBUTE_ONLY=only, CLASS_WORDS=classes, STAGED_CELLS=cells),
-            ext, label)
+        self._build = lambda only, label, classes=0, cells=0, rgb=0: shaderlib.compute(
+            glc.ctx, "distribute.comp",
+            dict(defines, ATTRIBUTE_ONLY=only, CLASS_WORDS=classes, STAGED_CELLS=cells, RGB_BYTES=rgb), ext, label)
         self._programs: dict[bool, object] = {}     # by cells: built at the first upload of each kind
         self.words = None       # built at the first attribute switch: no first image waits for it
+        self.rgb_words = None   # the same, from staged RGB bytes: built at the first switch to RGB
         self.classes = self._build(0, "distribute classes", 1) if store.has_classes else None
         self.points_distributed = 0
 
@@ -181,14 +183,26 @@ class DistributePass:
             words, count = _copy(words, 1), words.shape[0]
         self._scatter(self.words, words, count, 1, start, self.word_ring, self.word_piece_items())
 
+    def upload_rgb(self, fill: Fill, start: int, count: int) -> None:
+        """Replace the attribute word of points start.. with their RGB: `fill` writes
+        each point's R, G, B bytes ((hi - lo, 3) uint8, maybe mapped memory), which the
+        scatter makes words (shaders/distribute.comp RGB_BYTES), in pieces of
+        word_piece_items() through the words' ring."""
+        self.rgb_words = self.rgb_words or self._build(1, "distribute rgb bytes", rgb=1)
+        if self.staging is Staging.RING and self.word_ring is None:
+            self.word_ring = self._ring_of(self.word_piece, self.word_piece * 4)
+        self._scatter(self.rgb_words, fill, count, 1, start, self.word_ring, self.word_piece_items(), item_bytes=3)
+
     def upload_classes(self, codes: np.ndarray, start: int) -> None:
         """Set the class byte of n points (stores that keep classes)."""
         self._scatter(self.classes, _copy(codes, 1), codes.shape[0], 1, start)
 
     def _scatter(self, program, fill: Fill, n: int, width: int, start: int, ring: StagingRing | None = None,
-                 step: int | None = None) -> int:
+                 step: int | None = None, item_bytes: int | None = None) -> int:
         """Pieces of `step` items (default piece_items) staged in `ring`'s slots (default
-        the records' ring) or, where none is free, copied."""
+        the records' ring) or, where none is free, copied; items of `width` words, or
+        with item_bytes of that many bytes back to back (the fill's out then
+        (hi - lo, item_bytes) uint8)."""
         ring = ring or self.ring
         step = step or self.piece_items(width)
         if start < 0 or start + n > self.store.count:
@@ -202,14 +216,15 @@ class DistributePass:
         total = 0
         for lo in range(0, n, step):
             hi = min(n, lo + step)
+            words = (hi - lo) * width if item_bytes is None else -(-(hi - lo) * item_bytes // 4)
             slot = ring.acquire() if ring is not None else None
             if slot is not None:
-                total += fill(ring.view(slot, hi - lo, width), lo, hi)
-                ring.bind(slot, (hi - lo) * width * 4)
+                total += fill(_items(ring.view(slot, words, 1), hi - lo, width, item_bytes), lo, hi)
+                ring.bind(slot, words * 4)
                 self.stats.ring += 1
             else:
-                part = np.empty((hi - lo, width), dtype=np.uint32)
-                total += fill(part, lo, hi)
+                part = np.empty(words, dtype=np.uint32)
+                total += fill(_items(part, hi - lo, width, item_bytes), lo, hi)
                 self.stage.orphan()   # fresh storage: no wait for the previous scatter to finish reading
                 self.stage.write(part)
                 self.stage.bind_to_storage_buffer(Binding.DISTRIBUTE)
@@ -228,7 +243,7 @@ class DistributePass:
             if ring is not None:
                 ring.release()
         self.ring = self.word_ring = None
-        for obj in (self._stage, *self._programs.values(), self.words, self.classes):
+        for obj in (self._stage, *self._programs.values(), self.words, self.rgb_words, self.classes):
             if obj is not None:
                 obj.release()
 
@@ -237,6 +252,14 @@ def without_buffer_storage(glc: GLContext) -> GLContext:
     """The context as a driver without GL_ARB_buffer_storage offers it: uploads copy
     (the fallback, side by side with the ring in tests and benchmarks)."""
     return replace(glc, gl=replace(glc.gl, storage=None))
+
+
+def _items(staged: np.ndarray, count: int, width: int, item_bytes: int | None) -> np.ndarray:
+    """The staged words as a fill writes them: (count, width) uint32, or (count,
+    item_bytes) uint8 of items packed back to back."""
+    if item_bytes is None:
+        return staged.reshape(count, width)
+    return staged.reshape(-1).view(np.uint8)[:count * item_bytes].reshape(count, item_bytes)
 
 
 def _copy(data: np.ndarray, width: int) -> Fill:
