@@ -149,6 +149,28 @@ def test_las14_uses_64bit_count_when_legacy_is_zero(tmp_path):
 
 # --- several files, threads and batch sizes -----------------------------------------------
 
+def test_default_colouring_passes_over_rgb_only_where_every_file_has_it_zero(tmp_path):
+    """The sample with its RGB zeroed (beyond the first 500,000 points the probe reads
+    nothing: the file has 110,000) beside the sample itself: RGB is the default while one
+    file has colour; with only zeroed files, elevation, and a note saying why."""
+    from progressive.attributes import default_choice
+
+    las = laspy.read(SAMPLE)
+    for channel in ("red", "green", "blue"):
+        setattr(las, channel, np.zeros(len(las.points), dtype=np.uint16))
+    dark = tmp_path / "dark.las"
+    las.write(dark)
+    assert open_cloud([dark]).files[0].rgb_zero and not open_cloud([SAMPLE]).files[0].rgb_zero
+    for paths, expected in (([dark, SAMPLE], "rgb"), ([SAMPLE, dark], "rgb"), ([dark], "elevation"),
+                            ([dark, dark], "elevation")):
+        attribute, note = default_choice(open_cloud(paths))
+        assert attribute.name == expected
+        assert (note is None) == (expected == "rgb")
+        if note:
+            assert note.startswith("rgb all zero in the first") and note.endswith("colouring by elevation")
+            assert ("110,000 points;" in note) == (len(paths) == 1) and ("every file" in note) == (len(paths) > 1)
+
+
 def test_multi_file_cloud_is_concatenated():
     second = shared_file("vegetation_1_3.las")
     loader, batches = load([SAMPLE, second], batch_points=20_000)
