@@ -2,11 +2,12 @@
 3.5), GPU-free: bit for bit loaders/records.py attribute_word, the reference, written
 into the slot it goes to by one numpy call a kind (no temporaries of a batch's size);
 a run of kept batches is packed by several threads (numpy releases the GIL), so
-packing keeps up with the GPU's scatter."""
+packing keeps up with the GPU's scatter. RGB held as bytes is not packed: its bytes are
+copied (WordRun.fill_rgb) and the scatter makes the words."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Executor
 
 import numpy as np
@@ -109,7 +110,7 @@ class WordRun:
             out[at:end] = batch.attributes[name][first:first + end - at]
         return 0
 
-    def _pieces(self, lo: int, hi: int):
+    def _pieces(self, lo: int, hi: int) -> Iterator[tuple[Batch, int, int, int]]:
         """(batch, its first row, out's first row, out's end) of the parts that hold
         run items [lo, hi), out's rows counted from lo."""
         k = int(np.searchsorted(self.edges, lo, side="right")) - 1

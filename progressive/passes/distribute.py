@@ -177,11 +177,9 @@ class DistributePass:
         3.5): an array of them, or a fill that packs `count` of them straight into the
         staging memory, in pieces of word_piece_items() through the words' own ring."""
         self.words = self.words or self._build(1, "distribute words")
-        if self.staging is Staging.RING and self.word_ring is None:
-            self.word_ring = self._ring_of(self.word_piece, self.word_piece * 4)
         if isinstance(words, np.ndarray):
             words, count = _copy(words, 1), words.shape[0]
-        self._scatter(self.words, words, count, 1, start, self.word_ring, self.word_piece_items())
+        self._scatter(self.words, words, count, 1, start, self._switch_ring(), self.word_piece_items())
 
     def upload_rgb(self, fill: Fill, start: int, count: int) -> None:
         """Replace the attribute word of points start.. with their RGB: `fill` writes
@@ -189,9 +187,13 @@ class DistributePass:
         scatter makes words (shaders/distribute.comp RGB_BYTES), in pieces of
         word_piece_items() through the words' ring."""
         self.rgb_words = self.rgb_words or self._build(1, "distribute rgb bytes", rgb=1)
+        self._scatter(self.rgb_words, fill, count, 1, start, self._switch_ring(), self.word_piece_items(), item_bytes=3)
+
+    def _switch_ring(self) -> StagingRing | None:
+        """The ring of a switch's pieces (word_piece words a slot), made at the first switch."""
         if self.staging is Staging.RING and self.word_ring is None:
             self.word_ring = self._ring_of(self.word_piece, self.word_piece * 4)
-        self._scatter(self.rgb_words, fill, count, 1, start, self.word_ring, self.word_piece_items(), item_bytes=3)
+        return self.word_ring
 
     def upload_classes(self, codes: np.ndarray, start: int) -> None:
         """Set the class byte of n points (stores that keep classes)."""
