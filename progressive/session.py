@@ -272,7 +272,7 @@ class Session:
                 scene.release()
             raise
         self.streamer = Streamer(scene, reader, state, replace(PLAN, max_in_flight=READS_QUEUED * threads),
-                                 keep=options.switchable)
+                                 keep=options.switchable, first_in_flight=threads)
 
     def _open_renderer(self, options: SessionOptions, class_filter: bool) -> None:
         """The renderer of a cloud loaded in order (a uniform random subset where it does

@@ -16,7 +16,7 @@ from __future__ import annotations
 import enum
 import time
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -91,8 +91,15 @@ class Streamer:
     is written from them, node by node, instead of read again."""
 
     def __init__(self, scene: Scene, reader: NodeReader, state: Residency, options: PlanOptions = PLAN,
-                 keep: bool = False):
+                 keep: bool = False, first_in_flight: int | None = None):
+        """first_in_flight: reads requested at once until a frame has shown points (then
+        options.max_in_flight): one a reader thread, so that no reads queue behind the
+        first nodes while the first image is made (with READS_QUEUED from the start, as
+        since 86e7d3d, the H200's first image of the 1 B-point COPC took 1.22 s at
+        40ce040 against 0.86 s at c0f0c82: bench/results/nvidia-h200/stream_c0f0c82/)."""
         self.scene, self.reader, self.state, self.options = scene, reader, state, options
+        self._first_options = options if first_in_flight is None else \
+            replace(options, max_in_flight=max(1, min(options.max_in_flight, first_in_flight)))
         self.keep = keep
         self._arrived: dict[int, Batch] = {}
         self._kept: dict[int, Batch] = {}           # keep: each resident node's points
@@ -118,6 +125,7 @@ class Streamer:
         what that did to the store (the batches it wrote: `written`)."""
         changed = StoreChange.NONE
         self.written = []
+        shown_before = self.scene.loaded > 0      # a frame has shown points: reads may queue up
         for row, got in self.reader.arrivals():
             self._events = True
             if isinstance(got, str):
@@ -149,7 +157,7 @@ class Streamer:
             planned = view if fresh or not moved else self._view
             if self._part is None or not self._part.holds(self.state, planned):
                 self._part = ViewPart.of(self.state, planned)
-            p = plan(self.state, planned, self.options, self._part)
+            p = plan(self.state, planned, self.options if shown_before else self._first_options, self._part)
             self._view, self._events = planned, False
             if planned == view:
                 self._planned_at = now

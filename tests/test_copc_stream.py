@@ -312,6 +312,33 @@ def test_nodes_are_read_on_every_core_a_urls_requests_bounded_by_its_file(sample
         assert server.most_active == 3, server.most_active
 
 
+def test_reads_queue_up_only_once_the_first_nodes_are_shown(monkeypatch):
+    """Until a frame has shown points, the plan requests one read a reader thread (reads
+    queued behind them held the first image back); from the next frame on,
+    READS_QUEUED a thread."""
+    from progressive import session as session_module
+
+    monkeypatch.setattr(session_module, "available_cores", lambda: 2)
+    monkeypatch.setattr(session_module.laz_pool, "available", lambda: False)
+    path = shared_file(LONE_STAR)       # 15 nodes: more than the threads' first reads
+    with streamed(path) as s:
+        threads = s.streamer.reader._pool._max_workers
+        camera, most, frames = s.auto_camera(), [], 0
+        while s.status().on_gpu == 0 and frames < FRAMES:
+            s.frame(camera)
+            most.append(s.streamer.state.in_flight)
+            frames += 1
+        assert s.status().on_gpu > 0 and max(most) <= threads, most
+        later = []
+        for _ in range(FRAMES):
+            s.frame(camera)
+            later.append(s.streamer.state.in_flight)
+            if s.converged:
+                break
+        assert s.converged and max(later) > threads, later
+        assert s.streamer.options.max_in_flight == READS_QUEUED * threads
+
+
 def test_limit_keeps_a_tree_cut_renders_it_exactly_and_picks_the_files_points():
     path = shared_file(LONE_STAR)
     las, xyz = las_xyz(path)
