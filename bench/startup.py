@@ -101,6 +101,17 @@ def answer_child(args: argparse.Namespace, child) -> bool:
     return True
 
 
+def compile_package() -> None:
+    """The package's modules as bytecode, as an installed package has them: with
+    PYTHONDONTWRITEBYTECODE (set on this project's machines) the children of an
+    editable install would each compile every module they import (scripts/setup.sh
+    compiles them too)."""
+    import compileall
+
+    for folder in ("progressive", "loaders"):
+        compileall.compile_dir(str(REPO / folder), quiet=1)
+
+
 def one(command: str, path: Path, size: tuple[int, int], env: dict[str, str]) -> dict:
     return spawn("bench.startup", command, path, size, env)
 
@@ -113,6 +124,7 @@ def run(files: list[Path], size: tuple[int, int], repeats: int, commands=("rende
                   points, ("command", "file", "caches", "process s", "import", "read", "context",
                                             "passes", "of which programs", "upload", "first frame", "glFinish",
                                             "programs loaded / compiled"))
+    compile_package()
     warm = {"mesa": tempfile.mkdtemp(prefix="mesa-warm-"), "programs": tempfile.mkdtemp(prefix="programs-warm-")}
     rows, device = [], None
     for command in commands:
@@ -129,8 +141,8 @@ def run(files: list[Path], size: tuple[int, int], repeats: int, commands=("rende
                                    f"{row['hits']} / {row['misses']}"))
     table.notes = [
         (f"Each run a fresh `python` process at {size[0]}x{size[1]}, median of {repeats}; `process s`: from spawning "
-         "it to `glFinish` after the first frame with points. Phases (seconds): import of `progressive.cli` and the "
-         "session; read: headers and the files' probes (the default colouring is chosen from them); context: EGL context, "
+         "it to `glFinish` after the first frame with points, the package's modules compiled to bytecode first (as an "
+         "install has them). Phases (seconds): import of `progressive.cli` and the session; read: headers and the files' probes (the default colouring is chosen from them); context: EGL context, "
          "capabilities, GL entry points; passes: buffers and programs of the renderer (programs: compiled, or loaded "
          "from the binary cache); upload: packing and distributing the batches of the first frame; first frame: "
          "issuing the frame that showed points first (the first ones may come before a batch is parsed), upload included; glFinish: waiting for it (on llvmpipe, the shaders' JIT compile happens here "

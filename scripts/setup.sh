@@ -33,3 +33,7 @@ fi
 
 [ -x .venv/bin/python ] || python3 -m venv .venv
 .venv/bin/python -m pip install -q --disable-pip-version-check -e ".[${PROGRESSIVE_EXTRAS:-test}]"
+# An editable install leaves the package's own modules without bytecode, and where
+# PYTHONDONTWRITEBYTECODE is set (this project's machines set it) every process then
+# compiles each one it imports before the first image; a wheel install compiles them.
+.venv/bin/python -m compileall -q progressive loaders
