@@ -142,10 +142,12 @@ def run(files: list[Path], size: tuple[int, int], repeats: int, commands=("rende
     table.notes = [
         (f"Each run a fresh `python` process at {size[0]}x{size[1]}, median of {repeats}; `process s`: from spawning "
          "it to `glFinish` after the first frame with points, the package's modules compiled to bytecode first (as an "
-         "install has them). Phases (seconds): import of `progressive.cli` and the session; read: headers and the files' probes (the default colouring is chosen from them); context: EGL context, "
+         "install has them). Phases (seconds): import of `progressive.cli` and the session; read: headers and the "
+         "files' probes (the default colouring is chosen from them); context: EGL context, "
          "capabilities, GL entry points; passes: buffers and programs of the renderer (programs: compiled, or loaded "
          "from the binary cache); upload: packing and distributing the batches of the first frame; first frame: "
-         "issuing the frame that showed points first (the first ones may come before a batch is parsed), upload included; glFinish: waiting for it (on llvmpipe, the shaders' JIT compile happens here "
+         "issuing the frame that showed points first (the first ones may come before a batch is parsed), upload "
+         "included; glFinish: waiting for it (on llvmpipe, the shaders' JIT compile happens here "
          "at their first dispatch unless Mesa's cache holds them)."),
         ("Caches: Mesa's on-disk shader cache (`MESA_SHADER_CACHE_DIR`; `MESA_SHADER_CACHE_DISABLE=true` turns it "
          "off, and with it the driver reports no program binary formats, so the program cache is inactive too) and "
