@@ -88,8 +88,9 @@ def write_tiled(source: Path, out: Path, points: int, compress: bool) -> None:
 
 def real_files() -> list[Path]:
     """Real files as they are: the bundled sample, and the largest airborne and
-    terrestrial files of ../shared/data where present (MANIFEST.md gives licences)."""
-    shared = [SHARED / name for name in ("wires.laz", "lone-star.copc.laz")]
+    terrestrial files of ../shared/data where present (MANIFEST.md gives licences), with
+    the largest of point format 6-10 that is not COPC (its layers decode apart)."""
+    shared = [SHARED / name for name in ("wires.laz", "lone-star.copc.laz", "las_with_several_extra_byte_bloc.laz")]
     return [SAMPLE] + [p for p in shared if p.is_file()]
 
 
