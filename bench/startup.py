@@ -31,6 +31,20 @@ PHASES = ("import", "read", "context", "passes", "programs", "upload", "first_fr
 CACHE_STATES = ("no caches", "first run", "Mesa cache", "Mesa + program cache")
 
 
+FIRST_IMAGE_LIMIT_S = 60.0
+"""The longest a benchmark's session may frame before its first image (else an error, not a hang)."""
+
+
+def frame_until_first_image(s, camera, what: str, limit_s: float = FIRST_IMAGE_LIMIT_S) -> None:
+    """Session `s` framed with `camera` until a frame has shown points: progressive
+    frames come before the first batch is parsed (or the first node has arrived)."""
+    deadline = time.perf_counter() + limit_s
+    while s.first_image_seconds is None:
+        if time.perf_counter() > deadline:
+            raise RuntimeError(f"{what}: no image within {limit_s:g} s")
+        s.frame(camera)
+
+
 def child(command: str, path: str, width: int, height: int) -> dict:
     """One run as the command would make it, to glFinish after the first image (this
 module imports nothing of progressive before, so `import` is what the CLI pays)."""
@@ -46,9 +60,7 @@ module imports nothing of progressive before, so `import` is what the CLI pays).
     else:       # as cli._view_headless builds it
         options = SessionOptions(width=width, height=height)
     with Session([path], options) as s:
-        camera = s.auto_camera()
-        while s.first_image_seconds is None:
-            s.frame(camera)
+        frame_until_first_image(s, s.auto_camera(), path)
         returned = time.perf_counter()
         s.glc.ctx.finish()
         done = time.perf_counter()

@@ -27,6 +27,7 @@ import numpy as np
 
 from bench.data import CACHE, write_tiled
 from bench.report import RunInfo, Table
+from bench.startup import frame_until_first_image
 from bench.synthetic import SAMPLE
 from progressive import memory
 from progressive.camera import Camera
@@ -228,22 +229,13 @@ def stream(source: str, options: SessionOptions, frames: int, limit_s: float) ->
                 "device": s.glc.caps}
 
 
-WARM_UP_LIMIT_S = 60.0
-"""The longest the warm-up session may wait for its first image."""
-
-
 def warm_up(source: str, options: SessionOptions) -> dict:
     """One streamed session opened on `source` until its first image, then closed: the
     programs the streamed path needs compiled into the program cache, so that both
     measured sources start as a viewer's second run does (the first run in the H200's
     first table spent 2.66 s compiling); its first image and startup phases reported."""
     with Session([source], options) as s:
-        camera = s.auto_camera()
-        deadline = time.perf_counter() + WARM_UP_LIMIT_S
-        while s.first_image_seconds is None:
-            if time.perf_counter() > deadline:
-                raise RuntimeError(f"{source}: no image within {WARM_UP_LIMIT_S:g} s")
-            s.frame(camera)
+        frame_until_first_image(s, s.auto_camera(), source)
         return {"first_image_s": s.first_image_seconds, "startup": dict(s.startup)}
 
 
