@@ -162,6 +162,7 @@ def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats
         size_b = case.path.stat().st_size
         baseline_path = case.path if case.format != "fast" else next(
             (c.path for c in cases if c.format == "LAS" and c.points == case.points), None)
+        names = shown(case.path) if case.format != "fast" else None     # the fast format holds one attribute
         for cold in (True, False):
             raw_s = timed(functools.partial(raw_read, case.path), case.path, cold, repeats)
             laspy_s = timed(functools.partial(laspy_user, baseline_path), baseline_path, cold, repeats) if baseline_path else None
@@ -171,14 +172,13 @@ def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats
                 cold_forced[f"{case.label} {case.format}"] = raw_s
             pooled = case.format == "LAZ" and not is_copc(case.path)      # COPC nodes are decoded by loaders/copc.py
             runs = [(decoders, t, None) for decoders, t in itertools.product(LAZ_DECODERS if pooled else (None,), threads)]
-            if case.format != "fast":       # the fast format's records hold one attribute already
-                runs += [(decoders, cores, shown(case.path)) for decoders in (LAZ_DECODERS if pooled else (None,))]
-            for decoders, t, names in runs:
-                s = timed(functools.partial(pipeline, case.path, t, decoders or Decoders.AUTO, names), case.path, cold,
+            runs += [(decoders, cores, names) for decoders in (LAZ_DECODERS if pooled else (None,))] if names else []
+            for decoders, t, parsed in runs:
+                s = timed(functools.partial(pipeline, case.path, t, decoders or Decoders.AUTO, parsed), case.path, cold,
                           repeats)
                 row = {"file": case.label, "format": case.format, "scaled": case.scaled, "bytes": size_b, "points": case.points,
                        "cold": cold, "threads": t, "decoders": decoders.value if decoders else None,
-                       "attributes": "every" if names is None else ", ".join(names),
+                       "attributes": "every" if parsed is None else ", ".join(parsed),
                        "seconds": s, "points_per_s": case.points / s,
                        "gb_per_s": size_b / s / 1e9, "raw_seconds": raw_s, "laspy_seconds": laspy_s,
                        "laspy_file": baseline_path.name if baseline_path else None,
