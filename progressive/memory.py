@@ -12,10 +12,11 @@ from dataclasses import dataclass
 from progressive.context import Capabilities
 from progressive.loaders.records import RECORD_BYTES
 from progressive.loaders.types import BATCH_POINTS
+from progressive.passes.prepare import GATHER_BYTES
 from progressive.pointstore import BLOCK_RECORDS
 
-# visibility, reference, two lists, hint, words, image, winners, prepare's gathers (passes/prepare.py GATHER_BYTES)
-PIXEL_BYTES = 8 + 8 + 2 * (4 + 16) + 4 + 4 + 4 + 16 + 4 + 8
+# visibility, reference, two lists, hint, words, image, winners, prepare's gathers
+PIXEL_BYTES = 8 + 8 + 2 * (4 + 16) + 4 + 4 + 4 + 16 + 4 + GATHER_BYTES
 HEADROOM = 0.9                                     # of the free memory the driver reports
 
 
