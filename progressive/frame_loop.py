@@ -167,7 +167,14 @@ class ProgressiveRenderer:
 
     @property
     def converged(self) -> bool:
-        """The GPU reported a full ring of fills since the last change (known a few frames late)."""
+        """Filled (known a few frames late), and no switch is left to show: words still to
+        stream, or the visible points' copies to read anew once they are (the next frame's
+        regather)."""
+        return self._filled and not self.switching and not self._regather
+
+    @property
+    def _filled(self) -> bool:
+        """The GPU reported a full ring of fills since the last change: no fill is left to run."""
         return self.converged_change == self.change
 
     def add_batch(self, batch: Batch) -> None:
@@ -246,7 +253,7 @@ class ProgressiveRenderer:
         if self.scene.loaded == 0:
             self.vis.clear()
             passes += self.shading.run(style, effects, self.prepare.pixel_words)
-        elif self.converged and not passes:
+        elif self._filled and not passes:
             regather, self._regather = self._regather, False
             if regather:
                 self.prepare.run(regather=True, winners=self.raster.winners)

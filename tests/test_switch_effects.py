@@ -103,6 +103,22 @@ def test_converged_image_is_exact_right_after_a_switch(gl, cloud, winners):
     pr.release()
 
 
+def test_converged_is_not_reported_before_the_switched_image(gl, cloud):
+    """A caller that frames until `converged` (the CLI, a notebook's still()) gets the
+    switched image: neither the frames that stream the words nor the one that ends the
+    stream, whose visible copies still hold the old words, count as converged."""
+    info, _ = cloud
+    pr = progressive_renderer(gl, cloud)
+    cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
+    converge(pr, cam, pr.scene.style())
+    pr.switch_attribute(info.attribute("intensity"))
+    assert not pr.converged
+    converge(pr, cam, pr.scene.style())
+    expected = brute_frame(gl, cloud, info.attribute("intensity"), cam)
+    np.testing.assert_array_equal(pr.read_image(), expected.image)
+    pr.release()
+
+
 def test_switch_changes_the_image_and_back_restores_it(gl, cloud):
     info, _ = cloud
     pr = progressive_renderer(gl, cloud)
