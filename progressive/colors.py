@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import enum
+import functools
 import re
 from dataclasses import dataclass
 
@@ -87,11 +88,15 @@ def rgba8(rgb: np.ndarray) -> np.ndarray:
     return c[:, 0] | (c[:, 1] << 8) | (c[:, 2] << 16) | np.uint32(0xFF000000)
 
 
-def colormap_lut(colormap: Colormap) -> np.ndarray:
+@functools.cache
+def colormap_lut(colormap: Colormap) -> tuple[int, ...]:
+    """The colormap's 256 RGBA8 words, from cmap once per colormap: every frame asks for
+    its style, and cmap's lookup (Python per colour) stalled frames while parser threads
+    held the GIL (profiled on the H200 machine)."""
     import cmap
 
     rgba = cmap.Colormap(colormap.value)(np.linspace(0.0, 1.0, 256))
-    return rgba8(np.round(np.asarray(rgba)[:, :3] * 255.0))
+    return tuple(int(v) for v in rgba8(np.round(np.asarray(rgba)[:, :3] * 255.0)))
 
 
 class PaletteError(ProgressiveError):
@@ -180,6 +185,6 @@ class ColorStyle:
                       colormap: Colormap = Colormap.VIRIDIS, background: tuple[int, int, int] = (0, 0, 0),
                       automatic: bool = False, palette: Palette = DEFAULT_PALETTE) -> ColorStyle:
         mode = ColorMode.for_kind(attr.kind)
-        lut = palette.lut() if mode is ColorMode.CATEGORY else colormap_lut(colormap)
+        lut = tuple(int(v) for v in palette.lut()) if mode is ColorMode.CATEGORY else colormap_lut(colormap)
         bg = int(rgba8(np.array([background]))[0])
-        return cls(mode, tuple(int(v) for v in lut), (float(value_range[0]), float(value_range[1])), bg, automatic)
+        return cls(mode, lut, (float(value_range[0]), float(value_range[1])), bg, automatic)
