@@ -34,15 +34,16 @@ class ScaledFiles:
         return (("LAS", self.las), ("LAZ", self.laz), ("fast", self.fast))
 
 
-def scaled(points: int, cache: Path = CACHE, source: Path = SAMPLE) -> ScaledFiles:
-    """`source` tiled to `points` as LAS, LAZ and fast format (cached by name and size)."""
+def scaled(points: int, cache: Path = CACHE, source: Path = SAMPLE, fast: bool = True) -> ScaledFiles:
+    """`source` tiled to `points` as LAS, LAZ and (with `fast`) fast format, cached by
+    name and size."""
     cache.mkdir(parents=True, exist_ok=True)
     stem = cache / f"{source.stem}_x{points}"
     files = ScaledFiles(points, stem.with_suffix(".las"), stem.with_suffix(".laz"), stem.with_suffix(".prg"))
     for path, compress in ((files.las, False), (files.laz, True)):
         if not path.exists():
             write_tiled(source, path, points, compress)
-    if not files.fast.exists():
+    if fast and not files.fast.exists():
         tmp = files.fast.with_suffix(".prg.tmp")
         if cli.main(["convert", str(files.las), str(tmp)]) != 0:
             raise RuntimeError(f"progressive convert failed for {files.las}")

@@ -14,7 +14,7 @@
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
-CHUNKS=(files-100M load-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B winners-1B records-1B accuracy attributes packing upload-100M startup-100M startup-1B convert-1B copc-1B stream-1B pytest)
+CHUNKS=(files-100M load-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B winners-1B records-1B accuracy attributes packing upload-100M startup-100M viewer-load-100M startup-1B convert-1B copc-1B stream-1B pytest)
 chunk="${1:-list}"
 if [ "$chunk" = list ]; then
     printf '%s\n' "${CHUNKS[@]}"
@@ -85,6 +85,12 @@ case "$chunk" in
     # machine without the file builds it first, as copc-1B (about 300 s, then 130 s of streaming: one call)
     stream-1B)        "${PYTHON:-python3}" -m bench.stream --points 1000000000 --laz --limit 4G --size 1920x1080 --still-seconds 20 \
                           --scratch /dev/shm --out "$OUT/$(machine)" "${@:2}" ;;
+    # what the window reads against what render reads, at 100M points: the sample (point format 3) and a LAZ of
+    # point format 8 tiled as LAS and LAZ, each session warm, 3 repeats (bench.load first_image_table)
+    viewer-load-100M) "${PYTHON:-python3}" -m bench.load --points 100000000 --size 1920x1080 --repeats 3 \
+                          --sources progressive/data/autzen_trim.las \
+                          "${PROGRESSIVE_SHARED_DATA:-../shared/data}/las_with_several_extra_byte_bloc.laz" \
+                          --out "$OUT/$(machine)/viewer_load" "${@:2}" ;;
     # the time to the first image of a 1 B-point LAZ (view, both caches warm): the store's 16 GB filled at
     # once (the LAZ tiled first, about 5.5 GB, shared with convert-1B)
     startup-1B)       "${PYTHON:-python3}" -m bench.startup --scaled 1000000000 --laz-only --commands view \

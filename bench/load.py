@@ -8,9 +8,11 @@ through `progressive.open()`."""
 
 from __future__ import annotations
 
+import argparse
 import functools
 import itertools
 import statistics
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -121,17 +123,32 @@ def timed(fn: Callable[[], None], path: Path, cold: bool, repeats: int) -> float
     return statistics.median(times)
 
 
-def first_image(glc: GLContext, path: Path, width: int, height: int, cold: bool, max_frames: int) -> dict:
+SESSIONS = {
+    "shown": {},
+    "viewer, others later": {"switchable": True, "class_filter": True},
+    "viewer, all at once": {"switchable": True, "class_filter": True, "read_later": False},
+}
+"""The sessions first_image opens: what `render` and a headless `view` read (the shown
+attribute), and what the window reads (every attribute kept to switch to; the class
+and returns for its filters), the attributes not shown read after every point or with
+them (SessionOptions.read_later)."""
+
+
+def first_image(glc: GLContext, path: Path, width: int, height: int, cold: bool, max_frames: int,
+                session: str = "shown") -> dict:
     """Seconds from progressive.open() to the first finished frame with points, to every
-    point on the GPU, and to the converged image (adaptive budget at 16.6 ms)."""
+    point on the GPU, to the converged image (adaptive budget at 16.6 ms), and to every
+    attribute read (a switchable session: framed on until the later pass is in)."""
+    from progressive.viewer.app import IDLE_WAIT_SECONDS
+
     if cold:
         drop_cache(path)
     else:
         raw_read(path)
-    opts = progressive.SessionOptions(width=width, height=height,
+    opts = progressive.SessionOptions(width=width, height=height, **SESSIONS[session],
                                       progressive=progressive.ProgressiveOptions(budget=BudgetParams(target_ns=16_600_000)))
     t0 = time.perf_counter()
-    first = full = converged = None
+    first = full = converged = every = None
     with progressive.open([path], opts, glc=glc) as s:
         cam = s.auto_camera()
         for _ in range(max_frames):
@@ -142,11 +159,17 @@ def first_image(glc: GLContext, path: Path, width: int, height: int, cold: bool,
             if full is None and s.status().complete:
                 glc.ctx.finish()
                 full = time.perf_counter() - t0
-            if s.converged:
+            if converged is None and s.converged:
                 converged = time.perf_counter() - t0
+            if every is None and opts.switchable and full is not None and not s.later:
+                every = time.perf_counter() - t0
+            if converged is not None and (every is not None or not opts.switchable):
                 break
+            if s.idle:
+                time.sleep(IDLE_WAIT_SECONDS)   # as the window, idle, waits for events between frames
         frames = s.status().frames
-    return {"first_image_s": first, "loaded_s": full, "converged_s": converged, "frames": frames}
+    return {"first_image_s": first, "loaded_s": full, "converged_s": converged, "every_attribute_s": every,
+            "frames": frames}
 
 
 def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats: int,
@@ -221,18 +244,84 @@ def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats
     ]
     load.raw = {"rows": rows, "cold_slowdown_raw": cold_forced, "default_threads": cores}
 
+    return load, first_image_table(glc, cases, size, max_frames)
+
+
+def first_image_table(glc: GLContext, cases: list[LoadCase], size: tuple[int, int], max_frames: int,
+                      repeats: int = 1) -> Table:
+    """first_image for every case: cold and warm with the session `render` opens, warm
+    with the window's (not for the fast format, which holds one attribute); each the
+    median of `repeats` runs, the sessions taking turns within each repeat."""
     first = Table("first_image", "Time to first image and to fully loaded, through progressive.open()", "", "", (
-        "file", "format", "points", "cache", "first image s", "all points on GPU s", "converged s", "frames",
-        "first image / fully loaded"))
+        "file", "format", "points", "session", "cache", "first image s", "all points on GPU s", "converged s",
+        "every attribute s", "frames", "first image / fully loaded"))
+    keys = ("first_image_s", "loaded_s", "converged_s", "every_attribute_s", "frames")
     for case in cases:
-        for cold in (True, False):
-            res = first_image(glc, case.path, *size, cold, max_frames)
-            res.update(file=case.label, format=case.format, cold=cold, points=case.points, scaled=case.scaled)
+        runs = [("shown", True), ("shown", False)]
+        runs += [(session, False) for session in SESSIONS if session != "shown"] if case.format != "fast" else []
+        taken: dict[tuple[str, bool], list[dict]] = {run: [] for run in runs}
+        for _ in range(repeats):
+            for session, cold in runs:
+                taken[session, cold].append(first_image(glc, case.path, *size, cold, max_frames, session))
+        for (session, cold), results in taken.items():
+            res = {k: median_or_none([r[k] for r in results]) for k in keys}
+            res.update(file=case.label, format=case.format, cold=cold, points=case.points, scaled=case.scaled,
+                       session=session, repeats=repeats)
             first.raw.setdefault("rows", []).append(res)
             ratio = res["first_image_s"] / res["loaded_s"] if res["loaded_s"] else None
-            first.rows.append((case.label, case.format, case.points, "cold" if cold else "warm", res["first_image_s"],
-                               res["loaded_s"], res["converged_s"], res["frames"], ratio))
+            first.rows.append((case.label, case.format, case.points, session, "cold" if cold else "warm",
+                               res["first_image_s"], res["loaded_s"], res["converged_s"], res["every_attribute_s"],
+                               res["frames"], ratio))
     first.notes = [(f"Session with the progressive renderer at {size[0]}x{size[1]}, adaptive budget 16.6 ms, auto "
                    "camera; clock from before `progressive.open()` to `glFinish` after the first frame with points, "
-                   "after the frame that distributed the last batch, and to the frame that knew it had converged.")]
-    return load, first
+                   "after the frame that distributed the last batch, to the frame that knew it had converged, and "
+                   "(switchable sessions) to the frame after which every attribute was kept. Sessions: shown = what "
+                   "`render` and a headless `view` read (the shown attribute); viewer = what the window reads "
+                   "(SessionOptions(switchable=True, class_filter=True): every attribute, kept to switch to), the "
+                   "attributes not shown after every point (others later, the default) or with them (all at once, "
+                   "read_later=False); warm only. The fast format holds one attribute: shown only. "
+                   f"Each row the median of {repeats} run{'s' if repeats > 1 else ''}"
+                   f"{', the sessions taking turns' if repeats > 1 else ''}.")]
+    return first
+
+
+def median_or_none(values: list):
+    """The median of the values measured (None where a run never got there)."""
+    present = [v for v in values if v is not None]
+    return statistics.median(present) if len(present) == len(values) else None
+
+
+def main(argv: list[str] | None = None) -> int:
+    """The first-image table alone (first_image_table), of files tiled to --points as
+    LAS and LAZ: `python -m bench.load --points 100000000 --sources SAMPLE OTHER.laz`."""
+    from bench import data
+    from bench.report import RunInfo
+    from progressive.context import create_context
+
+    parser = argparse.ArgumentParser(description="Time to the first image, to every point on the GPU and to every "
+                                                 "attribute kept, by session, of files tiled as LAS and LAZ")
+    parser.add_argument("--points", type=int, default=2_000_000)
+    parser.add_argument("--sources", nargs="+", type=Path, default=[data.SAMPLE],
+                        help="files to tile (default: the bundled sample)")
+    parser.add_argument("--size", default="1920x1080")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--max-frames", type=int, default=100_000)
+    parser.add_argument("--out", type=Path, default=None, help="results folder (default bench/results/<machine>)")
+    args = parser.parse_args(argv)
+    size = tuple(int(v) for v in args.size.split("x"))
+    glc = create_context()
+    cases = []
+    for source in args.sources:
+        files = data.scaled(args.points, source=source, fast=False)
+        cases += [LoadCase(f"{source.name} tiled", fmt, path, files.points, scaled=True)
+                  for fmt, path in files.formats() if fmt != "fast"]
+    table = first_image_table(glc, cases, size, args.max_frames, args.repeats)
+    table.data = ", ".join(f"{p.name} (point format {laspy.open(p).header.point_format.id})" for p in args.sources) + \
+        " tiled on a grid (bench/data.py) and written as LAS and LAZ (laspy/lazrs)"
+    table.points = f"{args.points:,}"
+    table.publish(RunInfo.from_caps(glc.caps, "first image"), args.out, Path(__file__).resolve().parent / "results")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -21,6 +21,7 @@ import os
 import queue
 import re
 import threading
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 
 import numpy as np
@@ -35,6 +36,7 @@ from progressive.loaders.las import LasSource, TruncatedInput, open_las
 from progressive.loaders.laz_pool import DEFAULTS as LAZ_DEFAULTS
 from progressive.loaders.laz_pool import DecoderPool, LazOptions, PoolClosed
 from progressive.loaders.ply import PlySource, is_ply, open_ply
+from progressive.loaders.records import ELEVATION
 from progressive.loaders.types import BATCH_POINTS, AttributeInfo, Batch, CloudInfo, available_cores
 from progressive.loaders.validate import fail, shown
 
@@ -47,6 +49,15 @@ WAIT_S = 0.05
 JOIN_S = 5.0
 _END = object()
 """Sentinel: no more tasks (to parsers) or this parser has finished (to the consumer)."""
+
+
+class _Later:
+    """A batch of the later pass (CloudLoader.keep_only's `later`), as the queues carry it."""
+
+    __slots__ = ("batch",)
+
+    def __init__(self, batch: Batch):
+        self.batch = batch
 
 
 def open_cloud(paths: Iterable[str | os.PathLike] | str | os.PathLike, *, partial: bool = False,
@@ -276,6 +287,12 @@ class CloudLoader(BatchQueue):
     `laz` says where LAZ files are decoded: by default a large one with a sound chunk
     table in decoder processes (laz_pool.py), which the loader ends once it has read
     every file, or at close().
+
+    keep_only(first, later) reads the files twice: batches of `first`, then (poll_later,
+    once `done`) batches of the `later` attributes, which a viewer switches to: its
+    first image and its every point come as soon as for `first` alone. The two passes'
+    batches cover the same points but need not start at the same indices (a LAZ's
+    first batches come from its probe's records).
     """
 
     def __init__(self, paths, *, batch_points: int = BATCH_POINTS,
@@ -291,6 +308,7 @@ class CloudLoader(BatchQueue):
         self.info, self._sources = open_sources(paths, partial=partial, point_budget=point_budget, http=http,
                                                 keep_first=True, view=view, check_count=check_count)
         self.attributes = self._chosen(attributes)
+        self.later: tuple[str, ...] = ()
         self.batch_points = batch_points
         self.parser_threads = parser_threads
         self.partial = partial
@@ -299,6 +317,10 @@ class CloudLoader(BatchQueue):
         self.nonfinite_positions = 0
         self.nonfinite_values: dict[str, int] = {}
         self._finished = 0
+        self._first_tasks = 0       # batches of the first pass queued for the parsers
+        self._first_queued = False  # ... every one of them
+        self._first_taken = 0
+        self._later_ready: deque[Batch] = deque()
         self._tasks: queue.Queue = queue.Queue(maxsize=1)
         self._results: queue.Queue = queue.Queue(maxsize=self.parser_threads)
         self._stop = threading.Event()
@@ -313,12 +335,25 @@ class CloudLoader(BatchQueue):
             raise ValueError(f"the cloud has no attribute {', '.join(unknown)}")
         return known if attributes is None else tuple(n for n in known if n in attributes)
 
-    def keep_only(self, attributes: tuple[str, ...]) -> None:
+    def keep_only(self, attributes: tuple[str, ...], later: tuple[str, ...] = ()) -> None:
         """Before start(): batches carry only these attributes (as `attributes` at
-        construction), once the caller knows from `info` what it will show."""
+        construction), once the caller knows from `info` what it will show; `later`: the
+        attributes a second pass reads afterwards (poll_later)."""
         if self._threads:
             raise RuntimeError("keep_only() after the loader started")
         self.attributes = self._chosen(attributes)
+        # elevation is the positions' own: no batch carries it
+        self.later = tuple(n for n in self._chosen(later) if n not in self.attributes and n != ELEVATION)
+
+    @property
+    def layered(self) -> bool:
+        """Whether a later pass lets the first do less: every file a local LAZ of point
+        formats 6-10 (COPC among them), whose layers are decoded apart. Other LAZ files
+        decode every field whatever is asked for, a LAS file's first batches reach the
+        GPU no sooner for fewer attributes parsed (bench/results/nvidia-h200/viewer_load/),
+        and a URL's bytes would be fetched again."""
+        return all(type(s) in (LasSource, CopcSource) and not is_url(s.info.path) and s.laz is not None
+                   and s.info.point_format >= 6 for s in self._sources)
 
     @property
     def total(self) -> int:
@@ -331,8 +366,32 @@ class CloudLoader(BatchQueue):
 
     @property
     def done(self) -> bool:
-        """Every batch has been handed to the consumer."""
-        return self._finished == self.parser_threads
+        """Every batch (of the first pass) has been handed to the consumer."""
+        return self._finished == self.parser_threads or (self._first_queued and self._first_taken == self._first_tasks)
+
+    @property
+    def later_done(self) -> bool:
+        """Every batch of the later pass has been handed to the consumer (or there is none)."""
+        return self._finished == self.parser_threads and not self._later_ready
+
+    def poll_later(self, max_batches: int | None = None) -> list[Batch]:
+        """The later pass's batches ready now (none before `done`), without waiting; a
+        failure is raised as by poll()."""
+        batches: list[Batch] = []
+        while self.done and (max_batches is None or len(batches) < max_batches):
+            if not self._later_ready:
+                if self._finished == self.parser_threads:
+                    break
+                try:
+                    item = self._results.get_nowait()
+                except queue.Empty:
+                    break
+                self._take(item, batches)
+                continue
+            batches.append(self._later_ready.popleft())
+        if not batches:
+            self._raise_failure()
+        return batches
 
     def start(self, first: int | None = None) -> CloudLoader:
         """first: parse that many batches, then wait for resume() (a first start only)."""
@@ -372,12 +431,19 @@ class CloudLoader(BatchQueue):
     def _take(self, item, batches: list[Batch]) -> None:
         if item is _END:
             self._finished += 1
+        elif isinstance(item, _Later):
+            self._count_nonfinite(item.batch)
+            self._later_ready.append(item.batch)
         else:
+            self._first_taken += 1
             self.loaded += item.count
             self.nonfinite_positions += item.nonfinite_positions
-            for name, n in item.nonfinite_values.items():
-                self.nonfinite_values[name] = self.nonfinite_values.get(name, 0) + n
+            self._count_nonfinite(item)
             batches.append(item)
+
+    def _count_nonfinite(self, batch: Batch) -> None:
+        for name, n in batch.nonfinite_values.items():
+            self.nonfinite_values[name] = self.nonfinite_values.get(name, 0) + n
 
     def _raise_failure(self) -> None:
         if self._error is not None:
@@ -408,23 +474,32 @@ class CloudLoader(BatchQueue):
         return _END
 
     def _read(self) -> None:
-        names = self.attributes
-        start, path = 0, ""
+        path = ""
         try:
-            for source in self._sources:
-                path = source.info.path
-                try:
-                    tasks = _tasks(source, start, self.batch_points, self.info.origin, names, self.partial,
-                                   self._decoders)
-                    with contextlib.closing(tasks):
-                        for task in tasks:
-                            if not self._put(self._tasks, task):
-                                return
-                except TruncatedInput as exc:
-                    if not self.partial:
-                        raise
-                    self.warnings.append(str(exc))
-                start += source.info.points
+            for later, names in ((False, self.attributes), (True, self.later)):
+                if later and not names:
+                    break
+                while later and not self.done:      # the first pass's batches have the cores till they are taken
+                    if self._stop.wait(WAIT_S):
+                        return
+                start = 0
+                for source in self._sources:
+                    path = source.info.path
+                    try:
+                        tasks = _tasks(source, start, self.batch_points, self.info.origin, names, self.partial,
+                                       self._decoders)
+                        with contextlib.closing(tasks):
+                            for task in tasks:
+                                self._first_tasks += not later
+                                if not self._put(self._tasks, (*task, later)):
+                                    return
+                    except TruncatedInput as exc:
+                        if not self.partial:
+                            raise
+                        if str(exc) not in self.warnings:       # the later pass meets it again
+                            self.warnings.append(str(exc))
+                    start += source.info.points
+                self._first_queued = True
         except BaseException as exc:
             if not (isinstance(exc, PoolClosed) and self._stop.is_set()):
                 self._fail(path, exc)
@@ -439,13 +514,13 @@ class CloudLoader(BatchQueue):
             while (task := self._get(self._tasks)) is not _END:
                 if not self._hold.admit(self._stop):
                     return
-                path, make = task
+                path, make, later = task
                 try:
                     batch = make()
                 except BaseException as exc:
                     self._fail(path, exc)
                     return
-                if not self._put(self._results, batch):
+                if not self._put(self._results, _Later(batch) if later else batch):
                     return
         finally:
             self._put(self._results, _END)

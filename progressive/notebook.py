@@ -187,7 +187,7 @@ class Interaction:
 
     # ---- settings ---------------------------------------------------------------
     def switch_attribute(self, name: str) -> bool:
-        if name == self.session.attribute.name:
+        if name == self.session.chosen.name:
             return False
         try:
             self.session.switch_attribute(name)
@@ -196,7 +196,8 @@ class Interaction:
             return False
         self.error = None
         hidden = self.settings.hidden_classes if self.session.filters_classes else frozenset()
-        self.settings = replace(self.settings, attribute=self.session.attribute.name, value_range=None, hidden_classes=hidden)
+        self.settings = replace(self.settings, attribute=self.session.chosen.name,
+                                value_range=None, hidden_classes=hidden)
         return True
 
     def set_hidden(self, codes) -> bool:

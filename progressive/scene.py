@@ -111,6 +111,10 @@ class Scene:
         """The attribute the GPU words of each kept batch hold (None: a mix, while a
         switch was under way when parts of it were encoded again)."""
         self._by_start: list[tuple[int, int]] = []      # (start, index) of the kept batches, in file order
+        self._joining: dict[int, tuple[dict[str, np.ndarray], list[int]]] = {}
+        """Kept batches part of whose later attributes have come (add_attributes): their
+        arrays so far, and how many of their rows those hold."""
+        self.joined = 0             # points whose later attributes have joined their kept batch
         self.switch: AttributeSwitch | None = None
         self._pool: ThreadPoolExecutor | None = None     # packs words; made at the first switch
         self._percentile: PercentilePass | None = None
@@ -180,6 +184,46 @@ class Scene:
             self.held.append(self.attribute)
         self.loaded += batch.count
         self.upload_seconds += time.perf_counter() - t0
+
+    def add_attributes(self, part: Batch) -> None:
+        """Attributes read after the kept batches (a session's later pass) join them:
+        each kept batch that holds points of `part` takes its rows, once every one of its
+        rows has come (the later pass's batches need not start where the kept ones do).
+        Loader batches only: a kept batch in Morton order would need its order again."""
+        if self.batch_order is not batch_boxes.BatchOrder.FILE:
+            raise ProgressiveError("attributes read afterwards join batches kept in file order")
+        lo, hi = part.start, part.start + part.count
+        at = max(0, bisect.bisect_right(self._by_start, (lo, len(self.batches))) - 1)
+        found = 0
+        for start, k in self._by_start[at:]:
+            if start >= hi:
+                break
+            kept = self.batches[k]
+            a, b = max(lo, start), min(hi, start + kept.count)
+            if a >= b:
+                continue
+            found += b - a
+            if (a, b) == (start, start + kept.count):
+                self._join(k, part.rows(a - lo, b - lo).attributes, part.nonfinite_values)
+                continue
+            arrays, filled = self._joining.setdefault(k, ({}, [0]))
+            for name, values in part.attributes.items():
+                into = arrays.setdefault(name, np.empty((kept.count, *values.shape[1:]), dtype=values.dtype))
+                into[a - start: b - start] = values[a - lo: b - lo]
+            filled[0] += b - a
+            if filled[0] == kept.count:
+                del self._joining[k]
+                self._join(k, arrays, {n: c for n, v in arrays.items() if v.dtype.kind == "f"
+                                       and (c := int(np.count_nonzero(~np.isfinite(v))))})
+        if found != part.count:
+            raise ValueError(f"points {lo:,}..{hi:,} are not all in kept batches (add them first)")
+
+    def _join(self, k: int, attributes: dict[str, np.ndarray], nonfinite: dict[str, int]) -> None:
+        kept = self.batches[k]
+        self.batches[k] = replace(kept, attributes={**kept.attributes, **attributes},
+                                  nonfinite_values={**kept.nonfinite_values,
+                                                    **{n: c for n, c in nonfinite.items() if n in attributes}})
+        self.joined += kept.count
 
     def _ordered(self, batch: Batch) -> Batch:
         """The batch as the store takes it: with BatchOrder.MORTON the rows

@@ -40,6 +40,7 @@ from progressive.loaders.http import DEFAULTS as HTTP_DEFAULTS
 from progressive.loaders.http import HttpOptions
 from progressive.loaders.laz_pool import DecoderPool
 from progressive.loaders.lookup import read_record
+from progressive.loaders.pipeline import CloudLoader
 from progressive.loaders.records import attribute_word
 from progressive.loaders.types import AttributeInfo, AttributeKind, available_cores
 from progressive.passes.distribute import Staging
@@ -53,6 +54,8 @@ from progressive.streaming import PLAN, READS_QUEUED, StoreChange, Streamer, Str
 
 PICK_RADIUS = 7
 """Pixels around a picked pixel searched for the nearest point shown."""
+LATER_WAIT_S = 0.01
+"""How often a brute-force frame whose switch waits for the later pass looks for its batches."""
 FIRST_HELD = 1
 """Batches the loader parses before the first frame is issued: until then the context,
 the renderer's buffers and programs and the first upload have the GIL and the cores to
@@ -86,6 +89,16 @@ class SwitchStatus:
 
 
 @dataclass(frozen=True)
+class LaterStatus:
+    """The attributes a switchable session reads after those it shows (CloudLoader's
+    later pass), while they are read."""
+
+    names: tuple[str, ...]
+    read: int                   # points of the loaded ones that carry them
+    waiting: str | None         # the attribute a switch waits for (begun once it is read)
+
+
+@dataclass(frozen=True)
 class SessionStatus:
     """What the CLI, the viewer and the benchmarks read of a session, at one moment."""
 
@@ -105,6 +118,7 @@ class SessionStatus:
     file read by its hierarchy; None for other files."""
     stream: StreamStatus | None = None
     """A streamed cloud's nodes (SessionOptions.stream)."""
+    later: LaterStatus | None = None
 
 
 @dataclass(frozen=True)
@@ -123,6 +137,9 @@ class SessionOptions:
     chunk_points: int | None = None
     gpu_memory_limit: int | None = None     # bytes; the free memory the driver reports also counts
     switchable: bool = False                # keep every attribute (streamed: of the resident nodes) in host memory
+    read_later: bool = True
+    """Switchable: read the attributes not shown after every point has loaded, so that
+    the cloud is whole as soon as for those shown (False: every attribute at once)."""
     value_range: tuple[float, float] | None = None   # the first attribute's values at the colormap's ends; None: percentiles
     class_filter: bool = False              # keep classification on the GPU (where the cloud has it): any colouring filters
     palette: Palette = DEFAULT_PALETTE      # colours of classification codes
@@ -163,7 +180,9 @@ class Session:
     def __init__(self, paths, options: SessionOptions = SessionOptions(), glc: GLContext | None = None):
         """Not `switchable`, the loader reads only what is shown (`color_by`, else the
         default chosen from the files' probes) and what the filters test, so a LAZ of
-        point formats 6-10 decodes only those layers."""
+        point formats 6-10 decodes only those layers. Switchable, it reads the other
+        attributes afterwards (`later`), so that every point is shown as soon; batches
+        reordered for culling (BatchOrder.MORTON) are read with all of them at once."""
         if options.precision is not Precision.EXACT and options.method is not Method.BRUTE:
             raise ProgressiveError("adaptive precision is for brute-force renders (--method brute): progressive "
                                    "frames reproject each point at its exact position")
@@ -211,9 +230,18 @@ class Session:
             else:
                 self.attribute, note = default_choice(self.info)
                 self._notes += [note] if note else []
+            self.later: tuple[str, ...] = ()
+            """Attributes the loader reads after the first pass, until they join the kept batches."""
+            self._waiting: AttributeInfo | None = None
+            self._unread: tuple[str, ...] = ()      # later attributes some points did not get (a salvaged file)
             if not stream:
+                needed = self._needed(self.attribute, options.class_filter)
                 if not options.switchable:
-                    self.loader.keep_only(self._needed(self.attribute, options.class_filter))
+                    self.loader.keep_only(needed)
+                elif options.read_later and isinstance(self.loader, CloudLoader) and self.loader.layered and \
+                        options.batch_order is BatchOrder.FILE:
+                    self.loader.keep_only(needed, later=tuple(a.name for a in self.info.attributes))
+                    self.later = self.loader.later
                 self.loader.start(FIRST_HELD)
             t0 = time.perf_counter()
             self.startup["read"] = t0 - self.opened
@@ -318,6 +346,14 @@ class Session:
 
     @property
     def converged(self) -> bool:
+        """The still view is exact, and no switch waits for the later pass."""
+        return self.idle and self._waiting is None
+
+    @property
+    def idle(self) -> bool:
+        """Frames change nothing until the camera or the style does, or a switch waiting
+        for the later pass can begin: a window may wait for events between them (frames
+        in a tight loop keep the GIL from the parser threads)."""
         return self.progressive and self.renderer.converged
 
     @property
@@ -396,6 +432,14 @@ class Session:
         its resident nodes again from their kept points (switchable), else reads them
         again (None: no switch to follow)."""
         attribute = find_attribute(self.info, name)
+        if attribute.name in self.later:
+            if not self.loading:
+                raise ProgressiveError(f"{attribute.name} was not read: loading stopped")
+            self._waiting = attribute
+            return None
+        if attribute.name in self._unread:
+            raise ProgressiveError(f"{attribute.name} could not be read for every point (see the warnings)")
+        self._waiting = None
         if self.streamer is not None:
             self.renderer.scene.show_streamed(attribute)
             if change := self.streamer.restart(self._needed(attribute, self._class_filter)):
@@ -405,6 +449,16 @@ class Session:
         self.attribute = attribute
         self._given_range = None
         return self.renderer.scene.switch
+
+    @property
+    def waiting(self) -> AttributeInfo | None:
+        """The attribute a switch waits for (switch_attribute before the later pass has read it)."""
+        return self._waiting
+
+    @property
+    def chosen(self) -> AttributeInfo:
+        """The attribute last asked for: the one shown, or the one a switch waits for."""
+        return self._waiting or self.attribute
 
     def batch_counts(self, camera: Camera, clip: Clip = NO_CLIP) -> dict[str, int | dict[str, int]]:
         """Batches of the store, how many the rasterizer's culling test keeps for
@@ -477,6 +531,7 @@ class Session:
     def stop_loading(self) -> None:
         """Keep what has loaded and read no more (a file failed while the viewer shows it)."""
         self.loading = False
+        self._waiting = None
         self.loader.close()
         self.renderer.scene.finished = True
 
@@ -495,6 +550,30 @@ class Session:
         if self.load_seconds is None and self.loader.done:
             self.load_seconds = time.perf_counter() - self.opened
             self.renderer.scene.finished = True
+        if self.later and self.loader.done and not (self.progressive and self.renderer.pending):
+            self._join_later(block)     # once every kept batch is in the scene
+
+    def _join_later(self, block: bool) -> None:
+        """The later pass's batches join the kept ones; once all have, a switch waiting
+        for one of its attributes begins (block: wait for them where one does)."""
+        while True:
+            for part in self.loader.poll_later():
+                self.renderer.scene.add_attributes(part)
+            if self.loader.later_done:
+                break
+            if not (block and self._waiting):
+                return
+            time.sleep(LATER_WAIT_S)
+        scene = self.renderer.scene
+        if scene.joined < scene.loaded:     # a damaged file salvaged: its later pass ended sooner
+            self._unread = self.later
+            self._notes.append(f"{', '.join(self.later)}: read for {scene.joined:,} of the {scene.loaded:,} points "
+                               "loaded, so they cannot be shown")
+        self.later = ()
+        if self._waiting is not None:
+            waiting, self._waiting = self._waiting, None
+            if waiting.name not in self._unread:
+                self.switch_attribute(waiting.name)
 
     def frame(self, camera: Camera, style: ColorStyle | None = None, effects: Effects = Effects(),
               hidden: frozenset[int] = frozenset(), clip: Clip = NO_CLIP,
@@ -504,17 +583,16 @@ class Session:
         the box (file coordinates) points must lie in to be drawn; `returns`: which
         returns of each pulse are drawn (with filters_classes)."""
         t0 = time.perf_counter()
-        style = style or self.style()
         if not self.progressive:
             self._pump(block=True)
-            self._last = self.renderer.render(camera, *self.size, style, effects, hidden, clip, returns,
-                                              self.options.precision)
+            self._last = self.renderer.render(camera, *self.size, style or self.style(), effects, hidden, clip,
+                                              returns, self.options.precision)
             passes = ("distribute", "raster", "resolve")
         else:
             self._pump(block=False)
             if self.streamer is not None and (change := self.streamer.update(node_view(camera, *self.size))):
                 self.renderer.nodes_changed(StoreChange.EMPTIED in change, self.streamer.written)
-            passes = self.renderer.frame(camera, style, effects, hidden, clip, returns)
+            passes = self.renderer.frame(camera, style or self.style(), effects, hidden, clip, returns)
             self.loader.resume()
         if self.first_image_seconds is None and self.renderer.scene.loaded > 0:
             now = time.perf_counter()
@@ -534,9 +612,11 @@ class Session:
             slots=scene.store.capacity, not_drawn=scene.skipped, raster=r.raster_path,
             staging=scene.distribute.staging,
             frames=r.frame_index if self.progressive else int(self._last is not None),
-            loading=(self.loading and not self.loader.done) or pending or (streamed is not None and not streamed.settled),
+            loading=(self.loading and not self.loader.done) or pending or (streamed is not None and not streamed.settled)
+            or self._waiting is not None,
             switch=None if sw is None else SwitchStatus(sw.streamed, sw.total, sw.rate, sw.done),
-            copc=tuple(copc_status(f) for f in self.info.files), stream=streamed)
+            copc=tuple(copc_status(f) for f in self.info.files), stream=streamed,
+            later=LaterStatus(self.later, scene.joined, self._waiting and self._waiting.name) if self.later else None)
 
     def categories(self) -> list[int]:
         """Category codes present in the shown attribute (kept batches; for a legend)."""

@@ -432,3 +432,34 @@ def test_a_held_loader_closes_at_once():
     loader.close()
     assert time.monotonic() - t0 < 1.0
     assert not any(t.is_alive() for t in loader._threads)
+
+
+@pytest.mark.parametrize("name", [None, "las_with_several_extra_byte_bloc.laz", "pine_plot.laz"])
+def test_later_pass_reads_the_other_attributes_after_the_first(name):
+    """keep_only(first, later): the first pass's batches carry only `first` and come in
+    full before `done`; poll_later then hands batches of the `later` attributes (none
+    before), which together cover every point with the values a full load gives."""
+    path = SAMPLE if name is None else shared_file(name)
+    full_loader, full = load([path], batch_points=100_000)
+    names = tuple(a.name for a in full_loader.info.attributes if a.name != "elevation")
+    first, later = names[:1], names[1:]
+    with CloudLoader([path], batch_points=100_000) as loader:
+        loader.keep_only(first, later=later)
+        assert loader.later == later
+        assert loader.poll_later() == []
+        batches = sorted(loader, key=lambda b: b.start)
+        assert loader.done
+        rest: list = []
+        deadline = time.monotonic() + 60
+        while not loader.later_done and time.monotonic() < deadline:
+            rest += loader.poll_later()
+            time.sleep(0.01)
+        assert loader.later_done
+    assert all(set(b.attributes) == set(first) for b in batches)
+    assert all(set(b.attributes) == set(later) for b in rest)
+    rest.sort(key=lambda b: b.start)
+    assert_covers(batches, full_loader.info.points, 100_000)
+    assert_covers(rest, full_loader.info.points, 100_000)
+    np.testing.assert_array_equal(joined(batches, first[0]), joined(full, first[0]))
+    for n in later:
+        np.testing.assert_array_equal(joined(rest, n), joined(full, n), err_msg=n)

@@ -132,7 +132,7 @@ def test_switch_changes_colours(view, gl):
     first = it.session.attribute.name
     canvas.handle_event({"type": "key_down", "key": "]", "modifiers": ()})
     expected = cycle([a.name for a in it.session.info.attributes], first, 1)
-    assert it.session.attribute.name == expected != first
+    assert it.session.chosen.name == expected != first      # shown once the later pass has read it
     assert view.attribute.value == expected
     image, _ = draws.run()
     assert (image != before).any()

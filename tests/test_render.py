@@ -246,11 +246,154 @@ def test_a_session_colouring_by_one_attribute_reads_only_it(gl, name, color_by, 
         with Session([str(path)], options, glc=gl) as s:
             assert s.attribute.name == (color_by or default)
             wanted = {s.attribute.name, *(("classification", "return_number", "number_of_returns") if hide else ())}
-            assert (set(s.loader.attributes) <= wanted) != switchable
+            if switchable and s.loader.layered:       # the others in the later pass
+                assert set(s.loader.attributes) <= wanted and s.loader.later
+            else:
+                assert (set(s.loader.attributes) <= wanted) != switchable and not s.loader.later
             s.frame(s.auto_camera(), hidden=frozenset({2}) if hide else frozenset())
             shown[switchable] = (s.ids().copy(), s.image().copy())
     assert np.array_equal(shown[False][0], shown[True][0]) and (shown[False][0] != EMPTY).any()
     assert np.array_equal(shown[False][1], shown[True][1])
+
+
+def full_attributes(path) -> dict[str, np.ndarray]:
+    with CloudLoader([path]) as loader:
+        batches = sorted(loader, key=lambda b: b.start)
+    return {n: np.concatenate([b.attributes[n] for b in batches]) for n in batches[0].attributes}
+
+
+def assert_kept_carry_every_attribute(s, path) -> None:
+    kept = sorted(s.renderer.scene.batches, key=lambda b: b.start)
+    for name, values in full_attributes(path).items():
+        np.testing.assert_array_equal(np.concatenate([b.attributes[name] for b in kept]), values, err_msg=name)
+
+
+def frame_until_read(s, camera, limit_s: float = 60.0) -> None:
+    """Frames until the later pass is in and the view converged, pausing between the
+    converged ones as a window waits for events (frames in a tight loop keep the GIL
+    from the parser threads)."""
+    deadline = time.monotonic() + limit_s
+    while time.monotonic() < deadline:
+        s.frame(camera)
+        if s.converged and not s.later:
+            return
+        if s.idle:
+            time.sleep(0.01)
+
+
+LATER = "las_with_several_extra_byte_bloc.laz"
+"""A LAZ of point format 8 (layered), whose viewer sessions read the attributes not shown later."""
+
+
+@pytest.mark.parametrize("name", [LATER, "fullwave.laz", "autzen_trim.las"])
+def test_a_switchable_session_reads_the_other_attributes_afterwards(gl, name):
+    """A switchable session (the viewer's) of a layered LAZ (point formats 6-10) loads
+    the shown attribute and the filters' first, the others in a later pass that joins
+    the kept batches; a switch to one of those asked before they are read waits for
+    them (status says so). Either way (a LAS reads all at once) the view converges to
+    the brute-force render of a session opened colouring by it, and the kept batches
+    end up with every attribute a full load gives."""
+    from progressive.session import Method, Session, SessionOptions
+
+    path = real_path(name)
+    options = SessionOptions(width=W, height=H, switchable=True, class_filter=True)
+    with Session([str(path)], options, glc=gl) as s:
+        shown = s.attribute.name
+        if name == "autzen_trim.las":
+            assert not s.later and s.switch_attribute("intensity") is not None
+        else:
+            assert "intensity" in s.later and shown not in s.later and "classification" not in s.later
+            assert s.switch_attribute("intensity") is None
+            assert s.waiting.name == "intensity" and s.attribute.name == shown
+            status = s.status()
+            assert status.later.waiting == "intensity" and status.loading
+        camera = s.auto_camera()
+        frame_until_read(s, camera)
+        assert not s.later and s.waiting is None and s.status().later is None
+        assert s.attribute.name == "intensity" and s.converged
+        ids, image = s.ids().copy(), s.image().copy()
+        assert s.renderer.scene.joined == (0 if name == "autzen_trim.las" else s.info.points)
+        assert_kept_carry_every_attribute(s, path)
+    with Session([str(path)], SessionOptions(width=W, height=H, color_by="intensity", method=Method.BRUTE),
+                 glc=gl) as s:
+        s.frame(camera)
+        assert np.array_equal(ids, s.ids()) and (ids != EMPTY).any()
+        assert np.array_equal(image, s.image())
+    gl.check()
+
+
+def test_a_brute_force_frame_waits_for_the_attribute_its_switch_asked_for(gl):
+    """Brute force renders everything in one frame: a switch waiting for the later pass
+    is begun within that frame, which equals a session opened colouring by it."""
+    from progressive.session import Method, Session, SessionOptions
+
+    brute = SessionOptions(width=W, height=H, method=Method.BRUTE)
+    path = str(shared_file(LATER))
+    with Session([path], dataclasses.replace(brute, switchable=True), glc=gl) as s:
+        assert s.switch_attribute("gps_time") is None
+        camera = s.auto_camera()
+        s.frame(camera)
+        assert s.attribute.name == "gps_time" and s.waiting is None
+        image = s.image().copy()
+    with Session([path], dataclasses.replace(brute, color_by="gps_time"), glc=gl) as s:
+        s.frame(camera)
+        assert np.array_equal(image, s.image())
+
+
+def test_attributes_the_later_pass_left_short_cannot_be_shown(gl, monkeypatch):
+    """A salvaged file whose later pass ends sooner than its first (a damaged layer only
+    that pass decodes): the switch that waited is dropped, the warnings say which
+    attributes, and a switch to one of them is refused in one line; the view goes on."""
+    from progressive.errors import ProgressiveError
+    from progressive.loaders import pipeline
+    from progressive.session import Session, SessionOptions
+
+    poll_later = pipeline.CloudLoader.poll_later
+    monkeypatch.setattr(pipeline.CloudLoader, "poll_later",
+                        lambda self, max_batches=None: [b for b in poll_later(self, max_batches) if b.start == 0])
+    with Session([str(shared_file(LATER))], SessionOptions(width=W, height=H, switchable=True), glc=gl) as s:
+        shown = s.attribute.name
+        assert s.switch_attribute("intensity") is None
+        camera = s.auto_camera()
+        frame_until_read(s, camera)
+        assert not s.later and s.waiting is None and s.attribute.name == shown and s.converged
+        assert any("intensity" in w and "cannot be shown" in w for w in s.warnings)
+        with pytest.raises(ProgressiveError, match="gps_time could not be read for every point"):
+            s.switch_attribute("gps_time")
+        s.frame(camera)
+        assert s.attribute.name == shown
+    gl.check()
+
+
+def test_attributes_read_afterwards_join_kept_batches_that_start_elsewhere(gl, sample_batches):
+    """The later pass's batches need not line up with the kept ones: rows of parts that
+    straddle kept batches are gathered until each kept batch has all of its rows."""
+    from progressive.scene import Scene
+
+    info, batches = sample_batches
+    first = ("intensity",)
+    scene = Scene(gl, info, next(a for a in info.attributes if a.name == "intensity"), keep_batches=True)
+    try:
+        for b in batches:
+            scene.add_batch(dataclasses.replace(b, attributes={n: b.attributes[n] for n in first}))
+        assert scene.joined == 0
+        total = sum(b.count for b in batches)
+        edges = [0, 7_000, 45_000, 45_001, 90_000, total]
+        whole = {n: np.concatenate([b.attributes[n] for b in batches]) for n in batches[0].attributes}
+        positions = np.concatenate([b.positions for b in batches])
+        for lo, hi in zip(edges, edges[1:]):
+            part = dataclasses.replace(batches[0], start=lo, positions=positions[lo:hi],
+                                       attributes={n: v[lo:hi] for n, v in whole.items() if n not in first},
+                                       nonfinite_values={}, grid=None, bounds=None)
+            scene.add_attributes(part)
+            covered = sum(b.count for b in batches if b.start + b.count <= hi)
+            assert scene.joined == covered
+        for name, values in whole.items():
+            np.testing.assert_array_equal(np.concatenate([b.attributes[name] for b in scene.batches]), values,
+                                          err_msg=name)
+    finally:
+        scene.release()
+    gl.check()
 
 
 @pytest.mark.parametrize("color_by", [None, "intensity"])

@@ -21,7 +21,7 @@ import pytest
 from PIL import Image
 
 from colour_reference import assert_scalar_colours, las_values, reference_range
-from conftest import SAMPLE
+from conftest import SAMPLE, shared_file
 from progressive.camera import Camera, screen_points
 from progressive.reference import EMPTY
 from progressive.session import SessionOptions
@@ -176,6 +176,31 @@ def test_colours_follow_the_contract_after_a_switch(viewer):
     image = viewer.session.image()[:, :, :3].astype(np.int32)
     assert_scalar_colours(image, ids, values, (420.0, 460.0))
     no_gl_error(viewer)
+
+
+def test_a_switch_asked_before_the_other_attributes_are_read_waits_for_them(display):
+    """The window reads a layered LAZ's shown attribute first and the others afterwards:
+    a switch to one of them asked at once is shown in the panel (the combo, a progress
+    bar) and begins once they are read; the image is then coloured by it as the
+    contract says."""
+    path = shared_file("las_with_several_extra_byte_bloc.laz")
+    viewer = open_viewer([path])
+    try:
+        s = viewer.session
+        assert "intensity" in s.later and s.loader.attributes == ("rgb", "classification", "return_number",
+                                                                   "number_of_returns")
+        viewer.switch_attribute("intensity")
+        assert viewer.settings.attribute == "intensity" and s.waiting.name == "intensity"
+        assert s.status().later.waiting == "intensity" and s.attribute.name == "rgb"
+        viewer.step()       # the panel draws the wait
+        settle(viewer)
+        assert s.attribute.name == "intensity" and s.waiting is None and not s.later
+        values = las_values(laspy.read(path), "intensity")
+        image, ids = s.image()[:, :, :3].astype(np.int32), s.ids()
+        assert_scalar_colours(image, ids, values, reference_range(values))
+        no_gl_error(viewer)
+    finally:
+        viewer.close()
 
 
 def test_orbit_pan_zoom_and_reset(viewer):

@@ -43,7 +43,7 @@ DOUBLE_CLICK_SECONDS = 0.35
 DOUBLE_CLICK_PIXELS = 4.0
 MESSAGE_SECONDS = 12.0         # how long a note stays in the panel
 CURSOR_SEARCH = 7              # pixels around the cursor searched for a point (zoom, focus)
-IDLE_WAIT_SECONDS = 0.05       # converged and no input: wait for events instead of spinning
+IDLE_WAIT_SECONDS = 0.05       # idle (Session.idle) and no input: wait for events instead of spinning
 READ_WAIT_SECONDS = 0.05
 """How long a click waits on the window's thread for its point read back from the file:
 a local file's read is done by then; a slower one (a COPC node over HTTP) finishes on
@@ -321,7 +321,7 @@ class Viewer:
         return [a.name for a in self.session.info.attributes] if self.session else []
 
     def switch_attribute(self, name: str) -> None:
-        if self.session is None or name == self.session.attribute.name:
+        if self.session is None or name == self.session.chosen.name:
             return
         try:
             self.session.switch_attribute(name)
@@ -438,7 +438,7 @@ class Viewer:
         """One iteration: input, one frame, present, panel, swap."""
         now = time.perf_counter()
         seconds, self._last_time = now - self._last_time, now
-        idle = (self.session is not None and self.session.converged and self._drag is None and self._dropped is None
+        idle = (self.session is not None and self.session.idle and self._drag is None and self._dropped is None
                 and self._reading is None)
         if idle:
             glfw.wait_events_timeout(IDLE_WAIT_SECONDS)

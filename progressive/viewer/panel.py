@@ -150,7 +150,12 @@ class Panel:
         changed, index = imgui.combo("attribute ([ ])", current, names)
         if changed:
             v.switch_attribute(names[index])
-        switch = s.status().switch
+        status = s.status()
+        switch, later = status.switch, status.later
+        if later is not None:
+            imgui.progress_bar(later.read / max(1, status.points), imgui.ImVec2(-1, 0), "reading the other attributes")
+            if later.waiting:
+                imgui.text(f"showing {later.waiting} once read")
         if switch is not None and not switch.done:
             imgui.progress_bar(switch.streamed / max(1, switch.total), imgui.ImVec2(-1, 0), "streaming")
         elif switch is not None and switch.rate:
