@@ -1,6 +1,9 @@
 """Per-frame statistics without stalling: the GPU copies a frame's counters and
 timestamps into a ring of small slots and sets a fence; the CPU reads a slot only
-once its fence has signalled, a few frames later."""
+once its fence has signalled, a few frames later. Each slot is a buffer of its own:
+on the NVIDIA driver, reading one range of a buffer that later frames' copies still
+write waited for them (profiled on the H200 machine while loading, the one buffer's
+reads took a large share of every frame; with a buffer a slot they no longer showed)."""
 
 from __future__ import annotations
 
@@ -40,8 +43,9 @@ class StatsRing:
     def __init__(self, glc: GLContext, slots: int = 8):
         self.glc = glc
         self.slots = slots
-        self.buffer = glc.ctx.buffer(reserve=slots * SLOT_WORDS * 4)
-        self.buffer.label = "frame stats"
+        self.buffers = [glc.ctx.buffer(reserve=SLOT_WORDS * 4) for _ in range(slots)]
+        for k, buffer in enumerate(self.buffers):
+            buffer.label = f"frame stats {k}"
         self.pending: deque[Pending] = deque()
         self.next_slot = 0
         self.dropped = 0
@@ -52,14 +56,14 @@ class StatsRing:
             self.dropped += 1
             return
         copy = self.glc.gl.copy_named_buffer_sub_data
-        base = self.next_slot * SLOT_WORDS * 4
+        slot = self.buffers[self.next_slot].glo
         self.glc.ctx.memory_barrier()
-        copy(state_buf.glo, self.buffer.glo, 0, base, StateWord.WORDS * 4)
-        copy(stamps_buf.glo, self.buffer.glo, stamps_offset, base + TS_WORD * 4, TIMESTAMP_SLOTS * 8)
-        copy(visible_meta_buf.glo, self.buffer.glo, Meta.COUNT * 4, base + VISIBLE_WORD * 4, 4)
-        copy(visible_meta_buf.glo, self.buffer.glo, Meta.GATHERS * 4, base + GATHER_WORD * 4, 4)
+        copy(state_buf.glo, slot, 0, 0, StateWord.WORDS * 4)
+        copy(stamps_buf.glo, slot, stamps_offset, TS_WORD * 4, TIMESTAMP_SLOTS * 8)
+        copy(visible_meta_buf.glo, slot, Meta.COUNT * 4, VISIBLE_WORD * 4, 4)
+        copy(visible_meta_buf.glo, slot, Meta.GATHERS * 4, GATHER_WORD * 4, 4)
         if equal_buf is not None:
-            copy(equal_buf.glo, self.buffer.glo, 0, base + EQUAL_WORD * 4, 4)
+            copy(equal_buf.glo, slot, 0, EQUAL_WORD * 4, 4)
         self.pending.append(Pending(self.next_slot, self.glc.gl.fence(), tag))
         self.next_slot = (self.next_slot + 1) % self.slots
 
@@ -74,7 +78,7 @@ class StatsRing:
                 break
             self.pending.popleft()
             self.glc.gl.delete_sync(head.fence)
-            words = np.frombuffer(self.buffer.read(SLOT_WORDS * 4, offset=head.slot * SLOT_WORDS * 4), dtype=np.uint32)
+            words = np.frombuffer(self.buffers[head.slot].read(), dtype=np.uint32)
             out.append(GPURecord(head.tag, words[:StateWord.WORDS].copy(),
                                  words[TS_WORD:TS_WORD + 2 * TIMESTAMP_SLOTS].view(np.uint64).copy(),
                                  int(words[VISIBLE_WORD]), int(words[EQUAL_WORD]), int(words[GATHER_WORD])))
@@ -84,4 +88,5 @@ class StatsRing:
         for p in self.pending:
             self.glc.gl.delete_sync(p.fence)
         self.pending.clear()
-        self.buffer.release()
+        for buffer in self.buffers:
+            buffer.release()
