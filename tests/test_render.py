@@ -365,6 +365,22 @@ def test_attributes_the_later_pass_left_short_cannot_be_shown(gl, monkeypatch):
     gl.check()
 
 
+def test_a_switch_to_an_attribute_not_read_when_loading_stopped_is_refused(gl):
+    """A viewer stops loading when a file fails: the attributes of the later pass never
+    come, so a switch waiting for one is dropped and a new one is refused in one line."""
+    from progressive.errors import ProgressiveError
+    from progressive.session import Session, SessionOptions
+
+    with Session([str(shared_file(LATER))], SessionOptions(width=W, height=H, switchable=True), glc=gl) as s:
+        assert s.switch_attribute("intensity") is None
+        s.stop_loading()
+        assert s.waiting is None and not s.status().loading
+        with pytest.raises(ProgressiveError, match="intensity was not read: loading stopped"):
+            s.switch_attribute("intensity")
+        s.frame(s.auto_camera())
+    gl.check()
+
+
 def test_attributes_read_afterwards_join_kept_batches_that_start_elsewhere(gl, sample_batches):
     """The later pass's batches need not line up with the kept ones: rows of parts that
     straddle kept batches are gathered until each kept batch has all of its rows."""
