@@ -135,7 +135,7 @@ them (SessionOptions.read_later)."""
 
 
 def first_image(glc: GLContext, path: Path, width: int, height: int, cold: bool, max_frames: int,
-                session: str = "shown") -> dict:
+                session: str = "shown", parser_threads: int | None = None) -> dict:
     """Seconds from progressive.open() to the first finished frame with points, to every
     point on the GPU, to the converged image (adaptive budget at 16.6 ms), and to every
     attribute read (a switchable session: framed on until the later pass is in)."""
@@ -145,7 +145,7 @@ def first_image(glc: GLContext, path: Path, width: int, height: int, cold: bool,
         drop_cache(path)
     else:
         raw_read(path)
-    opts = progressive.SessionOptions(width=width, height=height, **SESSIONS[session],
+    opts = progressive.SessionOptions(width=width, height=height, **SESSIONS[session], parser_threads=parser_threads,
                                       progressive=progressive.ProgressiveOptions(budget=BudgetParams(target_ns=16_600_000)))
     t0 = time.perf_counter()
     first = full = converged = every = None
@@ -248,30 +248,34 @@ def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats
 
 
 def first_image_table(glc: GLContext, cases: list[LoadCase], size: tuple[int, int], max_frames: int,
-                      repeats: int = 1) -> Table:
+                      repeats: int = 1, parser_threads: tuple[int, ...] = ()) -> Table:
     """first_image for every case: cold and warm with the session `render` opens, warm
-    with the window's (not for the fast format, which holds one attribute); each the
-    median of `repeats` runs, the sessions taking turns within each repeat."""
+    with the window's (not for the fast format, which holds one attribute), and warm
+    with `render`'s at each of `parser_threads` (the others at the default, one a core);
+    each the median of `repeats` runs, the sessions taking turns within each repeat."""
     first = Table("first_image", "Time to first image and to fully loaded, through progressive.open()", "", "", (
-        "file", "format", "points", "session", "cache", "first image s", "all points on GPU s", "converged s",
-        "every attribute s", "frames", "first image / fully loaded"))
+        "file", "format", "points", "session", "parser threads", "cache", "first image s", "all points on GPU s",
+        "converged s", "every attribute s", "frames", "first image / fully loaded"))
     keys = ("first_image_s", "loaded_s", "converged_s", "every_attribute_s", "frames")
+    cores = available_cores()
     for case in cases:
-        runs = [("shown", True), ("shown", False)]
-        runs += [(session, False) for session in SESSIONS if session != "shown"] if case.format != "fast" else []
-        taken: dict[tuple[str, bool], list[dict]] = {run: [] for run in runs}
+        runs = [("shown", True, None), ("shown", False, None)]
+        runs += [(session, False, None) for session in SESSIONS if session != "shown"] if case.format != "fast" else []
+        runs += [("shown", False, t) for t in parser_threads if t != cores]
+        taken: dict[tuple, list[dict]] = {run: [] for run in runs}
         for _ in range(repeats):
-            for session, cold in runs:
-                taken[session, cold].append(first_image(glc, case.path, *size, cold, max_frames, session))
-        for (session, cold), results in taken.items():
+            for session, cold, threads in runs:
+                taken[session, cold, threads].append(first_image(glc, case.path, *size, cold, max_frames, session,
+                                                                 threads))
+        for (session, cold, threads), results in taken.items():
             res = {k: median_or_none([r[k] for r in results]) for k in keys}
             res.update(file=case.label, format=case.format, cold=cold, points=case.points, scaled=case.scaled,
-                       session=session, repeats=repeats)
+                       session=session, parser_threads=threads or cores, repeats=repeats)
             first.raw.setdefault("rows", []).append(res)
             ratio = res["first_image_s"] / res["loaded_s"] if res["loaded_s"] else None
-            first.rows.append((case.label, case.format, case.points, session, "cold" if cold else "warm",
-                               res["first_image_s"], res["loaded_s"], res["converged_s"], res["every_attribute_s"],
-                               res["frames"], ratio))
+            first.rows.append((case.label, case.format, case.points, session, threads or cores,
+                               "cold" if cold else "warm", res["first_image_s"], res["loaded_s"], res["converged_s"],
+                               res["every_attribute_s"], res["frames"], ratio))
     first.notes = [(f"Session with the progressive renderer at {size[0]}x{size[1]}, adaptive budget 16.6 ms, auto "
                    "camera; clock from before `progressive.open()` to `glFinish` after the first frame with points, "
                    "after the frame that distributed the last batch, to the frame that knew it had converged, and "
@@ -279,7 +283,8 @@ def first_image_table(glc: GLContext, cases: list[LoadCase], size: tuple[int, in
                    "`render` and a headless `view` read (the shown attribute); viewer = what the window reads "
                    "(SessionOptions(switchable=True, class_filter=True): every attribute, kept to switch to), the "
                    "attributes not shown after every point (others later, the default) or with them (all at once, "
-                   "read_later=False); warm only. The fast format holds one attribute: shown only. "
+                   "read_later=False); warm only. The fast format holds one attribute: shown only. Parser threads: "
+                   f"the loader's (SessionOptions.parser_threads; {cores}, one a core, by default). "
                    f"Each row the median of {repeats} run{'s' if repeats > 1 else ''}"
                    f"{', the sessions taking turns' if repeats > 1 else ''}.")]
     return first
@@ -305,6 +310,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="files to tile (default: the bundled sample)")
     parser.add_argument("--size", default="1920x1080")
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--parser-threads", type=int, nargs="*", default=[],
+                        help="also `render`'s session, warm, with these many parser threads")
     parser.add_argument("--max-frames", type=int, default=100_000)
     parser.add_argument("--out", type=Path, default=None, help="results folder (default bench/results/<machine>)")
     args = parser.parse_args(argv)
@@ -315,7 +322,7 @@ def main(argv: list[str] | None = None) -> int:
         files = data.scaled(args.points, source=source, fast=False)
         cases += [LoadCase(f"{source.name} tiled", fmt, path, files.points, scaled=True)
                   for fmt, path in files.formats() if fmt != "fast"]
-    table = first_image_table(glc, cases, size, args.max_frames, args.repeats)
+    table = first_image_table(glc, cases, size, args.max_frames, args.repeats, tuple(args.parser_threads))
     table.data = ", ".join(f"{p.name} (point format {laspy.open(p).header.point_format.id})" for p in args.sources) + \
         " tiled on a grid (bench/data.py) and written as LAS and LAZ (laspy/lazrs)"
     table.points = f"{args.points:,}"

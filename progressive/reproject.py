@@ -123,8 +123,9 @@ class ReprojectingLoader(BatchQueue):
     loader a file, run in turn (so host memory stays what one loader holds, plus
     READY_BATCHES), reprojected on a thread of its own."""
 
-    def __init__(self, paths, target, *, partial: bool = False, http: HttpOptions = HTTP_DEFAULTS):
-        """http: how a URL's COPC file is fetched."""
+    def __init__(self, paths, target, *, partial: bool = False, http: HttpOptions = HTTP_DEFAULTS,
+                 parser_threads: int | None = None):
+        """http: how a URL's COPC file is fetched; parser_threads: each file's loader's."""
         self.target = target
         self._loaders = []
         self._stop = threading.Event()
@@ -134,7 +135,8 @@ class ReprojectingLoader(BatchQueue):
             raise InputError("no input files given")
         try:
             for path in paths:
-                self._loaders.append(CloudLoader([path], partial=partial, http=http, check_count=check_addressable))
+                self._loaders.append(CloudLoader([path], partial=partial, http=http, check_count=check_addressable,
+                                                 parser_threads=parser_threads))
             files = tuple(loader.info.files[0] for loader in self._loaders)
             self.transforms = tuple(self._transform(f) for f in files)
             self.info = self._cloud(files)
@@ -298,14 +300,14 @@ def check_addressable(path: str, points: int) -> None:
 
 
 def open_loader(paths, *, partial: bool = False, reproject=None, point_budget: int | None = None,
-                http: HttpOptions = HTTP_DEFAULTS, view=None):
+                http: HttpOptions = HTTP_DEFAULTS, view=None, parser_threads: int | None = None):
     """The loader of a cloud, checked to fit the point store: reprojected into `reproject`
     (a pyproj CRS) where given; point_budget and view: see open_sources (COPC nodes; not
-    with reprojection)."""
+    with reprojection); parser_threads: CloudLoader's (None: the cores available)."""
     if reproject is not None:
-        return ReprojectingLoader(paths, reproject, partial=partial, http=http)
+        return ReprojectingLoader(paths, reproject, partial=partial, http=http, parser_threads=parser_threads)
     loader = CloudLoader(paths, partial=partial, point_budget=point_budget, http=http, view=view,
-                         check_count=check_addressable)
+                         check_count=check_addressable, parser_threads=parser_threads)
     try:
         check_addressable(loader.info.files[-1].path, loader.info.points)
     except BaseException:

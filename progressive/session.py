@@ -140,6 +140,10 @@ class SessionOptions:
     read_later: bool = True
     """Switchable: read the attributes not shown after every point has loaded, so that
     the cloud is whole as soon as for those shown (False: every attribute at once)."""
+    parser_threads: int | None = None
+    """Threads that parse loaded batches (None: one a core this process may use; a
+    streamed cloud's node readers are one a core); fewer leave cores to the frame loop,
+    which packs and uploads every batch on its own."""
     value_range: tuple[float, float] | None = None   # the first attribute's values at the colormap's ends; None: percentiles
     class_filter: bool = False              # keep classification on the GPU (where the cloud has it): any colouring filters
     palette: Palette = DEFAULT_PALETTE      # colours of classification codes
@@ -204,12 +208,12 @@ class Session:
             and all(may_stream(p) for p in ([paths] if isinstance(paths, (str, os.PathLike)) else paths)))
         self.loader = open_loader(paths, partial=options.partial, reproject=self.target,
                                   point_budget=None if stream else budget, http=options.http,
-                                  view=None if stream else view)
+                                  view=None if stream else view, parser_threads=options.parser_threads)
         if stream and options.stream is Streaming.AUTO and not streamable(self.loader.sources):
             self.loader.close()         # a hierarchy that cannot be used: read once, as with streaming off
             stream = False
             self.loader = open_loader(paths, partial=options.partial, point_budget=budget, http=options.http,
-                                      view=view)
+                                      view=view, parser_threads=options.parser_threads)
         self.streamer: Streamer | None = None
         self._given_range = options.value_range
         self._notes: list[str] = []

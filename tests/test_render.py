@@ -365,6 +365,22 @@ def test_attributes_the_later_pass_left_short_cannot_be_shown(gl, monkeypatch):
     gl.check()
 
 
+def test_parser_threads_of_a_session_are_the_loaders_and_change_no_pixel(gl):
+    """SessionOptions.parser_threads reaches the loader (default: one a core); the ids
+    and the image are those of the default's."""
+    from progressive.loaders.types import available_cores
+    from progressive.session import Method, Session, SessionOptions
+
+    shown = []
+    for threads in (None, 1):
+        options = SessionOptions(width=W, height=H, method=Method.BRUTE, parser_threads=threads)
+        with Session([str(SAMPLE)], options, glc=gl) as s:
+            assert s.loader.parser_threads == (threads or available_cores())
+            s.frame(s.auto_camera())
+            shown.append((s.ids().copy(), s.image().copy()))
+    assert np.array_equal(shown[0][0], shown[1][0]) and np.array_equal(shown[0][1], shown[1][1])
+
+
 def test_a_switch_to_an_attribute_not_read_when_loading_stopped_is_refused(gl):
     """A viewer stops loading when a file fails: the attributes of the later pass never
     come, so a switch waiting for one is dropped and a new one is refused in one line."""
