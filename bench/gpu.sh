@@ -87,9 +87,9 @@ case "$chunk" in
                           --scratch /dev/shm --out "$OUT/$(machine)" "${@:2}" ;;
     # what the window reads against what render reads, at 100M points: the sample (point format 3) and a LAZ of
     # point format 8 tiled as LAS and LAZ, each session warm, 3 repeats (bench.load first_image_table); render's
-    # session at 4 and 8 parser threads too (do fewer leave the frame loop its core?)
+    # session at 8 and 16 parser threads too, beside the default 4 (do more take the frame loop's core?)
     viewer-load-100M) "${PYTHON:-python3}" -m bench.load --points 100000000 --size 1920x1080 --repeats 3 \
-                          --parser-threads 4 8 \
+                          --parser-threads 8 16 \
                           --sources progressive/data/autzen_trim.las \
                           "${PROGRESSIVE_SHARED_DATA:-../shared/data}/las_with_several_extra_byte_bloc.laz" \
                           --out "$OUT/$(machine)/viewer_load" "${@:2}" ;;

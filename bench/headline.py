@@ -122,12 +122,12 @@ def raster_lines(raster: dict) -> list[str]:
 
 
 def load_lines(load: dict) -> list[str]:
-    """The warm rows of the loader's default parser threads (one a core; tables before
-    the default was recorded: the most threads)."""
+    """The warm rows of the loader's default parser threads (of a table that does not
+    record it: the most threads)."""
     scaled = [r for r in load["raw"]["rows"] if not r["cold"] and r["scaled"]]
     default = load["raw"].get("default_threads")
     threads = default if default is not None else max(r["threads"] for r in scaled)
-    which = " (the default, one a core)" if default is not None else ""
+    which = " (the default)" if default is not None else ""
     out = []
     for r in scaled:
         if r["threads"] != threads:

@@ -1,5 +1,5 @@
 """Load: points/s and GB/s of the loader for LAS, LAZ and the fast format at 1, 2, 4
-parser threads and the default (the cores available), cold and warm page cache, each
+parser threads, the default and the cores available, cold and warm page cache, each
 beside what the same file costs to (a) `laspy.read()` plus the conversion a user would
 write, (b) read raw and (c) for LAZ, decode with lazrs's own parallel decoder alone; a
 LAZ is loaded both ways, decoded by lazrs's threads in the loader's process and by
@@ -30,7 +30,7 @@ from progressive.context import GLContext
 from progressive.loaders import CloudLoader, open_cloud
 from progressive.loaders.copc import is_copc
 from progressive.loaders.laz_pool import MIN_AUTO_PROCESSES, MIN_PROCESS_POINTS, Decoders, LazOptions
-from progressive.loaders.types import available_cores
+from progressive.loaders.types import PARSER_THREADS, available_cores, default_parser_threads
 
 BLOCK = 8 << 20
 LAZRS_PIECE = 10_000_000
@@ -174,8 +174,8 @@ def first_image(glc: GLContext, path: Path, width: int, height: int, cold: bool,
 
 def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats: int,
         size: tuple[int, int], max_frames: int) -> tuple[Table, Table]:
-    cores = available_cores()
-    threads = tuple(sorted({*threads, cores}))
+    cores, default = available_cores(), default_parser_threads()
+    threads = tuple(sorted({*threads, default, cores}))
     load = Table("load", "Load: points/s and GB/s, against laspy, raw reads and lazrs alone", "", "", (
         "file", "format", "points", "MB", "cache", "parser threads", "LAZ decoders", "attributes", "s", "Mpoints/s", "GB/s",
         "× laspy.read + convert", "share of raw read GB/s", "lazrs alone Mpoints/s", "share of lazrs alone"))
@@ -195,7 +195,7 @@ def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats
                 cold_forced[f"{case.label} {case.format}"] = raw_s
             pooled = case.format == "LAZ" and not is_copc(case.path)      # COPC nodes are decoded by loaders/copc.py
             runs = [(decoders, t, None) for decoders, t in itertools.product(LAZ_DECODERS if pooled else (None,), threads)]
-            runs += [(decoders, cores, names) for decoders in (LAZ_DECODERS if pooled else (None,))] if names else []
+            runs += [(decoders, default, names) for decoders in (LAZ_DECODERS if pooled else (None,))] if names else []
             for decoders, t, parsed in runs:
                 s = timed(functools.partial(pipeline, case.path, t, decoders or Decoders.AUTO, parsed), case.path, cold,
                           repeats)
@@ -221,8 +221,9 @@ def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats
                           r["points"] / r["lazrs_seconds"] / 1e6 if r["lazrs_seconds"] else None,
                           f"{r['share_of_lazrs']:.2g}" if r["share_of_lazrs"] else None))
     load.notes = [
-        (f"Cores available to the process (`os.sched_getaffinity`): {cores}; the loader's default parser threads "
-         f"are that many ({cores} rows). A LAZ is decoded on every core whatever the parser threads, either by "
+        (f"Cores available to the process (`os.sched_getaffinity`): {cores}; the loader's default parser threads: "
+         f"one a core, at most {PARSER_THREADS} ({default} rows). A LAZ is decoded on every core whatever the parser "
+         "threads, either by "
          "lazrs's threads in the loader's process (LAZ decoders `threads`: lazrs holds the GIL through each read) "
          f"or by {cores} decoder processes, one a core, whose records the parser threads parse (`processes`; "
          f"the loader's default for a file with {MIN_PROCESS_POINTS:,} points or more left after its first batches "
@@ -242,7 +243,7 @@ def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats
         + ", ".join(f"{k} {v:.2f}×" for k, v in cold_forced.items()) + "). Where not forced, the cold rows "
         "measure a cached file: the page cache could not be dropped here (e.g. a virtual disk cached by the host).",
     ]
-    load.raw = {"rows": rows, "cold_slowdown_raw": cold_forced, "default_threads": cores}
+    load.raw = {"rows": rows, "cold_slowdown_raw": cold_forced, "default_threads": default}
 
     return load, first_image_table(glc, cases, size, max_frames)
 
@@ -257,11 +258,11 @@ def first_image_table(glc: GLContext, cases: list[LoadCase], size: tuple[int, in
         "file", "format", "points", "session", "parser threads", "cache", "first image s", "all points on GPU s",
         "converged s", "every attribute s", "frames", "first image / fully loaded"))
     keys = ("first_image_s", "loaded_s", "converged_s", "every_attribute_s", "frames")
-    cores = available_cores()
+    default = default_parser_threads()
     for case in cases:
         runs = [("shown", True, None), ("shown", False, None)]
         runs += [(session, False, None) for session in SESSIONS if session != "shown"] if case.format != "fast" else []
-        runs += [("shown", False, t) for t in parser_threads if t != cores]
+        runs += [("shown", False, t) for t in parser_threads if t != default]
         taken: dict[tuple, list[dict]] = {run: [] for run in runs}
         for _ in range(repeats):
             for session, cold, threads in runs:
@@ -270,10 +271,10 @@ def first_image_table(glc: GLContext, cases: list[LoadCase], size: tuple[int, in
         for (session, cold, threads), results in taken.items():
             res = {k: median_or_none([r[k] for r in results]) for k in keys}
             res.update(file=case.label, format=case.format, cold=cold, points=case.points, scaled=case.scaled,
-                       session=session, parser_threads=threads or cores, repeats=repeats)
+                       session=session, parser_threads=threads or default, repeats=repeats)
             first.raw.setdefault("rows", []).append(res)
             ratio = res["first_image_s"] / res["loaded_s"] if res["loaded_s"] else None
-            first.rows.append((case.label, case.format, case.points, session, threads or cores,
+            first.rows.append((case.label, case.format, case.points, session, threads or default,
                                "cold" if cold else "warm", res["first_image_s"], res["loaded_s"], res["converged_s"],
                                res["every_attribute_s"], res["frames"], ratio))
     first.notes = [(f"Session with the progressive renderer at {size[0]}x{size[1]}, adaptive budget 16.6 ms, auto "
@@ -284,7 +285,8 @@ def first_image_table(glc: GLContext, cases: list[LoadCase], size: tuple[int, in
                    "(SessionOptions(switchable=True, class_filter=True): every attribute, kept to switch to), the "
                    "attributes not shown after every point (others later, the default) or with them (all at once, "
                    "read_later=False); warm only. The fast format holds one attribute: shown only. Parser threads: "
-                   f"the loader's (SessionOptions.parser_threads; {cores}, one a core, by default). "
+                   f"the loader's (SessionOptions.parser_threads; {default} by default: one a core, at most "
+                   f"{PARSER_THREADS}). "
                    f"Each row the median of {repeats} run{'s' if repeats > 1 else ''}"
                    f"{', the sessions taking turns' if repeats > 1 else ''}.")]
     return first

@@ -7,7 +7,8 @@ decoder processes: laz_pool.py), the chunks of the other formats. Parsed batches
 in a queue of parser_threads slots. So at most about 2 x parser_threads + 2 batches
 (and one LAZ read, or a pool's ROUNDS_AHEAD jobs a worker, and until the first file's
 first batches are parsed, the records its probe kept: las.KEPT_BYTES) are in memory at
-once, however large the cloud is. Parser threads default to the cores this process may use.
+once, however large the cloud is. Parser threads default to one a core this process may
+use, at most types.PARSER_THREADS: more contend for the GIL.
 An http(s):// URL is a COPC file read by range requests (`http` says how:
 loaders/http.py).
 """
@@ -37,7 +38,7 @@ from progressive.loaders.laz_pool import DEFAULTS as LAZ_DEFAULTS
 from progressive.loaders.laz_pool import DecoderPool, LazOptions, PoolClosed
 from progressive.loaders.ply import PlySource, is_ply, open_ply
 from progressive.loaders.records import ELEVATION
-from progressive.loaders.types import BATCH_POINTS, AttributeInfo, Batch, CloudInfo, available_cores
+from progressive.loaders.types import BATCH_POINTS, AttributeInfo, Batch, CloudInfo, default_parser_threads
 from progressive.loaders.validate import fail, shown
 
 Source = LasSource | FastSource | E57Source | PlySource
@@ -302,7 +303,7 @@ class CloudLoader(BatchQueue):
                  check_count: Callable[[str, int], None] | None = None):
         """view: the first view, whose nodes a COPC cloud larger than point_budget keeps;
         check_count: refuses a LAS/LAZ file too large by its header alone (open_sources)."""
-        parser_threads = available_cores() if parser_threads is None else parser_threads
+        parser_threads = default_parser_threads() if parser_threads is None else parser_threads
         if batch_points < 1 or parser_threads < 1:
             raise ValueError("batch_points and parser_threads must be at least 1")
         self.info, self._sources = open_sources(paths, partial=partial, point_budget=point_budget, http=http,

@@ -21,11 +21,23 @@ RGB8_MAX = 255
 
 def available_cores() -> int:
     """The cores this process may run on (its CPU affinity, which a container or taskset
-    narrows), not every core of the machine: the default for decoder and parser threads."""
+    narrows), not every core of the machine: the default for decoder processes."""
     try:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:          # no sched_getaffinity (macOS, Windows)
         return os.cpu_count() or 1
+
+
+PARSER_THREADS = 4
+"""The most parser threads a loader starts by default: parsing holds the GIL between
+its numpy calls, so more contend for it. On the H200 machine's 16 cores the loader parsed
+a LAS at 52.6 M points/s with 4 and 38.2 with 16, the fast format at 286 and 206, a LAZ
+decoded by processes at 15.9 and 15.7 (bench/results/nvidia-h200/load_20M/load.md)."""
+
+
+def default_parser_threads() -> int:
+    """Parser threads by default: one a core, at most PARSER_THREADS."""
+    return min(available_cores(), PARSER_THREADS)
 
 
 def available_memory() -> int | None:

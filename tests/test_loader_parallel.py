@@ -98,12 +98,18 @@ def test_every_thread_and_core_count_equals_laspy(name, monkeypatch):
 
 
 def test_default_threads_follow_the_cpu_affinity(monkeypatch):
-    """Parser threads default to the cores this process may run on, not min(4, cores)
-    nor every core of the machine."""
-    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 2, 5, 7, 9}, raising=False)
-    with CloudLoader([SAMPLE]) as loader:
-        assert loader.parser_threads == 5
-        assert sum(b.count for b in loader) == loader.total
+    """Parser threads default to one a core this process may run on (its affinity, not
+    every core of the machine), at most PARSER_THREADS; decoder processes to one a core."""
+    from progressive.loaders.laz_pool import DecoderPool
+    from progressive.loaders.types import PARSER_THREADS
+
+    for cores, threads in (({0, 2, 5}, 3), ({0, 2, 5, 7, 9}, PARSER_THREADS)):
+        monkeypatch.setattr(os, "sched_getaffinity", lambda pid, cores=cores: cores, raising=False)
+        with CloudLoader([SAMPLE]) as loader:
+            assert loader.parser_threads == threads
+            assert sum(b.count for b in loader) == loader.total
+        with DecoderPool() as pool:
+            assert pool.processes == len(cores)
 
 
 def sequential_prefix(path) -> np.ndarray:

@@ -366,16 +366,16 @@ def test_attributes_the_later_pass_left_short_cannot_be_shown(gl, monkeypatch):
 
 
 def test_parser_threads_of_a_session_are_the_loaders_and_change_no_pixel(gl):
-    """SessionOptions.parser_threads reaches the loader (default: one a core); the ids
-    and the image are those of the default's."""
-    from progressive.loaders.types import available_cores
+    """SessionOptions.parser_threads reaches the loader (default: one a core, at most
+    PARSER_THREADS); the ids and the image are those of the default's."""
+    from progressive.loaders.types import default_parser_threads
     from progressive.session import Method, Session, SessionOptions
 
     shown = []
     for threads in (None, 1):
         options = SessionOptions(width=W, height=H, method=Method.BRUTE, parser_threads=threads)
         with Session([str(SAMPLE)], options, glc=gl) as s:
-            assert s.loader.parser_threads == (threads or available_cores())
+            assert s.loader.parser_threads == (threads or default_parser_threads())
             s.frame(s.auto_camera())
             shown.append((s.ids().copy(), s.image().copy()))
     assert np.array_equal(shown[0][0], shown[1][0]) and np.array_equal(shown[0][1], shown[1][1])
