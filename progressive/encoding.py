@@ -18,6 +18,7 @@ import enum
 
 import numpy as np
 
+from progressive import batches as batch_boxes
 from progressive.permutation import BATCH_POINTS
 
 LEVEL_BITS = 10
@@ -227,6 +228,27 @@ def integer_frames(least: np.ndarray, shift: np.ndarray, scale, offset, origin: 
     frames[:, 0:3] = base
     frames[:, 4:7] = np.ldexp(np.asarray(scale, dtype=np.float32), -np.asarray(shift, dtype=np.int32))
     return frames
+
+
+def cell_boxes(least: np.ndarray, most: np.ndarray, scale, offset, origin: np.ndarray) -> np.ndarray | None:
+    """(k, BOX_FLOATS) boxes of k batches of a LAS file's integers from their least and
+    most cells, scaled as the loader scales coordinates (integer_frames): the scaling is
+    monotonic, so these are the float32 positions' least and greatest, which
+    batches.boxes_of would find in two more passes over the points. None where one is
+    not finite (boxes_of then leaves such points out)."""
+    def positions(cells: np.ndarray) -> np.ndarray:
+        v = np.asarray(cells, dtype=np.float64) * np.asarray(scale, dtype=np.float64)
+        v += np.asarray(offset, dtype=np.float64)
+        v -= np.asarray(origin, dtype=np.float64)
+        with np.errstate(over="ignore"):
+            return v.astype(np.float32)
+
+    lo, hi = positions(least), positions(most)
+    if not (np.isfinite(lo).all() and np.isfinite(hi).all()):
+        return None
+    boxes = batch_boxes.empty_boxes(lo.shape[0])
+    boxes[:, 0:3], boxes[:, 4:7] = np.minimum(lo, hi), np.maximum(lo, hi)     # a negative scale turns them
+    return boxes
 
 
 def cell_range(cells: np.ndarray, start: int) -> tuple[int, np.ndarray, np.ndarray]:

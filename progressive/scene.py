@@ -513,11 +513,9 @@ def frame_parts(parts: list[Batch], first: int, k: int, origin: np.ndarray) -> t
     """Frames of batches first .. first + k - 1 holding `parts` (numbered by their store
     positions): by the boxes of their points, or by their integers where every part is of
     one LAS grid whose batches span under 2^30 cells. (frames, boxes, least, shift) as
-    PointStore.set_frames takes them (least, shift None: framed by the boxes)."""
-    boxes = batch_boxes.empty_boxes(k)
-    for part in parts:
-        at, part_boxes = batch_boxes.boxes_of(_positions(part), part.start, _all_finite(part))
-        batch_boxes.merge(boxes, at - first, part_boxes)
+    PointStore.set_frames takes them (least, shift None: framed by the boxes). The boxes
+    of one LAS grid's parts come from their least and most integers (encoding.cell_boxes),
+    without a pass over the positions."""
     grids = {(p.grid.scale, p.grid.offset) if p.grid is not None else None for p in parts}
     if len(grids) == 1 and None not in grids:
         least, most = np.full((k, 3), np.iinfo(np.int64).max), np.full((k, 3), np.iinfo(np.int64).min)
@@ -525,10 +523,17 @@ def frame_parts(parts: list[Batch], first: int, k: int, origin: np.ndarray) -> t
             at, lo, hi = encoding.cell_range(part.grid.cells, part.start)
             least[at - first: at - first + lo.shape[0]] = np.minimum(least[at - first: at - first + lo.shape[0]], lo)
             most[at - first: at - first + hi.shape[0]] = np.maximum(most[at - first: at - first + hi.shape[0]], hi)
-        if (most - least < encoding.CELLS).all():
-            scale, offset = next(iter(grids))
+        scale, offset = next(iter(grids))
+        boxes = encoding.cell_boxes(least, most, scale, offset, origin)
+        if boxes is not None and (most - least < encoding.CELLS).all():
             shift = encoding.cell_shifts(least, most)
             return encoding.integer_frames(least, shift, scale, offset, origin), boxes, least, shift
+        if boxes is not None:
+            return encoding.frames_from_boxes(boxes), boxes, None, None
+    boxes = batch_boxes.empty_boxes(k)
+    for part in parts:
+        at, part_boxes = batch_boxes.boxes_of(_positions(part), part.start, _all_finite(part))
+        batch_boxes.merge(boxes, at - first, part_boxes)
     return encoding.frames_from_boxes(boxes), boxes, None, None
 
 

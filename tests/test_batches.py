@@ -241,3 +241,36 @@ def test_filtering_whenever_a_filter_can_leave_a_point_out(sample, kind):
                "section": {"clip": Clip(section=Section(start=(lo[0], lo[1]), end=(hi[0], hi[1]), width=1.0))}}[kind]
     view = view_uniforms(cameras(info)["overview"], info.origin, W, H, **options)
     assert view.filtering == (kind != "none")
+
+
+@pytest.mark.parametrize("name", ["autzen_trim.las", "vegetation_1_3.las", "extrabytes.las", "pine_plot.laz",
+                                  "fullwave.laz", "las_with_several_extra_byte_bloc.laz"])
+def test_boxes_from_a_las_files_integers_are_the_boxes_of_its_positions(name):
+    """encoding.cell_boxes scales each batch's least and most integers as the loader
+    scales coordinates: exactly the float32 boxes that boxes_of finds over the positions
+    of real files, batch by batch (loader batches cut store batches anywhere)."""
+    from conftest import SAMPLE, shared_file
+    from progressive import encoding
+    from progressive.loaders import CloudLoader
+
+    with CloudLoader([SAMPLE if name == "autzen_trim.las" else shared_file(name)], batch_points=37_001) as loader:
+        origin = loader.info.origin
+        for b in loader:
+            at, least, most = encoding.cell_range(b.grid.cells, b.start)
+            boxes = encoding.cell_boxes(least, most, b.grid.scale, b.grid.offset, origin)
+            first, expected = batches.boxes_of(b.positions, b.start)
+            assert at == first
+            np.testing.assert_array_equal(boxes, expected)
+
+
+def test_boxes_from_integers_with_a_negative_scale_or_out_of_float32_reach():
+    """A negative scale turns least and most around; a bound that float32 cannot hold
+    gives None (frame_parts then takes the boxes of the positions)."""
+    from progressive import encoding
+
+    least, most = np.array([[-5, 0, 10]]), np.array([[7, 3, 10]])
+    boxes = encoding.cell_boxes(least, most, (-0.5, 0.01, 1.0), (100.0, 0.0, 0.0), np.zeros(3))
+    lo, hi = np.float32([96.5, 0.0, 10.0]), np.float32([102.5, 0.03, 10.0])
+    np.testing.assert_array_equal(boxes[0, 0:3], lo)
+    np.testing.assert_array_equal(boxes[0, 4:7], hi)
+    assert encoding.cell_boxes(least, most, (1e38, 1.0, 1.0), (0.0, 0.0, 0.0), np.zeros(3)) is None
