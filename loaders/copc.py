@@ -383,7 +383,9 @@ class CopcSource(LasSource):
         `lane` where given (lazrs holds the GIL while it decodes: in this process a node
         stalls the frame loop), else here, as where the processes fail. InputError where
         the node cannot be read or decoded. A fetched node's bytes go to the process with
-        its job."""
+        its job. Records the processes decoded are parsed under their pool's parse_gate,
+        as the loader's parser threads parse them: every reading thread parsing at once
+        would contend for the GIL (laz_pool.CORES_PER_PARSER)."""
         node = self.hierarchy.nodes[k]
         count, size = int(node["point_count"]), int(node["byte_size"])
         elsewhere = None
@@ -395,7 +397,8 @@ class CopcSource(LasSource):
                 pass
             else:
                 self.info.reads.read(1, count, size)
-                return self.parse(records, start, origin, names)
+                with decoders.parse_gate:
+                    return self.parse(records, start, origin, names)
         elif decoders is not None:
             def elsewhere(compressed: bytes, records: np.ndarray, table: list) -> bool:
                 try:
@@ -405,7 +408,9 @@ class CopcSource(LasSource):
                 return True
         pieces = list(self._node_chunks(np.array([k]), max(1, count), selection(names), salvage=False,
                                         elsewhere=elsewhere))
-        return self.parse(pieces[0] if len(pieces) == 1 else np.concatenate(pieces), start, origin, names)
+        records = pieces[0] if len(pieces) == 1 else np.concatenate(pieces)
+        with decoders.parse_gate if decoders is not None else contextlib.nullcontext():
+            return self.parse(records, start, origin, names)
 
     def kept_nodes(self) -> np.ndarray:
         """Indices (into hierarchy.nodes, so in file order) of the nodes read."""

@@ -185,6 +185,41 @@ def test_nodes_read_alone_equal_laspy(name, processes):
     assert len(pids) == (2 if processes else 0) and not any(os.path.exists(f"/proc/{pid}") for pid in pids)
 
 
+@pytest.mark.skipif(not laz_pool.available(), reason="decoder processes are for Linux")
+def test_nodes_the_processes_decode_are_parsed_under_their_gate(monkeypatch):
+    """Reading threads parse what the processes decoded as the loader's parser threads
+    do, at most the pool's parse_gate at once (here one, of four threads), so that
+    threads waiting on the processes do not all contend for the GIL together; the
+    nodes are still laspy's."""
+    import threading
+
+    path = shared_file(LONE_STAR)
+    las, xyz = las_xyz(path)
+    pool = ready_pool()
+    pool.parse_gate = threading.BoundedSemaphore(1)
+    parsing, most, lock = [0], [0], threading.Lock()
+    plain = CopcSource.parse
+
+    def parse(self, *args):
+        with lock:
+            parsing[0] += 1
+            most[0] = max(most[0], parsing[0])
+        time.sleep(0.01)        # long enough for another thread to come in, were it let
+        try:
+            return plain(self, *args)
+        finally:
+            with lock:
+                parsing[0] -= 1
+
+    monkeypatch.setattr(CopcSource, "parse", parse)
+    reader = NodeReader((open_copc(path),), np.zeros(3), ("intensity",), threads=4, decoders=pool)
+    try:
+        assert_every_node_is_laspys(reader, read_all(reader, range(reader.nodes.level.size)), las, xyz)
+    finally:
+        reader.close()
+    assert most[0] == 1
+
+
 def test_reads_cancelled_before_they_begin_come_back_at_once(monkeypatch):
     """NodeReader.cancel: the queued reads of the rows given arrive at once as (row, None)
     and are not read; the read under way ends as it would (one thread, held busy)."""
