@@ -216,34 +216,34 @@ def cell_shifts(least: np.ndarray, most: np.ndarray) -> np.ndarray:
     return np.clip(BITS - width, 0, BITS)
 
 
+def scaled_cells(cells: np.ndarray, scale, offset, origin: np.ndarray) -> np.ndarray:
+    """(k, 3) float64 coordinates less the origin of a LAS file's integers, as the loader
+    scales them (loaders/las.py parse): their float32 is exactly those points' positions."""
+    v = np.asarray(cells, dtype=np.float64) * np.asarray(scale, dtype=np.float64)
+    v += np.asarray(offset, dtype=np.float64)
+    v -= np.asarray(origin, dtype=np.float64)
+    return v
+
+
 def integer_frames(least: np.ndarray, shift: np.ndarray, scale, offset, origin: np.ndarray) -> np.ndarray:
     """(k, FRAME_FLOATS) frames of k batches kept as a LAS file's own integers, moved up
     `shift` bits (cell = (integer - least) · 2^shift, lossless): base the batch's least
-    integer scaled as the loader scales coordinates (float64, then float32: exactly that
-    point's float32 position), step the file's scale over 2^shift (exact in float32)."""
+    integer scaled as the loader scales coordinates (scaled_cells, then float32: exactly
+    that point's float32 position), step the file's scale over 2^shift (exact in float32)."""
     frames = empty_frames(least.shape[0])
-    base = np.asarray(least, dtype=np.float64) * np.asarray(scale, dtype=np.float64)
-    base += np.asarray(offset, dtype=np.float64)
-    base -= np.asarray(origin, dtype=np.float64)
-    frames[:, 0:3] = base
+    frames[:, 0:3] = scaled_cells(least, scale, offset, origin)
     frames[:, 4:7] = np.ldexp(np.asarray(scale, dtype=np.float32), -np.asarray(shift, dtype=np.int32))
     return frames
 
 
 def cell_boxes(least: np.ndarray, most: np.ndarray, scale, offset, origin: np.ndarray) -> np.ndarray | None:
     """(k, BOX_FLOATS) boxes of k batches of a LAS file's integers from their least and
-    most cells, scaled as the loader scales coordinates (integer_frames): the scaling is
+    most cells, scaled as the loader scales coordinates (scaled_cells): the scaling is
     monotonic, so these are the float32 positions' least and greatest, which
     batches.boxes_of would find in two more passes over the points. None where one is
     not finite (boxes_of then leaves such points out)."""
-    def positions(cells: np.ndarray) -> np.ndarray:
-        v = np.asarray(cells, dtype=np.float64) * np.asarray(scale, dtype=np.float64)
-        v += np.asarray(offset, dtype=np.float64)
-        v -= np.asarray(origin, dtype=np.float64)
-        with np.errstate(over="ignore"):
-            return v.astype(np.float32)
-
-    lo, hi = positions(least), positions(most)
+    with np.errstate(over="ignore"):
+        lo, hi = (scaled_cells(c, scale, offset, origin).astype(np.float32) for c in (least, most))
     if not (np.isfinite(lo).all() and np.isfinite(hi).all()):
         return None
     boxes = batch_boxes.empty_boxes(lo.shape[0])

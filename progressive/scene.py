@@ -524,12 +524,11 @@ def frame_parts(parts: list[Batch], first: int, k: int, origin: np.ndarray) -> t
             least[at - first: at - first + lo.shape[0]] = np.minimum(least[at - first: at - first + lo.shape[0]], lo)
             most[at - first: at - first + hi.shape[0]] = np.maximum(most[at - first: at - first + hi.shape[0]], hi)
         scale, offset = next(iter(grids))
-        boxes = encoding.cell_boxes(least, most, scale, offset, origin)
-        if boxes is not None and (most - least < encoding.CELLS).all():
+        if (boxes := encoding.cell_boxes(least, most, scale, offset, origin)) is not None:
+            if not (most - least < encoding.CELLS).all():
+                return encoding.frames_from_boxes(boxes), boxes, None, None
             shift = encoding.cell_shifts(least, most)
             return encoding.integer_frames(least, shift, scale, offset, origin), boxes, least, shift
-        if boxes is not None:
-            return encoding.frames_from_boxes(boxes), boxes, None, None
     boxes = batch_boxes.empty_boxes(k)
     for part in parts:
         at, part_boxes = batch_boxes.boxes_of(_positions(part), part.start, _all_finite(part))
