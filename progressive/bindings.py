@@ -44,6 +44,7 @@ class Binding(enum.IntEnum):
     CLASSES = 30            # per slot, its classification code: a byte each (pointstore.py class filter)
     BATCH_FRAMES = 31       # word store: each batch's base and step (progressive/encoding.py)
     GATHERS = 32            # prepare: the list entries and pixels whose records come from the store
+    BATCH_CELLS = 33        # word store: each LAS batch's least integers and shifts (pointstore.py cell_frames)
 
     @classmethod
     def points(cls, chunk: int) -> Binding:

@@ -216,6 +216,22 @@ def cell_shifts(least: np.ndarray, most: np.ndarray) -> np.ndarray:
     return np.clip(BITS - width, 0, BITS)
 
 
+CELL_FRAME_WORDS = 4
+"""A LAS batch's cell frame on the GPU (cell_frames): its least integers and its shifts."""
+
+
+def cell_frames(least: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """(k, CELL_FRAME_WORDS) uint32 frames from which the distribute pass encodes a LAS
+    batch's integers staged as the file has them (shaders/distribute.comp STAGED_CELLS):
+    the low 32 bits of its least X, Y, Z (the staged integers less them wrap to the exact
+    differences, which are under 2^31) and its three shifts, a byte each."""
+    s = np.asarray(shift, dtype=np.uint32)
+    frames = np.empty((s.shape[0], CELL_FRAME_WORDS), dtype=np.uint32)
+    frames[:, :3] = np.asarray(least, dtype=np.int64) & 0xFFFFFFFF
+    frames[:, 3] = s[:, 0] | (s[:, 1] << 8) | (s[:, 2] << 16)
+    return frames
+
+
 def scaled_cells(cells: np.ndarray, scale, offset, origin: np.ndarray) -> np.ndarray:
     """(k, 3) float64 coordinates less the origin of a LAS file's integers, as the loader
     scales them (loaders/las.py parse): their float32 is exactly those points' positions."""

@@ -30,6 +30,9 @@ CLASS_LIMIT = (2**31 - 1) // CLASS_BYTES
 """Points whose flags fit one GL buffer."""
 
 
+CELL_FRAME_BYTES = encoding.CELL_FRAME_WORDS * 4
+
+
 class GPUMemoryError(ProgressiveError):
     """An allocation the driver refused (GL_OUT_OF_MEMORY)."""
 
@@ -166,8 +169,12 @@ class PointStore:
         """Word store: batches kept as a LAS file's integers, their least integers and the
         bits those are moved up (encoding.integer_frames)."""
         self.frame_buffer = glc.ctx.buffer(self.frames.tobytes()) if words else None
+        self.cell_buffer = glc.ctx.buffer(reserve=max(1, self.permutation.batches) * CELL_FRAME_BYTES) if words else None
+        """Word store: each LAS batch's cell frame (cell_frames), from which the distribute
+        pass encodes the file's integers staged as they are."""
         if words:
             self.frame_buffer.label = "batch frames"
+            self.cell_buffer.label = "batch cells"
         self.layout_buffer = glc.ctx.buffer(self.layout.words(self.permutation.batches))
         self.layout_buffer.label = "store layout"
         self.buffers = []
@@ -202,6 +209,7 @@ class PointStore:
         self.integer[first: first + k] = least is not None
         if least is not None:
             self.least_cells[first: first + k], self.cell_shifts[first: first + k] = least, shift
+            self.cell_buffer.write(encoding.cell_frames(least, shift).tobytes(), offset=first * CELL_FRAME_BYTES)
         self.frame_buffer.write(frames.tobytes(), offset=first * frames.itemsize * encoding.FRAME_FLOATS)
         batches.merge(self.boxes, first, boxes)
         part = self.boxes[first: first + k]
@@ -273,6 +281,7 @@ class PointStore:
         self.layout_buffer.bind_to_uniform_block(UniformBinding.STORE_LAYOUT)
         if self.frame_buffer is not None:
             self.bind_frames()
+            self.cell_buffer.bind_to_storage_buffer(Binding.BATCH_CELLS)
         if self.class_buffer is not None:
             self.class_buffer.bind_to_storage_buffer(Binding.CLASSES)
 
@@ -341,7 +350,7 @@ class PointStore:
         for buf in self.buffers:
             buf.release()
         self.buffers = []
-        for name in ("box_buffer", "layout_buffer", "frame_buffer"):
+        for name in ("box_buffer", "layout_buffer", "frame_buffer", "cell_buffer"):
             if getattr(self, name, None) is not None:
                 getattr(self, name).release()
                 setattr(self, name, None)

@@ -24,7 +24,7 @@ from progressive.packing import batch_words, pack_into
 from progressive.passes.distribute import DistributePass
 from progressive.passes.percentile import PercentilePass
 from progressive.permutation import BATCH_POINTS, LAYOUT, FillOrder
-from progressive.pointstore import EMPTY_WORD, PointStore, RecordOrder
+from progressive.pointstore import PointStore, RecordOrder
 from progressive.wordpack import PACK_THREADS, WordPacker, WordRun, threaded
 
 RANGE_GROWTH = 2
@@ -251,7 +251,8 @@ class Scene:
         """Pack the batch's records straight into the distribute pass's staging memory
         and scatter them; the points never drawn (non-finite coordinates or value). The
         word store encodes them in their batches' frames (set already): the batches kept
-        as a LAS file's integers are staged as their cells."""
+        as a LAS file's integers are staged as those integers: the distribute pass
+        encodes them in their batches' cell frames."""
         words = batch_words(batch, attribute, float(self.info.origin[2]))
         kept = self.store.words and batch.grid is not None and batch.count > 0   # a LAS batch may keep its integers
         first = batch.start // BATCH_POINTS
@@ -264,12 +265,9 @@ class Scene:
             cuts = (first + np.flatnonzero(np.diff(integer)) + 1) * BATCH_POINTS - batch.start
             edges = [0, *cuts.tolist(), batch.count]
             return sum(self._upload_records(batch.rows(lo, hi), attribute) for lo, hi in zip(edges, edges[1:]))
-        touched = slice(first, first + integer.shape[0])
-        least = (self.store.least_cells[touched] & 0xFFFFFFFF).astype(np.uint32)
-        shift = self.store.cell_shifts[touched].astype(np.uint32)
-        return self.distribute.upload_packed(lambda out, lo, hi: pack_cells(out, batch, least, shift, words, attribute,
-                                                                            lo, hi),
-                                             batch.count, batch.start, cells=True)
+        hides = attribute.kind is AttributeKind.SCALAR
+        return self.distribute.upload_packed(lambda out, lo, hi: stage_cells(out, batch, words, hides, lo, hi),
+                                             batch.count, batch.start, cells=True, hide_nonfinite=hides)
 
     def _encoded_again(self, b: int) -> None:
         """Parts of batch b were encoded again with the attribute shown, during a switch:
@@ -536,30 +534,19 @@ def frame_parts(parts: list[Batch], first: int, k: int, origin: np.ndarray) -> t
     return encoding.frames_from_boxes(boxes), boxes, None, None
 
 
-def pack_cells(out: np.ndarray, batch: Batch, least: np.ndarray, shift: np.ndarray, words: np.ndarray,
-               attribute: AttributeInfo, lo: int, hi: int) -> int:
-    """Rows [lo, hi) of a LAS batch's records staged as its cells: each batch's integers
-    less its least, moved up its shift (uint32 least and shift of the batches from
-    batch.start's on: the differences are in [0, 2^31), so wrapping subtraction gives
-    them exactly, shifted they stay under 2^30, encoding.cell_shifts), and the attribute
-    word; the points never drawn (a shown scalar not finite) get EMPTY_WORD cells."""
-    cells = batch.grid.cells.astype(np.int32, copy=False).view(np.uint32)
-    first = batch.start // BATCH_POINTS
-    at = lo
-    while at < hi:          # batch by batch: its least and shift, no array of them a point
-        b = (batch.start + at) // BATCH_POINTS
-        end = min(hi, (b + 1) * BATCH_POINTS - batch.start)
-        for axis in range(3):     # a column at a time: long loops (rows of 3 would be the inner loop)
-            part = out[at - lo: end - lo, axis]
-            np.subtract(cells[at:end, axis], least[b - first, axis], out=part)
-            np.left_shift(part, shift[b - first, axis], out=part)
-        at = end
-    out[:, 3] = words[lo:hi]
-    if attribute.kind is not AttributeKind.SCALAR:
-        return 0
-    bad = (words[lo:hi] & EXPONENT) == EXPONENT
-    out[bad, :3] = EMPTY_WORD
-    return int(np.count_nonzero(bad))
+def stage_cells(out: np.ndarray, batch: Batch, words: np.ndarray, hides: bool, lo: int, hi: int) -> int:
+    """Rows [lo, hi) of a LAS batch staged as the distribute pass encodes them
+    (shaders/distribute.comp STAGED_CELLS): their X, Y, Z as the file has them, then
+    their attribute words, each one copy into `out` ((hi - lo, 4) uint32, read as one
+    run of words); the points never drawn: with `hides` (a shown scalar), those whose
+    word is not finite."""
+    if not out.flags.c_contiguous:
+        raise ValueError("cells are staged into one contiguous run of words")
+    n = hi - lo
+    flat = out.reshape(-1)
+    flat[:3 * n].reshape(n, 3)[...] = batch.grid.cells[lo:hi].astype(np.int32, copy=False).view(np.uint32)
+    flat[3 * n:] = words[lo:hi]
+    return int(np.count_nonzero((words[lo:hi] & EXPONENT) == EXPONENT)) if hides else 0
 
 
 def _hidden_points(batch: Batch, attribute: AttributeInfo, origin_z: float) -> int:

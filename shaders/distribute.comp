@@ -5,7 +5,7 @@
 // CLASS_WORDS each point's 16 flag bits (class, first and last return) go to the store's flags.
 // The word store's points are encoded here, in their batch's frame (set before the
 // scatter): from float records in float64, as progressive/encoding.py quantize and
-// pack_words do, or (STAGED_CELLS) from a LAS file's own integers.
+// pack_words do, or (STAGED_CELLS) from a LAS file's own integers, staged as they are.
 layout(local_size_x = 256) in;
 #include "common.glsl"
 #include "points.glsl"
@@ -32,6 +32,8 @@ uint staged_word(uint i) {
     return staged[i];
 #endif
 }
+#elif STAGED_CELLS
+layout(std430, binding = BINDING_DISTRIBUTE) readonly buffer Stage { uint staged[]; };
 #else
 layout(std430, binding = BINDING_DISTRIBUTE) readonly buffer Stage { uvec4 staged[]; };
 #endif
@@ -57,10 +59,21 @@ uvec4 pack_cells(uvec3 q, uint word) {
 }
 
 #if STAGED_CELLS
-// A LAS point staged as its cells already (its integer coordinates less its batch's
-// least ones, encoding.py: lossless), or EMPTY ones.
-uvec4 encode_words(uint index, uvec4 staged_cells) {
-    return pack_cells(staged_cells.xyz, staged_cells.w);
+// A LAS point staged as the file's integers: the piece's X, Y, Z of every point, then
+// their attribute words (two copies on the CPU, nothing computed there). Its cells are
+// its integers less its batch's least ones, moved up the batch's shifts (the cell frame,
+// encoding.py cell_frames: lossless, under 2^30); EMPTY where u_hide_nonfinite and the
+// word is a scalar that is not finite (a point never drawn, as packing.py hides it).
+layout(std430, binding = BINDING_BATCH_CELLS) readonly buffer CellFrames { uvec4 cell_frames[]; };
+uniform uint u_hide_nonfinite;
+
+uvec4 encode_words(uint index, uint i) {
+    uint word = staged[3u * u_count + i];
+    if (u_hide_nonfinite != 0u && (word & 0x7F800000u) == 0x7F800000u) return pack_cells(uvec3(EMPTY), word);
+    uvec4 frame = cell_frames[index / BATCH_POINTS];
+    uvec3 shift = (uvec3(frame.w) >> uvec3(0u, 8u, 16u)) & 0xFFu;
+    uvec3 integers = uvec3(staged[3u * i], staged[3u * i + 1u], staged[3u * i + 2u]);
+    return pack_cells((integers - frame.xyz) << shift, word);
 }
 #else
 // A float record (xyz float bits relative to the origin, the attribute word) in its
@@ -97,6 +110,8 @@ void main() {
     atomicOr(classes[slot >> 1u], (staged[i] & 0xFFFFu) << ((slot & 1u) * 16u));
 #elif ATTRIBUTE_ONLY
     store_point(slot, uvec4(0u, 0u, 0u, staged_word(i)), 3);
+#elif STAGED_CELLS
+    store_point(slot, encode_words(u_start + i, i), -1);
 #elif WORD_PLANES
     store_point(slot, encode_words(u_start + i, staged[i]), -1);
 #else

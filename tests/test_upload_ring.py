@@ -12,12 +12,14 @@ import numpy as np
 import pytest
 
 from progressive.attributes import default_attribute
+from progressive import encoding
 from progressive.encoding import Encoding
 from progressive.glext import GL_ALREADY_SIGNALED
 from progressive.loaders.records import pack_records
 from progressive.loaders.types import Batch, nonfinite_records
 from progressive.packing import batch_words, pack_into
 from progressive.passes.distribute import DistributePass, Staging, without_buffer_storage
+from progressive.permutation import BATCH_POINTS
 from progressive.pointstore import EMPTY_WORD
 from progressive.scene import Scene, point_flags
 
@@ -124,6 +126,53 @@ def test_hidden_points_through_staging(gl, sample_batches, staging, source, enco
         assert np.array_equal((held[:, :3] == EMPTY_WORD).all(axis=1), ~shown)
         assert np.allclose(held[shown, :3].view(np.float32), expected[shown, :3].view(np.float32), rtol=1e-6, atol=1e-4)
     assert scene.skipped == hidden(scene, loaded) > 0
+    scene.release()
+
+
+def nonfinite_values(batches: list[Batch], every: int = 89) -> list[Batch]:
+    """The batches with some intensities NaN or infinite, their positions and the file's
+    integers (Batch.grid) as read."""
+    out = []
+    for b in batches:
+        values = b.attributes["intensity"].astype(np.float64)
+        values[5::every] = np.nan
+        values[::every * 2] = -np.inf
+        out.append(dataclasses.replace(b, attributes={**b.attributes, "intensity": values},
+                                       nonfinite_values={"intensity": int(np.count_nonzero(~np.isfinite(values)))}))
+    return out
+
+
+@pytest.mark.parametrize("piece", [None, 7_000], ids=["batch a piece", "pieces of 7,000"])
+def test_las_integers_staged_as_read_hide_nonfinite_values(gl, sample_batches, piece):
+    """A LAS file's integers staged as read (the distribute pass encodes them in each
+    batch's cell frame) with a shown scalar some of whose values are not finite: those
+    points are never drawn and counted, every other point's words hold its integers less
+    its batch's least, moved up its shift, and its word; in pieces that split batches too."""
+    info, batches = sample_batches
+    attribute = info.attribute("intensity")
+    loaded = nonfinite_values(batches)
+    scene = Scene(gl, info, attribute)
+    if piece is not None:
+        scene.distribute.release()
+        scene.distribute = DistributePass(gl, scene.store, batch_points=piece)
+    for b in loaded:
+        scene.add_batch(b)
+    gl.check()
+    assert scene.store.integer[: scene.store.permutation.batches].all()
+    words = scene.store.read_words()
+    expected = expected_store(scene, loaded)
+    cloud = np.arange(info.points)
+    slots = scene.store.slots_of(cloud)
+    shown = np.isfinite(expected[slots, :3].view(np.float32)).all(axis=1)
+    assert not shown.all()
+    held = words[slots]
+    assert np.array_equal(held[:, 3], expected[slots, 3])
+    assert (held[~shown, :3] == EMPTY_WORD).all()
+    batch = cloud // BATCH_POINTS
+    integers = np.concatenate([b.grid.cells for b in batches]).astype(np.int64)
+    cells = (integers - scene.store.least_cells[batch]) << scene.store.cell_shifts[batch]
+    assert np.array_equal(encoding.unpack_cells(held[shown, :3]), cells[shown])
+    assert scene.skipped == int(np.count_nonzero(~shown)) == sum(b.nonfinite_values["intensity"] for b in loaded)
     scene.release()
 
 

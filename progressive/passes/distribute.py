@@ -159,11 +159,17 @@ class DistributePass:
         """Scatter (n, 4) uint32 records whose first has file-order index `start`."""
         self._scatter(self._program(False), _copy(records, RECORD_WORDS), records.shape[0], RECORD_WORDS, start)
 
-    def upload_packed(self, fill: Fill, count: int, start: int, cells: bool = False) -> int:
+    def upload_packed(self, fill: Fill, count: int, start: int, cells: bool = False,
+                      hide_nonfinite: bool = False) -> int:
         """Scatter `count` records that `fill` packs piece by piece straight into the
         staging memory; the sum of what it returns. cells: the word store's points
-        staged as their cells already (a LAS file's integers less their batch's least)."""
-        return self._scatter(self._program(cells), fill, count, RECORD_WORDS, start)
+        staged as a LAS file's integers, each piece's X, Y, Z then its attribute words
+        (encoded in their batches' cell frames); with hide_nonfinite a word that is a
+        scalar not finite hides its point (a shown scalar)."""
+        program = self._program(cells)
+        if cells:
+            program["u_hide_nonfinite"] = int(hide_nonfinite)
+        return self._scatter(program, fill, count, RECORD_WORDS, start)
 
     def _program(self, cells: bool):
         """The scatter of float records, or of the word store's cells (a LAS batch's
