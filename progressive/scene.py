@@ -253,12 +253,12 @@ class Scene:
         word store encodes them in their batches' frames (set already): the batches kept
         as a LAS file's integers are staged as those integers: the distribute pass
         encodes them in their batches' cell frames."""
-        words = batch_words(batch, attribute, float(self.info.origin[2]))
         kept = self.store.words and batch.grid is not None and batch.count > 0   # a LAS batch may keep its integers
         first = batch.start // BATCH_POINTS
         integer = self.store.integer[first: (batch.start + batch.count - 1) // BATCH_POINTS + 1] if kept \
             else np.zeros(0, dtype=bool)
         if not integer.any():
+            words = batch_words(batch, attribute, float(self.info.origin[2]))
             return self.distribute.upload_packed(lambda out, lo, hi: pack_into(out, batch, attribute, words, lo, hi),
                                                  batch.count, batch.start)
         if not integer.all():       # batches of both kinds: each run of one kind on its own
@@ -266,8 +266,11 @@ class Scene:
             edges = [0, *cuts.tolist(), batch.count]
             return sum(self._upload_records(batch.rows(lo, hi), attribute) for lo, hi in zip(edges, edges[1:]))
         hides = attribute.kind is AttributeKind.SCALAR
-        return self.distribute.upload_packed(lambda out, lo, hi: stage_cells(out, batch, words, hides, lo, hi),
-                                             batch.count, batch.start, cells=True, hide_nonfinite=hides)
+        rgb = _rgb_bytes(batch, attribute)
+        shown = rgb if rgb is not None else batch_words(batch, attribute, float(self.info.origin[2]))
+        return self.distribute.upload_packed(lambda out, lo, hi: stage_cells(out, batch, shown, hides, lo, hi),
+                                             batch.count, batch.start, cells=True, rgb=rgb is not None,
+                                             hide_nonfinite=hides)
 
     def _encoded_again(self, b: int) -> None:
         """Parts of batch b were encoded again with the attribute shown, during a switch:
@@ -534,19 +537,32 @@ def frame_parts(parts: list[Batch], first: int, k: int, origin: np.ndarray) -> t
     return encoding.frames_from_boxes(boxes), boxes, None, None
 
 
-def stage_cells(out: np.ndarray, batch: Batch, words: np.ndarray, hides: bool, lo: int, hi: int) -> int:
+def stage_cells(out: np.ndarray, batch: Batch, shown: np.ndarray, hides: bool, lo: int, hi: int) -> int:
     """Rows [lo, hi) of a LAS batch staged as the distribute pass encodes them
     (shaders/distribute.comp STAGED_CELLS): their X, Y, Z as the file has them, then
-    their attribute words, each one copy into `out` ((hi - lo, 4) uint32, read as one
-    run of words); the points never drawn: with `hides` (a shown scalar), those whose
-    word is not finite."""
+    what they show, each one copy into `out` ((hi - lo, 4) uint32, read as one run of
+    words): `shown` the batch's attribute words, or (n, 3) uint8 its R, G, B bytes
+    (_rgb_bytes; the scatter makes the words). The points never drawn: with `hides` (a
+    shown scalar), those whose word is not finite."""
     if not out.flags.c_contiguous:
         raise ValueError("cells are staged into one contiguous run of words")
     n = hi - lo
     flat = out.reshape(-1)
     flat[:3 * n].reshape(n, 3)[...] = batch.grid.cells[lo:hi].astype(np.int32, copy=False).view(np.uint32)
-    flat[3 * n:] = words[lo:hi]
-    return int(np.count_nonzero((words[lo:hi] & EXPONENT) == EXPONENT)) if hides else 0
+    if shown.ndim == 2:
+        flat[3 * n:].view(np.uint8)[:3 * n].reshape(n, 3)[...] = shown[lo:hi]
+        return 0
+    flat[3 * n:] = shown[lo:hi]
+    return int(np.count_nonzero((shown[lo:hi] & EXPONENT) == EXPONENT)) if hides else 0
+
+
+def _rgb_bytes(batch: Batch, attribute: AttributeInfo) -> np.ndarray | None:
+    """A loaded batch's colours as (n, 3) uint8 (the loaders' 8-bit channels), where the
+    attribute shown is RGB and they are held so; else None."""
+    if attribute.kind is not AttributeKind.RGB or batch.records is not None:
+        return None
+    values = batch.attributes[attribute.name]
+    return values if values.dtype == np.uint8 and values.ndim == 2 and values.shape[1] == 3 else None
 
 
 def _hidden_points(batch: Batch, attribute: AttributeInfo, origin_z: float) -> int:

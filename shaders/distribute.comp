@@ -13,27 +13,25 @@ layout(local_size_x = 256) in;
 #if CLASS_WORDS
 layout(std430, binding = BINDING_DISTRIBUTE) readonly buffer Stage { uint staged[]; };
 layout(std430, binding = BINDING_CLASSES) buffer Classes { uint classes[]; };
-#elif ATTRIBUTE_ONLY
+#elif ATTRIBUTE_ONLY || STAGED_CELLS
 layout(std430, binding = BINDING_DISTRIBUTE) readonly buffer Stage { uint staged[]; };
 
-// Point i's attribute word. RGB_BYTES: the stage holds each point's R, G, B bytes back to
-// back (3 a point: a quarter less to write to the staging memory than words, and nothing
-// packed on the CPU), made the word R | G << 8 | B << 16 | 0xFF000000 here, as
-// loaders/records.py attribute_word makes it.
+// Point i's attribute word, the words starting at word `first` of the stage. RGB_BYTES:
+// the stage holds each point's R, G, B bytes back to back (3 a point: a quarter less to
+// write to the staging memory than words, and nothing packed on the CPU), made the word
+// R | G << 8 | B << 16 | 0xFF000000 here, as loaders/records.py attribute_word makes it.
 uint staged_byte(uint j) {
     return (staged[j >> 2u] >> ((j & 3u) << 3u)) & 0xFFu;
 }
 
-uint staged_word(uint i) {
+uint staged_word(uint first, uint i) {
 #if RGB_BYTES
-    uint j = 3u * i;
+    uint j = 4u * first + 3u * i;
     return staged_byte(j) | (staged_byte(j + 1u) << 8u) | (staged_byte(j + 2u) << 16u) | 0xFF000000u;
 #else
-    return staged[i];
+    return staged[first + i];
 #endif
 }
-#elif STAGED_CELLS
-layout(std430, binding = BINDING_DISTRIBUTE) readonly buffer Stage { uint staged[]; };
 #else
 layout(std430, binding = BINDING_DISTRIBUTE) readonly buffer Stage { uvec4 staged[]; };
 #endif
@@ -60,7 +58,7 @@ uvec4 pack_cells(uvec3 q, uint word) {
 
 #if STAGED_CELLS
 // A LAS point staged as the file's integers: the piece's X, Y, Z of every point, then
-// their attribute words (two copies on the CPU, nothing computed there). Its cells are
+// their attribute words, or with RGB_BYTES their R, G, B bytes (copies on the CPU). Its cells are
 // its integers less its batch's least ones, moved up the batch's shifts (the cell frame,
 // encoding.py cell_frames: lossless, under 2^30); EMPTY where u_hide_nonfinite and the
 // word is a scalar that is not finite (a point never drawn, as packing.py hides it).
@@ -68,7 +66,7 @@ layout(std430, binding = BINDING_BATCH_CELLS) readonly buffer CellFrames { uvec4
 uniform uint u_hide_nonfinite;
 
 uvec4 encode_words(uint index, uint i) {
-    uint word = staged[3u * u_count + i];
+    uint word = staged_word(3u * u_count, i);
     if (u_hide_nonfinite != 0u && (word & 0x7F800000u) == 0x7F800000u) return pack_cells(uvec3(EMPTY), word);
     uvec4 frame = cell_frames[index / BATCH_POINTS];
     uvec3 shift = (uvec3(frame.w) >> uvec3(0u, 8u, 16u)) & 0xFFu;
@@ -101,7 +99,7 @@ void main() {
     uint slot = piece * (u_batches * SLICE_POINTS) + b * SLICE_POINTS + (shuffled - piece * SLICE_POINTS);
     if (slot >= u_capacity) return;
     uint record = store_batches == 0u ? slot : batch_record(b) + shuffled;
-    set_plane_word(3u, record, staged_word(i));
+    set_plane_word(3u, record, staged_word(0u, i));
 #else
     uint slot = slot_of(u_start + i, u_prime, u_rotation, u_batches);
     if (slot >= u_capacity) return;
@@ -109,7 +107,7 @@ void main() {
     // Each slot is written once (the buffer starts at zero), two slots share a word.
     atomicOr(classes[slot >> 1u], (staged[i] & 0xFFFFu) << ((slot & 1u) * 16u));
 #elif ATTRIBUTE_ONLY
-    store_point(slot, uvec4(0u, 0u, 0u, staged_word(i)), 3);
+    store_point(slot, uvec4(0u, 0u, 0u, staged_word(0u, i)), 3);
 #elif STAGED_CELLS
     store_point(slot, encode_words(u_start + i, i), -1);
 #elif WORD_PLANES

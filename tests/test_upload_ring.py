@@ -142,15 +142,17 @@ def nonfinite_values(batches: list[Batch], every: int = 89) -> list[Batch]:
     return out
 
 
-@pytest.mark.parametrize("piece", [None, 7_000], ids=["batch a piece", "pieces of 7,000"])
-def test_las_integers_staged_as_read_hide_nonfinite_values(gl, sample_batches, piece):
+@pytest.mark.parametrize("shown", ["intensity", "rgb"])
+@pytest.mark.parametrize("piece", [None, 7_001], ids=["batch a piece", "pieces of 7,001"])
+def test_las_integers_staged_as_read(gl, sample_batches, piece, shown):
     """A LAS file's integers staged as read (the distribute pass encodes them in each
-    batch's cell frame) with a shown scalar some of whose values are not finite: those
-    points are never drawn and counted, every other point's words hold its integers less
-    its batch's least, moved up its shift, and its word; in pieces that split batches too."""
+    batch's cell frame), with a shown scalar some of whose values are not finite (those
+    points are never drawn and counted) or RGB staged as bytes: every other point's words
+    hold its integers less its batch's least, moved up its shift, and its attribute word
+    as pack_records makes it; in pieces that split batches (and words) too."""
     info, batches = sample_batches
-    attribute = info.attribute("intensity")
-    loaded = nonfinite_values(batches)
+    attribute = info.attribute(shown)
+    loaded = nonfinite_values(batches) if shown == "intensity" else batches
     scene = Scene(gl, info, attribute)
     if piece is not None:
         scene.distribute.release()
@@ -163,16 +165,16 @@ def test_las_integers_staged_as_read_hide_nonfinite_values(gl, sample_batches, p
     expected = expected_store(scene, loaded)
     cloud = np.arange(info.points)
     slots = scene.store.slots_of(cloud)
-    shown = np.isfinite(expected[slots, :3].view(np.float32)).all(axis=1)
-    assert not shown.all()
+    drawn = np.isfinite(expected[slots, :3].view(np.float32)).all(axis=1)
+    assert drawn.all() == (shown == "rgb")
     held = words[slots]
     assert np.array_equal(held[:, 3], expected[slots, 3])
-    assert (held[~shown, :3] == EMPTY_WORD).all()
+    assert (held[~drawn, :3] == EMPTY_WORD).all()
     batch = cloud // BATCH_POINTS
     integers = np.concatenate([b.grid.cells for b in batches]).astype(np.int64)
     cells = (integers - scene.store.least_cells[batch]) << scene.store.cell_shifts[batch]
-    assert np.array_equal(encoding.unpack_cells(held[shown, :3]), cells[shown])
-    assert scene.skipped == int(np.count_nonzero(~shown)) == sum(b.nonfinite_values["intensity"] for b in loaded)
+    assert np.array_equal(encoding.unpack_cells(held[drawn, :3]), cells[drawn])
+    assert scene.skipped == int(np.count_nonzero(~drawn)) == sum(b.nonfinite_values.get(shown, 0) for b in loaded)
     scene.release()
 
 

@@ -129,7 +129,7 @@ class DistributePass:
         self._build = lambda only, label, classes=0, cells=0, rgb=0: shaderlib.compute(
             glc.ctx, "distribute.comp",
             dict(defines, ATTRIBUTE_ONLY=only, CLASS_WORDS=classes, STAGED_CELLS=cells, RGB_BYTES=rgb), ext, label)
-        self._programs: dict[bool, object] = {}     # by cells: built at the first upload of each kind
+        self._programs: dict[tuple[bool, bool], object] = {}    # by (cells, rgb): built at the first upload of each kind
         self.words = None       # built at the first attribute switch: no first image waits for it
         self.rgb_words = None   # the same, from staged RGB bytes: built at the first switch to RGB
         self.classes = self._build(0, "distribute classes", 1) if store.has_classes else None
@@ -159,24 +159,27 @@ class DistributePass:
         """Scatter (n, 4) uint32 records whose first has file-order index `start`."""
         self._scatter(self._program(False), _copy(records, RECORD_WORDS), records.shape[0], RECORD_WORDS, start)
 
-    def upload_packed(self, fill: Fill, count: int, start: int, cells: bool = False,
+    def upload_packed(self, fill: Fill, count: int, start: int, cells: bool = False, rgb: bool = False,
                       hide_nonfinite: bool = False) -> int:
         """Scatter `count` records that `fill` packs piece by piece straight into the
         staging memory; the sum of what it returns. cells: the word store's points
-        staged as a LAS file's integers, each piece's X, Y, Z then its attribute words
-        (encoded in their batches' cell frames); with hide_nonfinite a word that is a
-        scalar not finite hides its point (a shown scalar)."""
-        program = self._program(cells)
+        staged as a LAS file's integers, each piece's X, Y, Z then its attribute words,
+        or with `rgb` its R, G, B bytes (encoded in their batches' cell frames); with
+        hide_nonfinite a word that is a scalar not finite hides its point (a shown
+        scalar)."""
+        program = self._program(cells, cells and rgb)
         if cells:
             program["u_hide_nonfinite"] = int(hide_nonfinite)
         return self._scatter(program, fill, count, RECORD_WORDS, start)
 
-    def _program(self, cells: bool):
+    def _program(self, cells: bool, rgb: bool = False):
         """The scatter of float records, or of the word store's cells (a LAS batch's
-        integers), made at its first upload: a cloud uses one kind or both."""
-        if cells not in self._programs:
-            self._programs[cells] = self._build(0, "distribute cells" if cells else "distribute", cells=int(cells))
-        return self._programs[cells]
+        integers) with words or RGB bytes, made at its first upload: a cloud uses one
+        kind or two."""
+        if (cells, rgb) not in self._programs:
+            label = "distribute cells" + (" rgb bytes" if rgb else "") if cells else "distribute"
+            self._programs[cells, rgb] = self._build(0, label, cells=int(cells), rgb=int(rgb))
+        return self._programs[cells, rgb]
 
     def upload_words(self, words: np.ndarray | Fill, start: int, count: int | None = None) -> None:
         """Replace only the attribute word of points start.. (attribute switching, paper
