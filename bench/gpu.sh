@@ -14,7 +14,7 @@
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
-CHUNKS=(files-100M load-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B winners-1B records-1B accuracy attributes packing upload-100M startup-100M viewer-load-100M startup-1B convert-1B copc-1B stream-1B pytest)
+CHUNKS=(files-100M load-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B winners-1B records-1B accuracy attributes packing upload-100M startup-100M viewer-load-100M mainthread-100M startup-1B convert-1B copc-1B stream-1B pytest)
 chunk="${1:-list}"
 if [ "$chunk" = list ]; then
     printf '%s\n' "${CHUNKS[@]}"
@@ -93,6 +93,10 @@ case "$chunk" in
                           --sources progressive/data/autzen_trim.las \
                           "${PROGRESSIVE_SHARED_DATA:-../shared/data}/las_with_several_extra_byte_bloc.laz" \
                           --out "$OUT/$(machine)/viewer_load" "${@:2}" ;;
+    # how busy the frame loop's thread is while 100M points of LAS and LAZ load (render's and the window's
+    # sessions, warm, 3 repeats), beside the loader alone
+    mainthread-100M)  "${PYTHON:-python3}" -m bench.mainthread --points 100000000 --repeats 3 \
+                          --out "$OUT/$(machine)/mainthread" "${@:2}" ;;
     # the time to the first image of a 1 B-point LAZ (view, both caches warm): the store's 16 GB filled at
     # once (the LAZ tiled first, about 5.5 GB, shared with convert-1B)
     startup-1B)       "${PYTHON:-python3}" -m bench.startup --scaled 1000000000 --laz-only --commands view \

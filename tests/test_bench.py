@@ -96,6 +96,21 @@ def test_convert_bench_runs(tmp_path):
     assert rows[0]["points"] == rows[1]["points"] == 300_000 and rows[0]["nodes"] == rows[1]["nodes"]
 
 
+def test_mainthread_bench_runs(tmp_path):
+    """bench.mainthread times the frames of loading sessions beside the loader alone."""
+    from bench import mainthread
+
+    out = tmp_path / "out"
+    assert mainthread.main(["--points", "30000", "--repeats", "1", "--size", "96x64", "--label", "test",
+                            "--cache", str(tmp_path / "cache"), "--out", str(out)]) == 0
+    rows = json.loads((out / "mainthread.json").read_text())["raw"]["rows"]
+    assert [(r["format"], r["session"]) for r in rows] == [(f, s) for f in ("LAS", "LAZ")
+                                                           for s in ("shown", "viewer, others later")]
+    for r in rows:
+        assert r["loaded_s"] >= r["frames_wall_s"] > 0 and r["frames"] >= 1 and r["loader_alone_s"] > 0
+        assert 0 < r["frames_cpu_s"] <= r["frames_wall_s"] * 1.05
+
+
 def test_plan_bench_runs(tmp_path):
     """bench.plan times residency plans of synthetic hierarchies, their nodes resident."""
     from bench import plan

@@ -1,0 +1,95 @@
+"""How busy the frame loop's thread is while a session loads: the wall and CPU time
+(time.thread_time) of its frames until every point is on the GPU, beside the loader
+alone over the same file. CPU close to the frames' wall time: the frame loop bounds
+loading; far below: it waits (for the GIL or the loader).
+
+    python -m bench.mainthread [--points 100000000] [--repeats 3] [--label TREE] [--out DIR]
+
+Only the session's API is timed (progressive.open, Session.frame), so the same module
+measures an older tree put first on PYTHONPATH.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from pathlib import Path
+
+import progressive
+from bench import data
+from bench.load import SESSIONS, pipeline, raw_read, shown
+from bench.report import RunInfo, Table
+from progressive.budget import BudgetParams
+from progressive.context import GLContext, create_context
+from progressive.loaders.types import default_parser_threads
+
+
+def loading(glc: GLContext, path: Path, session: str, size: tuple[int, int]) -> dict:
+    """One warm session framed in a tight loop (as bench.load does) until every point is on the GPU."""
+    raw_read(path)
+    opts = progressive.SessionOptions(width=size[0], height=size[1], **SESSIONS[session],
+                                      progressive=progressive.ProgressiveOptions(budget=BudgetParams(target_ns=16_600_000)))
+    frames_wall = frames_cpu = 0.0
+    frames = 0
+    t0 = time.perf_counter()
+    with progressive.open([path], opts, glc=glc) as s:
+        opened = time.perf_counter() - t0
+        cam = s.auto_camera()
+        while not s.status().complete:
+            w, c = time.perf_counter(), time.thread_time()
+            s.frame(cam)
+            frames_cpu += time.thread_time() - c
+            frames_wall += time.perf_counter() - w
+            frames += 1
+        glc.ctx.finish()
+        loaded = time.perf_counter() - t0
+    return {"open_s": opened, "loaded_s": loaded, "frames": frames, "frames_wall_s": frames_wall,
+            "frames_cpu_s": frames_cpu}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description="The frame loop's wall and CPU time while a session loads")
+    parser.add_argument("--points", type=int, default=2_000_000)
+    parser.add_argument("--size", default="1920x1080")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--label", default="", help="what tree this is (a column of its own)")
+    parser.add_argument("--cache", type=Path, default=data.CACHE, help="where the tiled files are kept")
+    parser.add_argument("--out", type=Path, default=None, help="results folder (default bench/results/<machine>)")
+    args = parser.parse_args(argv)
+    size = tuple(int(v) for v in args.size.split("x"))
+    glc = create_context()
+    threads = default_parser_threads()
+    table = Table("mainthread", "The frame loop's thread while a session loads", "", f"{args.points:,}", (
+        "tree", "format", "session", "loader alone s", "all points on GPU s", "open s", "frames",
+        "frames' wall s", "frames' CPU s", "CPU / wall of frames", "frames' wall / loading"))
+    for fmt, compress in (("LAS", False), ("LAZ", True)):
+        path = data.tiled(args.points, compress, args.cache)
+        raw_read(path)
+        alone = []
+        for _ in range(args.repeats):
+            t = time.perf_counter()
+            pipeline(path, threads, attributes=shown(path))
+            alone.append(time.perf_counter() - t)
+        for session in ("shown", "viewer, others later"):
+            runs = [loading(glc, path, session, size) for _ in range(args.repeats)]
+            median = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
+            table.raw.setdefault("rows", []).append({"tree": args.label, "format": fmt, "session": session,
+                                                     "loader_alone_s": statistics.median(alone), **median,
+                                                     "runs": runs})
+            table.rows.append((args.label, fmt, session, statistics.median(alone), median["loaded_s"],
+                               median["open_s"], median["frames"], median["frames_wall_s"], median["frames_cpu_s"],
+                               median["frames_cpu_s"] / median["frames_wall_s"],
+                               median["frames_wall_s"] / median["loaded_s"]))
+    table.data = "autzen_trim.las tiled on a grid (bench/data.py), written as LAS and LAZ"
+    table.notes = [f"Warm cache, {size[0]}x{size[1]}, adaptive budget 16.6 ms, auto camera, frames issued in a tight "
+                   "loop from `progressive.open()` until `status().complete` (then glFinish). Frames' CPU = "
+                   "`time.thread_time()` of the frame loop's thread inside `Session.frame`. Loader alone = the "
+                   f"loader over the file at {threads} parser threads reading the attribute `render` shows, nothing "
+                   f"else running. Sessions as bench.load's. Each value the median of {args.repeats} runs."]
+    table.publish(RunInfo.from_caps(glc.caps, "main thread"), args.out, Path(__file__).resolve().parent / "results")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
