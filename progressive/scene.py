@@ -141,7 +141,7 @@ class Scene:
             hidden = self._upload_records(placed, self.attribute)
             self.store.add_boxes(_positions(placed), at)
         if self.store.has_classes:
-            self.distribute.upload_classes(point_flags(placed), at)
+            self._upload_flags(placed, at)
         for i in range(-(-part.count // BATCH_POINTS)):
             # the hidden points go with the first batch: a node's batches are emptied together
             self._written[first + i] = (min(BATCH_POINTS, part.count - i * BATCH_POINTS), hidden if i == 0 else 0)
@@ -175,7 +175,7 @@ class Scene:
             self.skipped += self._upload_records(batch, self.attribute)
             self.store.add_boxes(batch.positions, batch.start)
         if self.store.has_classes:
-            self.distribute.upload_classes(point_flags(batch), batch.start)
+            self._upload_flags(batch, batch.start)
         if self.keep_batches:
             # Without its integers (12 bytes a point of host memory): a kept batch sent
             # again (hidden points, attribute switching) is encoded from its positions.
@@ -271,6 +271,23 @@ class Scene:
         return self.distribute.upload_packed(lambda out, lo, hi: stage_cells(out, batch, shown, hides, lo, hi),
                                              batch.count, batch.start, cells=True, rgb=rgb is not None,
                                              hide_nonfinite=hides)
+
+    def _upload_flags(self, batch: Batch, start: int) -> None:
+        """The class and return flags of a batch's points from `start` on: a LAS batch's
+        class and return bytes staged as read (the scatter makes the flags), else
+        point_flags made here."""
+        fields = _class_bytes(batch)
+        if fields is None:
+            self.distribute.upload_classes(point_flags(batch), start)
+            return
+
+        def fill(out: np.ndarray, lo: int, hi: int) -> int:
+            flat = out.reshape(-1)
+            for k, values in enumerate(fields):
+                flat[k * (hi - lo): (k + 1) * (hi - lo)] = values[lo:hi]
+            return 0
+
+        self.distribute.upload_class_bytes(fill, batch.count, start)
 
     def _encoded_again(self, b: int) -> None:
         """Parts of batch b were encoded again with the attribute shown, during a switch:
@@ -500,6 +517,18 @@ def point_flags(batch: Batch) -> np.ndarray:
     number, count = np.asarray(number), np.asarray(count)
     return (flags | np.where(number <= 1, FIRST_RETURN, 0).astype(np.uint32)
             | np.where(number >= count, LAST_RETURN, 0).astype(np.uint32))
+
+
+def _class_bytes(batch: Batch) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """A loaded batch's class, return number and number of returns, each a uint8 per
+    point (a LAS or LAZ file's), from which the scatter makes point_flags' flags; None
+    where it holds them otherwise (then point_flags makes them)."""
+    if batch.records is not None:
+        return None
+    fields = tuple(batch.attributes.get(name) for name in (CLASSIFICATION, "return_number", "number_of_returns"))
+    if any(v is None or v.dtype != np.uint8 or v.ndim != 1 for v in fields):
+        return None
+    return fields
 
 
 def _copied_rows(batch: Batch, lo: int, hi: int) -> Batch:

@@ -2,7 +2,8 @@
 // ATTRIBUTE_ONLY the stage holds one word per point (or RGB_BYTES, three bytes) and only
 // word 3 is replaced (the word store's attribute plane, written batch by batch: attribute
 // switching); with
-// CLASS_WORDS each point's 16 flag bits (class, first and last return) go to the store's flags.
+// CLASS_WORDS each point's 16 flag bits (class, first and last return; CLASS_BYTES: made
+// from its class and return bytes) go to the store's flags.
 // The word store's points are encoded here, in their batch's frame (set before the
 // scatter): from float records in float64, as progressive/encoding.py quantize and
 // pack_words do, or (STAGED_CELLS) from a LAS file's own integers, staged as they are.
@@ -10,19 +11,22 @@ layout(local_size_x = 256) in;
 #include "common.glsl"
 #include "points.glsl"
 
-#if CLASS_WORDS
-layout(std430, binding = BINDING_DISTRIBUTE) readonly buffer Stage { uint staged[]; };
-layout(std430, binding = BINDING_CLASSES) buffer Classes { uint classes[]; };
-#elif ATTRIBUTE_ONLY || STAGED_CELLS
+#if CLASS_WORDS || ATTRIBUTE_ONLY || STAGED_CELLS
 layout(std430, binding = BINDING_DISTRIBUTE) readonly buffer Stage { uint staged[]; };
 
+// Byte j of the stage.
+uint staged_byte(uint j) {
+    return (staged[j >> 2u] >> ((j & 3u) << 3u)) & 0xFFu;
+}
+#endif
+
+#if CLASS_WORDS
+layout(std430, binding = BINDING_CLASSES) buffer Classes { uint classes[]; };
+#elif ATTRIBUTE_ONLY || STAGED_CELLS
 // Point i's attribute word, the words starting at word `first` of the stage. RGB_BYTES:
 // the stage holds each point's R, G, B bytes back to back (3 a point: a quarter less to
 // write to the staging memory than words, and nothing packed on the CPU), made the word
 // R | G << 8 | B << 16 | 0xFF000000 here, as loaders/records.py attribute_word makes it.
-uint staged_byte(uint j) {
-    return (staged[j >> 2u] >> ((j & 3u) << 3u)) & 0xFFu;
-}
 
 uint staged_word(uint first, uint i) {
 #if RGB_BYTES
@@ -42,6 +46,21 @@ uniform uint u_prime;
 uniform uint u_rotation;
 uniform uint u_batches;    // batched layout (0: one shuffle)
 uniform uint u_capacity;    // slots held on the GPU: the rest of the cloud is left out
+
+#if CLASS_WORDS
+// Point i's 16 flag bits (shaders/classes.glsl): staged as made (progressive/scene.py
+// point_flags), or with CLASS_BYTES made here from the piece's classes, then return
+// numbers, then numbers of returns, a byte each (three copies on the CPU): the class,
+// bit 8 where the number is at most 1 (first), bit 9 where it is at least the count (last).
+uint staged_flags(uint i) {
+#if CLASS_BYTES
+    uint number = staged_byte(u_count + i), count = staged_byte(2u * u_count + i);
+    return staged_byte(i) | (number <= 1u ? 0x100u : 0u) | (number >= count ? 0x200u : 0u);
+#else
+    return staged[i] & 0xFFFFu;
+#endif
+}
+#endif
 
 #if WORD_PLANES && !ATTRIBUTE_ONLY && !CLASS_WORDS
 // Cells in [0, 2^30) as three words of 10+10+10 bits (progressive/encoding.py
@@ -105,7 +124,7 @@ void main() {
     if (slot >= u_capacity) return;
 #if CLASS_WORDS
     // Each slot is written once (the buffer starts at zero), two slots share a word.
-    atomicOr(classes[slot >> 1u], (staged[i] & 0xFFFFu) << ((slot & 1u) * 16u));
+    atomicOr(classes[slot >> 1u], staged_flags(i) << ((slot & 1u) * 16u));
 #elif ATTRIBUTE_ONLY
     store_point(slot, uvec4(0u, 0u, 0u, staged_word(0u, i)), 3);
 #elif STAGED_CELLS

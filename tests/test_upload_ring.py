@@ -96,6 +96,7 @@ def test_store_equals_packed_records(gl, sample_batches, staging, load):
     assert np.array_equal(scene.store.read_records(), expected_store(scene, loaded))
     flags = np.frombuffer(scene.store.class_buffer.read(), dtype=np.uint16)[: scene.store.capacity]
     assert np.array_equal(flags, expected_flags(scene, loaded))
+    assert scene.distribute.class_bytes is not None and scene.distribute.classes is None   # the file's bytes staged
     stats = scene.distribute.stats
     pieces = 2 * len(loaded)        # records and flags, one piece each
     assert (stats.ring, stats.copied) == ((pieces, 0) if staging is Staging.RING else (0, pieces))
@@ -140,6 +141,27 @@ def nonfinite_values(batches: list[Batch], every: int = 89) -> list[Batch]:
         out.append(dataclasses.replace(b, attributes={**b.attributes, "intensity": values},
                                        nonfinite_values={"intensity": int(np.count_nonzero(~np.isfinite(values)))}))
     return out
+
+
+@pytest.mark.parametrize("source", ["las", "fast"])
+def test_flags_from_staged_bytes_or_made_on_the_cpu(gl, sample_batches, source):
+    """A LAS batch's class and return bytes are staged as read and the scatter makes the
+    flags, in pieces that split them; a batch holding them otherwise (a fast-format file,
+    whose one word is the class, no returns) has point_flags make them: both equal the
+    reference."""
+    info, batches = sample_batches
+    attribute = info.attribute("classification")
+    loaded = fast(batches, info, attribute) if source == "fast" else batches
+    scene = Scene(gl, info, attribute, class_filter=True)
+    scene.distribute.release()
+    scene.distribute = DistributePass(gl, scene.store, batch_points=7_001)
+    for b in loaded:
+        scene.add_batch(b)
+    gl.check()
+    flags = np.frombuffer(scene.store.class_buffer.read(), dtype=np.uint16)[: scene.store.capacity]
+    assert np.array_equal(flags, expected_flags(scene, loaded))
+    assert (scene.distribute.class_bytes is not None) == (source == "las") == (scene.distribute.classes is None)
+    scene.release()
 
 
 @pytest.mark.parametrize("shown", ["intensity", "rgb"])

@@ -126,13 +126,15 @@ class DistributePass:
         int64 = glc.caps.shader_int64
         defines = dict(store.defines, PERMUTE_INT64=1) if int64 else dict(store.defines)
         ext = ("GL_ARB_gpu_shader_int64",) if int64 else ()
-        self._build = lambda only, label, classes=0, cells=0, rgb=0: shaderlib.compute(
+        self._build = lambda only, label, classes=0, cells=0, rgb=0, class_bytes=0: shaderlib.compute(
             glc.ctx, "distribute.comp",
-            dict(defines, ATTRIBUTE_ONLY=only, CLASS_WORDS=classes, STAGED_CELLS=cells, RGB_BYTES=rgb), ext, label)
+            dict(defines, ATTRIBUTE_ONLY=only, CLASS_WORDS=classes, STAGED_CELLS=cells, RGB_BYTES=rgb,
+                 CLASS_BYTES=class_bytes), ext, label)
         self._programs: dict[tuple[bool, bool], object] = {}    # by (cells, rgb): built at the first upload of each kind
         self.words = None       # built at the first attribute switch: no first image waits for it
         self.rgb_words = None   # the same, from staged RGB bytes: built at the first switch to RGB
-        self.classes = self._build(0, "distribute classes", 1) if store.has_classes else None
+        self.classes = None         # the flags staged as made (point_flags): built at the first such upload
+        self.class_bytes = None     # the flags from staged bytes: built at the first such upload
         self.points_distributed = 0
 
     @property
@@ -205,8 +207,16 @@ class DistributePass:
         return self.word_ring
 
     def upload_classes(self, codes: np.ndarray, start: int) -> None:
-        """Set the class byte of n points (stores that keep classes)."""
+        """Set the flags (class, first and last return) of n points (stores that keep classes)."""
+        self.classes = self.classes or self._build(0, "distribute classes", 1)
         self._scatter(self.classes, _copy(codes, 1), codes.shape[0], 1, start)
+
+    def upload_class_bytes(self, fill: Fill, count: int, start: int) -> None:
+        """Set the flags of points start.. from their class, return number and number of
+        returns: `fill` writes a piece's (hi - lo, 3) uint8 as three runs of hi - lo bytes,
+        one a field (shaders/distribute.comp CLASS_BYTES), made at the first such upload."""
+        self.class_bytes = self.class_bytes or self._build(0, "distribute class bytes", 1, class_bytes=1)
+        self._scatter(self.class_bytes, fill, count, 1, start, item_bytes=3)
 
     def _scatter(self, program, fill: Fill, n: int, width: int, start: int, ring: StagingRing | None = None,
                  step: int | None = None, item_bytes: int | None = None) -> int:
@@ -254,7 +264,8 @@ class DistributePass:
             if ring is not None:
                 ring.release()
         self.ring = self.word_ring = None
-        for obj in (self._stage, *self._programs.values(), self.words, self.rgb_words, self.classes):
+        for obj in (self._stage, *self._programs.values(), self.words, self.rgb_words, self.classes,
+                    self.class_bytes):
             if obj is not None:
                 obj.release()
 
