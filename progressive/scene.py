@@ -282,7 +282,7 @@ class Scene:
             return
 
         def fill(out: np.ndarray, lo: int, hi: int) -> int:
-            flat = out.reshape(-1)
+            flat = _run_of(out)
             for k, values in enumerate(fields):
                 flat[k * (hi - lo): (k + 1) * (hi - lo)] = values[lo:hi]
             return 0
@@ -573,16 +573,22 @@ def stage_cells(out: np.ndarray, batch: Batch, shown: np.ndarray, hides: bool, l
     words): `shown` the batch's attribute words, or (n, 3) uint8 its R, G, B bytes
     (_rgb_bytes; the scatter makes the words). The points never drawn: with `hides` (a
     shown scalar), those whose word is not finite."""
-    if not out.flags.c_contiguous:
-        raise ValueError("cells are staged into one contiguous run of words")
     n = hi - lo
-    flat = out.reshape(-1)
+    flat = _run_of(out)
     flat[:3 * n].reshape(n, 3)[...] = batch.grid.cells[lo:hi].astype(np.int32, copy=False).view(np.uint32)
     if shown.ndim == 2:
         flat[3 * n:].view(np.uint8)[:3 * n].reshape(n, 3)[...] = shown[lo:hi]
         return 0
     flat[3 * n:] = shown[lo:hi]
     return int(np.count_nonzero((shown[lo:hi] & EXPONENT) == EXPONENT)) if hides else 0
+
+
+def _run_of(out: np.ndarray) -> np.ndarray:
+    """A fill's staging rows as one run (a view: a fill that stages fields one after
+    another writes through it)."""
+    if not out.flags.c_contiguous:
+        raise ValueError("fields are staged into one contiguous run")
+    return out.reshape(-1)
 
 
 def _rgb_bytes(batch: Batch, attribute: AttributeInfo) -> np.ndarray | None:

@@ -27,7 +27,6 @@ layout(std430, binding = BINDING_CLASSES) buffer Classes { uint classes[]; };
 // the stage holds each point's R, G, B bytes back to back (3 a point: a quarter less to
 // write to the staging memory than words, and nothing packed on the CPU), made the word
 // R | G << 8 | B << 16 | 0xFF000000 here, as loaders/records.py attribute_word makes it.
-
 uint staged_word(uint first, uint i) {
 #if RGB_BYTES
     uint j = 4u * first + 3u * i;
@@ -77,10 +76,11 @@ uvec4 pack_cells(uvec3 q, uint word) {
 
 #if STAGED_CELLS
 // A LAS point staged as the file's integers: the piece's X, Y, Z of every point, then
-// their attribute words, or with RGB_BYTES their R, G, B bytes (copies on the CPU). Its cells are
-// its integers less its batch's least ones, moved up the batch's shifts (the cell frame,
-// encoding.py cell_frames: lossless, under 2^30); EMPTY where u_hide_nonfinite and the
-// word is a scalar that is not finite (a point never drawn, as packing.py hides it).
+// their attribute words, or with RGB_BYTES their R, G, B bytes (copies on the CPU). Its
+// cells are its integers less its batch's least ones, moved up the batch's shifts (the
+// cell frame, encoding.py cell_frames: lossless, under 2^30); EMPTY where
+// u_hide_nonfinite and the word is a scalar that is not finite (a point never drawn, as
+// packing.py hides it).
 layout(std430, binding = BINDING_BATCH_CELLS) readonly buffer CellFrames { uvec4 cell_frames[]; };
 uniform uint u_hide_nonfinite;
 

@@ -11,8 +11,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from progressive.attributes import default_attribute
 from progressive import encoding
+from progressive.attributes import default_attribute
 from progressive.encoding import Encoding
 from progressive.glext import GL_ALREADY_SIGNALED
 from progressive.loaders.records import pack_records
