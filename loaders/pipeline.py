@@ -300,9 +300,12 @@ class CloudLoader(BatchQueue):
                  parser_threads: int | None = None, partial: bool = False,
                  attributes: tuple[str, ...] | None = None, point_budget: int | None = None,
                  http: HttpOptions = HTTP_DEFAULTS, view=None, laz: LazOptions = LAZ_DEFAULTS,
-                 check_count: Callable[[str, int], None] | None = None):
+                 check_count: Callable[[str, int], None] | None = None,
+                 on_parsed: Callable[[Batch], Batch] | None = None):
         """view: the first view, whose nodes a COPC cloud larger than point_budget keeps;
-        check_count: refuses a LAS/LAZ file too large by its header alone (open_sources)."""
+        check_count: refuses a LAS/LAZ file too large by its header alone (open_sources);
+        on_parsed: what each batch of the first pass becomes, on the parser thread that
+        made it (work its consumer would do on its own thread: the session's framing)."""
         parser_threads = default_parser_threads() if parser_threads is None else parser_threads
         if batch_points < 1 or parser_threads < 1:
             raise ValueError("batch_points and parser_threads must be at least 1")
@@ -312,6 +315,7 @@ class CloudLoader(BatchQueue):
         self.later: tuple[str, ...] = ()
         self.batch_points = batch_points
         self.parser_threads = parser_threads
+        self.on_parsed = on_parsed
         self.partial = partial
         self.warnings: list[str] = [w for s in self._sources for w in s.warnings] + crs_warnings(self.info.files)
         self.loaded = 0
@@ -518,6 +522,8 @@ class CloudLoader(BatchQueue):
                 path, make, later = task
                 try:
                     batch = make()
+                    if self.on_parsed is not None and not later:
+                        batch = self.on_parsed(batch)
                 except BaseException as exc:
                     self._fail(path, exc)
                     return

@@ -157,6 +157,39 @@ class CloudInfo:
 
 
 @dataclass(frozen=True)
+class CellRuns:
+    """The least and most cells of a batch's points in each run of `points` consecutive
+    cloud indices its rows touch (run r: indices r·points ..), from run `first` on: what
+    the word store frames its batches by, found on the thread that parsed the batch
+    (cell_runs)."""
+
+    points: int
+    first: int
+    least: np.ndarray                   # (k, 3) int64
+    most: np.ndarray
+
+    def rows(self, start: int, lo: int, hi: int, count: int) -> CellRuns | None:
+        """Those of rows lo..hi of the batch (`count` rows from cloud index `start`): the
+        runs they touch, where each still holds the rows it held (the rows end at the
+        batch's ends or at runs' ends); else None (a run cut short needs its rows again)."""
+        p = self.points
+        if hi <= lo or not (lo == 0 or (start + lo) % p == 0) or not (hi == count or (start + hi) % p == 0):
+            return None
+        a, b = (start + lo) // p - self.first, (start + hi - 1) // p - self.first + 1
+        return CellRuns(p, self.first + a, self.least[a:b], self.most[a:b])
+
+
+def cell_runs(cells: np.ndarray, start: int, points: int) -> CellRuns:
+    """The CellRuns of a batch's (n, 3) cells whose first has cloud index `start`."""
+    n = cells.shape[0]
+    first = start // points
+    cuts = np.arange((first + 1) * points, start + n, points) - start
+    edges = np.concatenate([[0], cuts]).astype(np.int64)
+    return CellRuns(points, first, np.minimum.reduceat(cells, edges, axis=0).astype(np.int64),
+                    np.maximum.reduceat(cells, edges, axis=0).astype(np.int64))
+
+
+@dataclass(frozen=True)
 class Grid:
     """A LAS batch's coordinates as the file stores them: coordinate = cell · scale +
     offset, per axis."""
@@ -164,6 +197,9 @@ class Grid:
     cells: np.ndarray                   # (n, 3) int32, the records' X, Y, Z
     scale: tuple[float, float, float]
     offset: tuple[float, float, float]
+    runs: CellRuns | None = None
+    """Their least and most by runs of cloud indices, where the loader was asked for
+    them (CloudLoader's on_parsed)."""
 
 
 @dataclass(frozen=True)
@@ -203,7 +239,9 @@ class Batch:
         whole batch's, which only say whether the rows may hold such points)."""
         if lo == 0 and hi == self.count:
             return self
-        grid = None if self.grid is None else replace(self.grid, cells=self.grid.cells[lo:hi])
+        grid = None if self.grid is None else replace(
+            self.grid, cells=self.grid.cells[lo:hi],
+            runs=None if self.grid.runs is None else self.grid.runs.rows(self.start, lo, hi, self.count))
         return replace(self, start=self.start + lo, positions=self.positions[lo:hi],
                                    attributes={k: v[lo:hi] for k, v in self.attributes.items()},
                                    records=None if self.records is None else self.records[lo:hi], bounds=None,
@@ -214,7 +252,7 @@ class Batch:
         """The batch with rows lo..hi in the order `order` (indices into them): every
         per-point array, the same points (bounds and non-finite counts stay)."""
         rows = np.concatenate([np.arange(lo), lo + np.asarray(order, dtype=np.int64), np.arange(hi, self.count)])
-        grid = None if self.grid is None else replace(self.grid, cells=self.grid.cells[rows])
+        grid = None if self.grid is None else replace(self.grid, cells=self.grid.cells[rows], runs=None)
         return replace(self, positions=self.positions[rows], attributes={k: v[rows] for k, v in self.attributes.items()},
                        records=None if self.records is None else self.records[rows], grid=grid)
 

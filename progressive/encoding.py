@@ -15,10 +15,12 @@ encodes on the GPU, in float64, from the float records staged as for the float s
 from __future__ import annotations
 
 import enum
+from dataclasses import replace
 
 import numpy as np
 
 from progressive import batches as batch_boxes
+from progressive.loaders.types import Batch, cell_runs
 from progressive.permutation import BATCH_POINTS
 
 LEVEL_BITS = 10
@@ -267,16 +269,23 @@ def cell_boxes(least: np.ndarray, most: np.ndarray, scale, offset, origin: np.nd
     return boxes
 
 
-def cell_range(cells: np.ndarray, start: int) -> tuple[int, np.ndarray, np.ndarray]:
-    """The first batch that file indices [start, start+n) touch and the least and most
-    (k, 3) int64 cells of the points in each batch touched (progressive/batches.py
-    boxes_of, for a LAS batch's integers)."""
-    n = cells.shape[0]
-    first = start // BATCH_POINTS
-    cuts = np.arange((first + 1) * BATCH_POINTS, start + n, BATCH_POINTS) - start
-    edges = np.concatenate([[0], cuts]).astype(np.int64)
-    return first, np.minimum.reduceat(cells, edges, axis=0).astype(np.int64), \
-        np.maximum.reduceat(cells, edges, axis=0).astype(np.int64)
+def with_cell_runs(batch: Batch) -> Batch:
+    """A LAS batch with the least and most integers of each store batch it touches
+    (Grid.runs), which cell_range then takes: the loader's parser threads find them
+    (CloudLoader's on_parsed), not the frame loop's thread."""
+    if batch.grid is None or batch.count == 0:
+        return batch
+    return replace(batch, grid=replace(batch.grid, runs=cell_runs(batch.grid.cells, batch.start, BATCH_POINTS)))
+
+
+def cell_range(grid, start: int) -> tuple[int, np.ndarray, np.ndarray]:
+    """The first batch that file indices [start, start+n) of a LAS batch's Grid touch
+    and the least and most (k, 3) int64 cells of the points in each batch touched
+    (progressive/batches.py boxes_of, for its integers): its runs where the parser
+    found them for these batches, else from its cells."""
+    runs = grid.runs if grid.runs is not None and grid.runs.points == BATCH_POINTS else \
+        cell_runs(grid.cells, start, BATCH_POINTS)
+    return runs.first, runs.least, runs.most
 
 
 ERROR_SLACK = 1e-3

@@ -300,14 +300,15 @@ def check_addressable(path: str, points: int) -> None:
 
 
 def open_loader(paths, *, partial: bool = False, reproject=None, point_budget: int | None = None,
-                http: HttpOptions = HTTP_DEFAULTS, view=None, parser_threads: int | None = None):
+                http: HttpOptions = HTTP_DEFAULTS, view=None, parser_threads: int | None = None, on_parsed=None):
     """The loader of a cloud, checked to fit the point store: reprojected into `reproject`
     (a pyproj CRS) where given; point_budget and view: see open_sources (COPC nodes; not
-    with reprojection); parser_threads: CloudLoader's (None: the cores available)."""
+    with reprojection); parser_threads, on_parsed: CloudLoader's (None: the cores
+    available; nothing done; a reprojected cloud's batches have no integers to frame)."""
     if reproject is not None:
         return ReprojectingLoader(paths, reproject, partial=partial, http=http, parser_threads=parser_threads)
     loader = CloudLoader(paths, partial=partial, point_budget=point_budget, http=http, view=view,
-                         check_count=check_addressable, parser_threads=parser_threads)
+                         check_count=check_addressable, parser_threads=parser_threads, on_parsed=on_parsed)
     try:
         check_addressable(loader.info.files[-1].path, loader.info.points)
     except BaseException:

@@ -550,7 +550,7 @@ def frame_parts(parts: list[Batch], first: int, k: int, origin: np.ndarray) -> t
     if len(grids) == 1 and None not in grids:
         least, most = np.full((k, 3), np.iinfo(np.int64).max), np.full((k, 3), np.iinfo(np.int64).min)
         for part in parts:
-            at, lo, hi = encoding.cell_range(part.grid.cells, part.start)
+            at, lo, hi = encoding.cell_range(part.grid, part.start)
             least[at - first: at - first + lo.shape[0]] = np.minimum(least[at - first: at - first + lo.shape[0]], lo)
             most[at - first: at - first + hi.shape[0]] = np.maximum(most[at - first: at - first + hi.shape[0]], hi)
         scale, offset = next(iter(grids))

@@ -256,7 +256,7 @@ def test_boxes_from_a_las_files_integers_are_the_boxes_of_its_positions(name):
     with CloudLoader([SAMPLE if name == "autzen_trim.las" else shared_file(name)], batch_points=37_001) as loader:
         origin = loader.info.origin
         for b in loader:
-            at, least, most = encoding.cell_range(b.grid.cells, b.start)
+            at, least, most = encoding.cell_range(b.grid, b.start)
             boxes = encoding.cell_boxes(least, most, b.grid.scale, b.grid.offset, origin)
             first, expected = batches.boxes_of(b.positions, b.start)
             assert at == first
@@ -274,3 +274,61 @@ def test_boxes_from_integers_with_a_negative_scale_or_out_of_float32_reach():
     np.testing.assert_array_equal(boxes[0, 0:3], lo)
     np.testing.assert_array_equal(boxes[0, 4:7], hi)
     assert encoding.cell_boxes(least, most, (1e38, 1.0, 1.0), (0.0, 0.0, 0.0), np.zeros(3)) is None
+
+
+def test_cell_runs_of_rows_are_those_of_their_cells():
+    """CellRuns.rows keeps the runs of rows that end at the batch's ends or at runs'
+    ends, equal to cell_runs of those rows' cells; rows that cut a run short get None."""
+    from progressive.loaders.types import cell_runs
+
+    rng = np.random.default_rng(7)
+    points, start = 1_000, 12_345
+    cells = rng.integers(-2**30, 2**30, size=(7_777, 3)).astype(np.int32)
+    runs = cell_runs(cells, start, points)
+    n = cells.shape[0]
+    ends = sorted({0, n, *(np.arange(-(-start // points) * points, start + n, points) - start).tolist()})
+    for lo in ends:
+        for hi in ends:
+            if hi <= lo:
+                continue
+            part, expected = runs.rows(start, lo, hi, n), cell_runs(cells[lo:hi], start + lo, points)
+            assert part is not None and part.first == expected.first
+            np.testing.assert_array_equal(part.least, expected.least)
+            np.testing.assert_array_equal(part.most, expected.most)
+    assert runs.rows(start, 1, n, n) is None and runs.rows(start, 0, n - 1, n) is None
+    assert runs.rows(start, ends[1], ends[2] + 1, n) is None
+
+
+def test_runs_found_by_the_parsers_frame_the_store_as_the_frame_loop_did(gl, monkeypatch):
+    """A loader whose parser threads find each batch's runs (the session's on_parsed,
+    encoding.with_cell_runs) gives the word store the same frames, least integers,
+    shifts, boxes and words as batches framed from their cells by the frame loop, which
+    then finds none itself (the parts the store's batches are framed from keep them)."""
+    from conftest import SAMPLE
+    from progressive import encoding
+    from progressive.attributes import default_attribute
+    from progressive.loaders import CloudLoader
+    from progressive.loaders.types import cell_runs
+    from progressive.scene import Scene
+
+    stores = []
+    for on_parsed in (None, encoding.with_cell_runs):
+        with CloudLoader([SAMPLE], batch_points=37_001, on_parsed=on_parsed) as loader:
+            info = loader.info
+            loader.start()
+            loaded = sorted(loader, key=lambda b: b.start)
+        assert all((b.grid.runs is not None) == (on_parsed is not None) for b in loaded)
+        scene = Scene(gl, info, default_attribute(info))
+        found: list = []
+        monkeypatch.setattr(encoding, "cell_runs", lambda *args, found=found: found.append(args) or cell_runs(*args))
+        for b in loaded:
+            scene.add_batch(b)
+        monkeypatch.undo()
+        assert (len(found) == 0) == (on_parsed is not None)
+        s = scene.store
+        stores.append((s.frames.copy(), s.least_cells.copy(), s.cell_shifts.copy(), s.boxes.copy(), s.integer.copy(),
+                       s.read_words()))
+        scene.release()
+    assert stores[1][4].all()
+    for before, after in zip(*stores):
+        np.testing.assert_array_equal(before, after)
