@@ -3,7 +3,13 @@
 alone over the same file. CPU close to the frames' wall time: the frame loop bounds
 loading; far below: it waits (for the GIL or the loader).
 
-    python -m bench.mainthread [--points 100000000] [--repeats 3] [--label TREE] [--out DIR]
+    python -m bench.mainthread [--points 100000000] [--repeats 3] [--label TREE] [--out DIR] [--profile 40]
+
+--profile also runs one session of each kind under cProfile (its frames only: the frame
+loop's thread) and writes the functions that took longest, by their own time and with
+what they call, to
+profile_<format>_<session>.txt: where the thread's CPU goes, not timings to quote (the
+profiler slows small Python calls most).
 
 Only the session's API is timed (progressive.open, Session.frame), so the same module
 measures an older tree put first on PYTHONPATH.
@@ -12,6 +18,9 @@ measures an older tree put first on PYTHONPATH.
 from __future__ import annotations
 
 import argparse
+import cProfile
+import io
+import pstats
 import statistics
 import time
 from pathlib import Path
@@ -25,8 +34,10 @@ from progressive.context import GLContext, create_context
 from progressive.loaders.types import default_parser_threads
 
 
-def loading(glc: GLContext, path: Path, session: str, size: tuple[int, int]) -> dict:
-    """One warm session framed in a tight loop (as bench.load does) until every point is on the GPU."""
+def loading(glc: GLContext, path: Path, session: str, size: tuple[int, int],
+            profile: cProfile.Profile | None = None) -> dict:
+    """One warm session framed in a tight loop (as bench.load does) until every point is
+    on the GPU; `profile` enabled around each frame."""
     raw_read(path)
     opts = progressive.SessionOptions(width=size[0], height=size[1], **SESSIONS[session],
                                       progressive=progressive.ProgressiveOptions(budget=BudgetParams(target_ns=16_600_000)))
@@ -38,7 +49,11 @@ def loading(glc: GLContext, path: Path, session: str, size: tuple[int, int]) -> 
         cam = s.auto_camera()
         while not s.status().complete:
             w, c = time.perf_counter(), time.thread_time()
+            if profile is not None:
+                profile.enable()
             s.frame(cam)
+            if profile is not None:
+                profile.disable()
             frames_cpu += time.thread_time() - c
             frames_wall += time.perf_counter() - w
             frames += 1
@@ -56,6 +71,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--label", default="", help="what tree this is (a column of its own)")
     parser.add_argument("--cache", type=Path, default=data.CACHE, help="where the tiled files are kept")
     parser.add_argument("--out", type=Path, default=None, help="results folder (default bench/results/<machine>)")
+    parser.add_argument("--profile", type=int, default=0, metavar="TOP",
+                        help="also profile one session of each kind: its TOP functions by own time")
     args = parser.parse_args(argv)
     size = tuple(int(v) for v in args.size.split("x"))
     glc = create_context()
@@ -63,6 +80,7 @@ def main(argv: list[str] | None = None) -> int:
     table = Table("mainthread", "The frame loop's thread while a session loads", "", f"{args.points:,}", (
         "tree", "format", "session", "loader alone s", "all points on GPU s", "open s", "frames",
         "frames' wall s", "frames' CPU s", "CPU / wall of frames", "frames' wall / loading"))
+    profiles = []
     for fmt, compress in (("LAS", False), ("LAZ", True)):
         path = data.tiled(args.points, compress, args.cache)
         raw_read(path)
@@ -82,6 +100,8 @@ def main(argv: list[str] | None = None) -> int:
                                median["open_s"], median["frames"], median["frames_wall_s"], median["frames_cpu_s"],
                                median["frames_cpu_s"] / median["frames_wall_s"],
                                median["frames_wall_s"] / median["loaded_s"]))
+            if args.profile:
+                profiles.append((fmt, session, profiled(glc, path, session, size, args.profile)))
     table.data = "autzen_trim.las tiled on a grid (bench/data.py), written as LAS and LAZ"
     table.notes = [f"Warm cache, {size[0]}x{size[1]}, adaptive budget 16.6 ms, auto camera, frames issued in a tight "
                    "loop from `progressive.open()` until `status().complete` (then glFinish). Frames' CPU = "
@@ -89,8 +109,25 @@ def main(argv: list[str] | None = None) -> int:
                    f"loader over the file at {threads} parser threads reading the attribute `render` shows, nothing "
                    f"else running. Sessions as bench.load's. Each value the median of {args.repeats} runs after "
                    "one untimed run of the same session."]
-    table.publish(RunInfo.from_caps(glc.caps, "main thread"), args.out, Path(__file__).resolve().parent / "results")
+    run = RunInfo.from_caps(glc.caps, "main thread")
+    table.publish(run, args.out, Path(__file__).resolve().parent / "results")
+    out = args.out or Path(__file__).resolve().parent / "results" / run.machine
+    for fmt, session, text in profiles:
+        (out / f"profile_{fmt}_{session.split(',')[0]}.txt").write_text(text)
     return 0
+
+
+def profiled(glc: GLContext, path: Path, session: str, size: tuple[int, int], top: int) -> str:
+    """One more session's frames under cProfile: the header line, then its `top`
+    functions by own time and by time with what they call."""
+    profile = cProfile.Profile()
+    result = loading(glc, path, session, size, profile)
+    text = io.StringIO()
+    stats = pstats.Stats(profile, stream=text)
+    stats.sort_stats("tottime").print_stats(top)
+    stats.sort_stats("cumulative").print_stats(top)
+    return (f"{path.name}, session {session}: {result['frames']} frames, every point after {result['loaded_s']:.2f} s "
+            f"(profiled)\n{text.getvalue()}")
 
 
 if __name__ == "__main__":
