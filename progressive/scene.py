@@ -617,8 +617,13 @@ def _hidden_points(batch: Batch, attribute: AttributeInfo, origin_z: float) -> i
 
 
 def _all_finite(batch: Batch) -> bool:
-    """Every coordinate of the batch finite (a fast-format batch's in one contiguous
-    pass over its records: its positions are a strided view)."""
+    """Every coordinate of the batch finite: none where its loader counted none (the
+    count of a batch's rows is the whole batch's, so only a nonzero one needs a look),
+    else a pass over the positions (a fast-format batch's one contiguous pass over its
+    records: its positions are a strided view). The frame loop's thread made two passes
+    over every LAS point here."""
+    if batch.nonfinite_positions == 0:
+        return True
     if batch.records is not None:
         return nonfinite_records(batch.records)[0] == 0
     return batch_boxes.all_finite(batch.positions)

@@ -131,7 +131,8 @@ def test_nonfinite_values_and_positions_are_never_drawn(gl):
     origin = xyz.mean(axis=0)
     positions = (xyz - origin).astype(np.float32)
     positions[4, 0] = np.nan                   # a non-finite coordinate (fast-format style)
-    batch = Batch(start=0, positions=positions, attributes={"reflectance": values})
+    batch = Batch(start=0, positions=positions, attributes={"reflectance": values}, nonfinite_positions=1,
+                  nonfinite_values={"reflectance": 2})      # as a loader counts them
     records = pack_records(batch, attr, float(origin[2]))
     assert nonfinite_records(records)[0] == 3
     info = CloudInfo(files=(), points=n, origin=origin, bounds_min=xyz.min(0), bounds_max=xyz.max(0), attributes=(attr,))
