@@ -5,11 +5,12 @@ loading; far below: it waits (for the GIL or the loader).
 
     python -m bench.mainthread [--points 100000000] [--repeats 3] [--label TREE] [--out DIR] [--profile 40]
 
---profile also runs one session of each kind under cProfile (its frames only: the frame
-loop's thread) and writes the functions that took longest, by their own time and with
-what they call, to
-profile_<format>_<session>.txt: where the thread's CPU goes, not timings to quote (the
-profiler slows small Python calls most).
+--profile also runs one session of each kind under cProfile, enabled around its frames,
+and writes the functions that took longest, by their own time and with what they call,
+to profile_<format>_<session>.txt: where the CPU goes, not timings to quote (the profiler
+slows small Python calls most). Before Python 3.12 it records the frame loop's thread
+alone; from 3.12 (cProfile on sys.monitoring) every thread's calls while frames run,
+the parser threads' among them, and what nests across threads is mangled.
 
 Only the session's API is timed (progressive.open, Session.frame), so the same module
 measures an older tree put first on PYTHONPATH.
@@ -22,6 +23,7 @@ import cProfile
 import io
 import pstats
 import statistics
+import sys
 import time
 from pathlib import Path
 
@@ -126,8 +128,9 @@ def profiled(glc: GLContext, path: Path, session: str, size: tuple[int, int], to
     stats = pstats.Stats(profile, stream=text)
     stats.sort_stats("tottime").print_stats(top)
     stats.sort_stats("cumulative").print_stats(top)
+    threads = "every thread's calls while frames ran" if sys.version_info >= (3, 12) else "the frames' thread"
     return (f"{path.name}, session {session}: {result['frames']} frames, every point after {result['loaded_s']:.2f} s "
-            f"(profiled)\n{text.getvalue()}")
+            f"(profiled: {threads})\n{text.getvalue()}")
 
 
 if __name__ == "__main__":

@@ -620,8 +620,8 @@ def _all_finite(batch: Batch) -> bool:
     """Every coordinate of the batch finite: none where its loader counted none (the
     count of a batch's rows is the whole batch's, so only a nonzero one needs a look),
     else a pass over the positions (a fast-format batch's one contiguous pass over its
-    records: its positions are a strided view). The frame loop's thread made two passes
-    over every LAS point here."""
+    records: its positions are a strided view). So the frame loop's thread makes no pass
+    over a LAS batch's positions."""
     if batch.nonfinite_positions == 0:
         return True
     if batch.records is not None:

@@ -113,7 +113,7 @@ def test_mainthread_bench_runs(tmp_path):
     for fmt in ("LAS", "LAZ"):
         for session in ("shown", "viewer"):
             head, *rest = (out / f"profile_{fmt}_{session}.txt").read_text().splitlines()
-            assert head.startswith(f"autzen_trim_x30000.{fmt.lower()}, session {session}")
+            assert head.startswith(f"autzen_trim_x30000.{fmt.lower()}, session {session}") and "(profiled: " in head
             assert any("function calls" in line for line in rest) and any("(frame)" in line for line in rest)
 
 
