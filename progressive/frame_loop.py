@@ -5,6 +5,7 @@ once it has, frames do no GPU work at all. The CPU never waits for the GPU here.
 
 from __future__ import annotations
 
+import bisect
 from collections import deque
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -38,6 +39,11 @@ COLD_TIMES = {"first fill": (Stamp.FILL, Stamp.FIRST_END), "adaptive": (Stamp.FI
               "grow 1": (Stamp.GROW_1, Stamp.GROW_2), "grow 2": (Stamp.GROW_2, Stamp.PASS_END)}
 """A cold frame's parts of its first pass (budget.GROW_STAGES), whose stamps only it writes:
 where the time of the frame that fills before it knows a rate goes."""
+
+
+
+def _frame_of(stats: FrameStats) -> int:
+    return stats.frame
 
 
 @dataclass(frozen=True)
@@ -358,8 +364,16 @@ class ProgressiveRenderer:
 
     def _idle_frame(self, passes: tuple[str, ...]) -> None:
         """A frame without fill (converged, or nothing loaded yet): nothing to measure on the GPU."""
-        self.history.append(FrameStats(self.frame_index, passes, self.scene.loaded, 0, 0, self.store.capacity, 0, 0, {}, None))
+        self._record(FrameStats(self.frame_index, passes, self.scene.loaded, 0, 0, self.store.capacity, 0, 0, {}, None))
         self.frame_index += 1
+
+    def _record(self, stats: FrameStats) -> None:
+        """Into the history in frame order (a frame's GPU record comes frames later, after
+        idle frames issued since), the oldest dropped past history_frames: no frame sorts
+        the whole history."""
+        bisect.insort(self.history, stats, key=_frame_of)
+        if len(self.history) > self.options.history_frames:
+            del self.history[0]
 
     def _take(self, records: list[GPURecord]) -> None:
         for r in records:
@@ -370,10 +384,8 @@ class ProgressiveRenderer:
             t = r.stamps.astype(np.int64)
             gpu_ms = {name: (t[b] - t[a]) / 1e6 for name, (a, b) in (PASS_TIMES | (COLD_TIMES if tag.cold else {})).items()}
             equal = r.equal / tag.pixels if tag.reference else None
-            self.history.append(FrameStats(tag.frame, tag.passes, tag.points_loaded, int(r.state[StateWord.FIRST]),
-                                           int(r.state[StateWord.BUDGET]), filled, r.visible, r.gathered, gpu_ms, equal))
-        self.history.sort(key=lambda s: s.frame)
-        del self.history[: max(0, len(self.history) - self.options.history_frames)]
+            self._record(FrameStats(tag.frame, tag.passes, tag.points_loaded, int(r.state[StateWord.FIRST]),
+                                    int(r.state[StateWord.BUDGET]), filled, r.visible, r.gathered, gpu_ms, equal))
 
     def flush(self) -> list[FrameStats]:
         """Wait for every issued frame and return all statistics (after the loop)."""

@@ -69,12 +69,16 @@ def cache_directory(env: Mapping[str, str]) -> Path | None:
 
 
 class Uniform:
-    """One active uniform (arrays by their name without [0]), set as moderngl sets them."""
+    """One active uniform (arrays by their name without [0]), set as moderngl sets them.
+    A value equal to the one last set makes no GL call: a frame sets about 150 uniforms,
+    most as they were, and each call gives up the GIL the loader's threads then hold (a
+    program's uniforms change only through here)."""
 
     def __init__(self, calls: ProgramFunctions, program: int, location: int, gl_type: int, size: int):
         self._calls, self._program, self._location = calls, program, location
         self._kind, self._components, self._columns = _UNIFORM_TYPES.get(gl_type, _OPAQUE)
         self.array_length = size
+        self._last: bytes | None = None
 
     def write(self, data: bytes) -> None:
         self._set(np.frombuffer(bytes(data), dtype=_DTYPES[self._kind]))
@@ -91,12 +95,14 @@ class Uniform:
         count = flat.size // self._components
         if count < 1 or count * self._components != flat.size or count > self.array_length:
             raise ValueError(f"{flat.size} values for a uniform of {self._components} x {self.array_length}")
-        flat = np.ascontiguousarray(flat)
-        pointer = flat.ctypes.data_as(ctypes.c_void_p)
+        data = flat.tobytes()
+        if data == self._last:
+            return
         if self._columns:
-            self._calls.matrices[self._columns](self._program, self._location, count, 0, pointer)
+            self._calls.matrices[self._columns](self._program, self._location, count, 0, data)
         else:
-            self._calls.uniforms[(self._kind, self._components)](self._program, self._location, count, pointer)
+            self._calls.uniforms[(self._kind, self._components)](self._program, self._location, count, data)
+        self._last = data
 
 
 class ComputeProgram:

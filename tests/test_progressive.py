@@ -129,6 +129,31 @@ def test_only_needed_passes_run(gl, cloud):
     pr.release()
 
 
+def test_history_keeps_the_last_frames_in_frame_order(gl, cloud):
+    """Frames with fill are recorded when the GPU reports them, idle ones as issued: the
+    history holds the last history_frames of them by frame number."""
+    info, batches = cloud
+    cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
+    pr = ProgressiveRenderer(gl, info, default_attribute(info),
+                             ProgressiveOptions(W, H, budget=BudgetParams(fixed=B), batches_per_frame=100,
+                                                history_frames=6))
+    for b in batches:
+        pr.add_batch(b)
+    style = pr.scene.style()
+    for k in range(9):
+        pr.frame(orbit(cam, k), style)
+    assert [s.frame for s in pr.flush()] == list(range(3, 9))
+    while not pr.converged:
+        pr.frame(cam, style)
+        pr.flush()
+    for _ in range(4):
+        assert pr.frame(cam, style) == ()
+    frames = [s.frame for s in pr.flush()]
+    assert frames == list(range(pr.frame_index - 6, pr.frame_index))
+    assert [s.passes for s in pr.history[-4:]] == [()] * 4
+    pr.release()
+
+
 def test_frame_loop_never_waits_for_the_gpu(gl, cloud, monkeypatch):
     """A GPU that never finishes: frames still go on, read nothing and never sync."""
     import moderngl
