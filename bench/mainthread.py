@@ -4,10 +4,14 @@ alone over the same file. CPU close to the frames' wall time: the frame loop bou
 loading; far below: it waits (for the GIL or the loader).
 
     python -m bench.mainthread [--points 100000000] [--repeats 3] [--label TREE] [--out DIR] [--profile 40]
+                               [--parser-threads 4 16]
+
+--parser-threads: a row for each count of the loader's parser threads, in the sessions
+and the loader alone (default: the loader's own default, one a core up to 4).
 
 --profile also runs one session of each kind under cProfile, enabled around its frames,
 and writes the functions that took longest, by their own time and with what they call,
-to profile_<format>_<session>.txt: where the CPU goes, not timings to quote (the profiler
+to profile_<format>_<threads>_<session>.txt: where the CPU goes, not timings to quote (the profiler
 slows small Python calls most). Before Python 3.12 it records the frame loop's thread
 alone; from 3.12 (cProfile on sys.monitoring) every thread's calls while frames run,
 the parser threads' among them, and what nests across threads is mangled.
@@ -21,6 +25,7 @@ from __future__ import annotations
 import argparse
 import cProfile
 import io
+import itertools
 import pstats
 import statistics
 import sys
@@ -37,11 +42,11 @@ from progressive.loaders.types import default_parser_threads
 
 
 def loading(glc: GLContext, path: Path, session: str, size: tuple[int, int],
-            profile: cProfile.Profile | None = None) -> dict:
+            profile: cProfile.Profile | None = None, threads: int | None = None) -> dict:
     """One warm session framed in a tight loop (as bench.load does) until every point is
     on the GPU; `profile` enabled around each frame."""
     raw_read(path)
-    opts = progressive.SessionOptions(width=size[0], height=size[1], **SESSIONS[session],
+    opts = progressive.SessionOptions(width=size[0], height=size[1], **SESSIONS[session], parser_threads=threads,
                                       progressive=progressive.ProgressiveOptions(budget=BudgetParams(target_ns=16_600_000)))
     frames_wall = frames_cpu = 0.0
     frames = 0
@@ -75,15 +80,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=None, help="results folder (default bench/results/<machine>)")
     parser.add_argument("--profile", type=int, default=0, metavar="TOP",
                         help="also profile one session of each kind: its TOP functions by own time")
+    parser.add_argument("--parser-threads", type=int, nargs="+", default=[default_parser_threads()],
+                        help="the loader's parser threads, a row each")
     args = parser.parse_args(argv)
     size = tuple(int(v) for v in args.size.split("x"))
     glc = create_context()
-    threads = default_parser_threads()
     table = Table("mainthread", "The frame loop's thread while a session loads", "", f"{args.points:,}", (
-        "tree", "format", "session", "loader alone s", "all points on GPU s", "open s", "frames",
+        "tree", "format", "parser threads", "session", "loader alone s", "all points on GPU s", "open s", "frames",
         "frames' wall s", "frames' CPU s", "CPU / wall of frames", "frames' wall / loading"))
     profiles = []
-    for fmt, compress in (("LAS", False), ("LAZ", True)):
+    for (fmt, compress), threads in itertools.product((("LAS", False), ("LAZ", True)), args.parser_threads):
         path = data.tiled(args.points, compress, args.cache)
         raw_read(path)
         alone = []
@@ -92,38 +98,38 @@ def main(argv: list[str] | None = None) -> int:
             pipeline(path, threads, attributes=shown(path))
             alone.append(time.perf_counter() - t)
         for session in ("shown", "viewer, others later"):
-            loading(glc, path, session, size)       # untimed: programs compiled and cached, caches warm
-            runs = [loading(glc, path, session, size) for _ in range(args.repeats)]
+            loading(glc, path, session, size, threads=threads)   # untimed: programs compiled and cached, caches warm
+            runs = [loading(glc, path, session, size, threads=threads) for _ in range(args.repeats)]
             median = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
-            table.raw.setdefault("rows", []).append({"tree": args.label, "format": fmt, "session": session,
-                                                     "loader_alone_s": statistics.median(alone), **median,
-                                                     "runs": runs})
-            table.rows.append((args.label, fmt, session, statistics.median(alone), median["loaded_s"],
+            table.raw.setdefault("rows", []).append({"tree": args.label, "format": fmt, "parser_threads": threads,
+                                                     "session": session, "loader_alone_s": statistics.median(alone),
+                                                     **median, "runs": runs})
+            table.rows.append((args.label, fmt, threads, session, statistics.median(alone), median["loaded_s"],
                                median["open_s"], median["frames"], median["frames_wall_s"], median["frames_cpu_s"],
                                median["frames_cpu_s"] / median["frames_wall_s"],
                                median["frames_wall_s"] / median["loaded_s"]))
             if args.profile:
-                profiles.append((fmt, session, profiled(glc, path, session, size, args.profile)))
+                profiles.append((fmt, threads, session, profiled(glc, path, session, size, args.profile, threads)))
     table.data = "autzen_trim.las tiled on a grid (bench/data.py), written as LAS and LAZ"
     table.notes = [f"Warm cache, {size[0]}x{size[1]}, adaptive budget 16.6 ms, auto camera, frames issued in a tight "
                    "loop from `progressive.open()` until `status().complete` (then glFinish). Frames' CPU = "
                    "`time.thread_time()` of the frame loop's thread inside `Session.frame`. Loader alone = the "
-                   f"loader over the file at {threads} parser threads reading the attribute `render` shows, nothing "
+                   "loader over the file at the row's parser threads reading the attribute `render` shows, nothing "
                    f"else running. Sessions as bench.load's. Each value the median of {args.repeats} runs after "
                    "one untimed run of the same session."]
     run = RunInfo.from_caps(glc.caps, "main thread")
     table.publish(run, args.out, Path(__file__).resolve().parent / "results")
     out = args.out or Path(__file__).resolve().parent / "results" / run.machine
-    for fmt, session, text in profiles:
-        (out / f"profile_{fmt}_{session.split(',')[0]}.txt").write_text(text)
+    for fmt, threads, session, text in profiles:
+        (out / f"profile_{fmt}_{threads}_{session.split(',')[0]}.txt").write_text(text)
     return 0
 
 
-def profiled(glc: GLContext, path: Path, session: str, size: tuple[int, int], top: int) -> str:
+def profiled(glc: GLContext, path: Path, session: str, size: tuple[int, int], top: int, threads: int) -> str:
     """One more session's frames under cProfile: the header line, then its `top`
     functions by own time and by time with what they call."""
     profile = cProfile.Profile()
-    result = loading(glc, path, session, size, profile)
+    result = loading(glc, path, session, size, profile, threads)
     text = io.StringIO()
     stats = pstats.Stats(profile, stream=text)
     stats.sort_stats("tottime").print_stats(top)

@@ -48,7 +48,6 @@ from progressive.loaders.types import (
     FileInfo,
     Grid,
     available_cores,
-    channel8,
     nonfinite_count,
     nonfinite_rows,
     quiet_nans,
@@ -72,9 +71,6 @@ KEPT_BYTES = 1 << 26
 """Most bytes of records the probe of a loader's first LAZ keeps for its first batches
 (KeptRecords); what lies past them is decoded again."""
 BOUNDS_SAMPLE = 4_096                   # first points checked against the header bounds
-PARSE_BLOCK_BYTES = 1 << 21
-"""Records parsed at a time: each attribute is a strided pass over the records, and over
-a block that stays in the CPU's cache the passes after the first cost little."""
 STANDARD = (
     "rgb", "intensity", "classification", "elevation", "return_number",
     "number_of_returns", "gps_time", "point_source_id", "user_data", "scan_angle",
@@ -295,40 +291,34 @@ class LasSource:
 
     def parse(self, chunk: np.ndarray | Span, start: int, origin: np.ndarray, names: tuple[str, ...]) -> Batch:
         """A Batch of the named attributes; positions are computed in float64 as laspy
-        scales them, so that float32 rounding happens only once."""
+        scales them, so that float32 rounding happens only once. The whole batch in
+        a few large numpy calls: each releases the GIL, and each return to Python waits
+        for it while another thread (the frame loop's) holds it."""
         if isinstance(chunk, Span):
             chunk = read_span(self.info.path, self.records, chunk, self.info.points)
         n = len(chunk)
-        positions = np.empty((n, 3), dtype=np.float32)
-        cells = np.empty((n, 3), dtype=np.int32)
-        lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
-        attributes: dict[str, np.ndarray] = {}
-        step = max(1, PARSE_BLOCK_BYTES // chunk.dtype.itemsize)
-        coords = np.empty(min(n, step))
+        raw = chunk.view(np.uint8).reshape(n, chunk.dtype.itemsize)
+        cells = np.ascontiguousarray(raw[:, :12].view("<i4"))      # X, Y, Z lead every point format
         scales, offsets = self.records.scales, self.records.offsets
+        positions = np.empty((n, 3), np.float32)
+        scaled = np.empty(n)
+        least, most = np.zeros(3, np.int64), np.zeros(3, np.int64)
         with np.errstate(over="ignore", invalid="ignore"):     # overflow is counted, not warned
-            for at in range(0, n, step):
-                block = chunk[at:at + step]
-                rows = slice(at, at + len(block))
-                scaled = coords[:len(block)]
-                for axis in range(3):
-                    # as Records.coordinates (laspy's rule), into one buffer, the last
-                    # step written straight to float32 (rounded once, as before)
-                    cells[rows, axis] = block["XYZ"[axis]]
-                    np.multiply(cells[rows, axis], scales[axis], out=scaled)
-                    scaled += offsets[axis]
-                    lo[axis], hi[axis] = np.minimum(lo[axis], scaled.min()), np.maximum(hi[axis], scaled.max())
-                    np.subtract(scaled, origin[axis], out=positions[rows, axis], casting="same_kind")
-                record = laspy.PackedPointRecord(block, self.records.point_format)
-                for name in names:
-                    if name != "elevation":
-                        values = self._values(record, name)
-                        if name not in attributes:
-                            attributes[name] = np.empty((n, *values.shape[1:]), values.dtype)
-                        attributes[name][rows] = values
+            for axis in range(3):       # a column at a time: numpy's loops over rows of 3 are slow
+                column = cells[:, axis]
+                np.multiply(column, scales[axis], out=scaled)  # as Records.coordinates (laspy's rule)
+                scaled += offsets[axis]
+                np.subtract(scaled, origin[axis], out=positions[:, axis], casting="same_kind")
+                if n:
+                    least[axis], most[axis] = column.min(), column.max()
+            # scaling is monotonic: the ends of the integers are the ends of the coordinates
+            ends = np.float64([least, most]) * scales + offsets if n else np.float64([[np.inf] * 3, [-np.inf] * 3])
+            lo, hi = ends.min(axis=0), ends.max(axis=0)
             # Rounding is monotonic: where the least and greatest coordinates of each axis
             # are finite as float32 positions, every position is (no pass over them).
             ends_finite = np.isfinite(np.float32([lo - origin, hi - origin])).all()
+        record = laspy.PackedPointRecord(chunk, self.records.point_format)
+        attributes = {name: self._values(record, raw, name) for name in names if name != "elevation"}
         counts = {name: n for name, v in attributes.items() if (n := nonfinite_count(v))}
         for name in counts:
             quiet_nans(attributes[name])
@@ -337,25 +327,23 @@ class LasSource:
                      nonfinite_positions=0 if ends_finite else nonfinite_rows(positions), nonfinite_values=counts,
                      grid=grid)
 
-    def _values(self, chunk: laspy.PackedPointRecord, name: str) -> np.ndarray:
+    def _values(self, chunk: laspy.PackedPointRecord, raw: np.ndarray, name: str) -> np.ndarray:
+        """One attribute's own array (a copy, not a view of the records). `raw`: the
+        records as (n, record length) bytes."""
         if name == "rgb":
             # The depth is decided once per file (FileInfo.rgb_16bit); 8-bit files clip.
-            # A 16-bit channel's value >> 8 is its high byte: copied from the records as is.
-            rgb = np.empty((len(chunk), 3), dtype=np.uint8)
-            raw = chunk.array.view(np.uint8).reshape(len(chunk), -1) if self.info.rgb_16bit else None
-            for i, dim in enumerate(("red", "green", "blue")):
-                if raw is None:
-                    rgb[:, i] = channel8(chunk[dim], False)
-                else:
-                    rgb[:, i] = raw[:, chunk.array.dtype.fields[dim][1] + 1]
-            return rgb
+            # Red, green and blue are consecutive 16-bit fields in every point format.
+            red = chunk.array.dtype.fields["red"][1]
+            if self.info.rgb_16bit:     # a 16-bit channel's value >> 8 is its high byte
+                return np.ascontiguousarray(raw[:, red + 1:red + 6:2])
+            return np.minimum(raw[:, red:red + 6].view("<u2"), RGB8_MAX).astype(np.uint8)
         if name == "scan_angle":
             if self.info.point_format < 6:
                 return np.asarray(chunk["scan_angle_rank"], dtype=np.float32)
             return (np.asarray(chunk["scan_angle"], dtype=np.float64) * SCAN_ANGLE_STEP).astype(np.float32)
         column = self.columns[name]
         values = np.asarray(chunk[column.dimension])
-        return values if column.index is None else values[:, column.index]     # a view: parse copies it once
+        return np.ascontiguousarray(values if column.index is None else values[:, column.index])
 
 
 def layers(names: tuple[str, ...]) -> laspy.DecompressionSelection:

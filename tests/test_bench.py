@@ -3,6 +3,7 @@ well-formed tables, JSON and PNG plots (not a timed test)."""
 
 from __future__ import annotations
 
+import itertools
 import json
 
 import numpy as np
@@ -97,24 +98,24 @@ def test_convert_bench_runs(tmp_path):
 
 
 def test_mainthread_bench_runs(tmp_path):
-    """bench.mainthread times the frames of loading sessions beside the loader alone, and
-    profiles one of each."""
+    """bench.mainthread times the frames of loading sessions beside the loader alone, a
+    row for each count of parser threads, and profiles one session of each."""
     from bench import mainthread
 
     out = tmp_path / "out"
     assert mainthread.main(["--points", "30000", "--repeats", "1", "--size", "96x64", "--label", "test",
-                            "--cache", str(tmp_path / "cache"), "--out", str(out), "--profile", "5"]) == 0
+                            "--cache", str(tmp_path / "cache"), "--out", str(out), "--profile", "5",
+                            "--parser-threads", "1", "2"]) == 0
     rows = json.loads((out / "mainthread.json").read_text())["raw"]["rows"]
-    assert [(r["format"], r["session"]) for r in rows] == [(f, s) for f in ("LAS", "LAZ")
-                                                           for s in ("shown", "viewer, others later")]
+    assert [(r["format"], r["parser_threads"], r["session"]) for r in rows] == [
+        (f, t, s) for f in ("LAS", "LAZ") for t in (1, 2) for s in ("shown", "viewer, others later")]
     for r in rows:
         assert r["loaded_s"] >= r["frames_wall_s"] > 0 and r["frames"] >= 1 and r["loader_alone_s"] > 0
         assert 0 < r["frames_cpu_s"] <= r["frames_wall_s"] * 1.05
-    for fmt in ("LAS", "LAZ"):
-        for session in ("shown", "viewer"):
-            head, *rest = (out / f"profile_{fmt}_{session}.txt").read_text().splitlines()
-            assert head.startswith(f"autzen_trim_x30000.{fmt.lower()}, session {session}") and "(profiled: " in head
-            assert any("function calls" in line for line in rest) and any("(frame)" in line for line in rest)
+    for fmt, threads, session in itertools.product(("LAS", "LAZ"), (1, 2), ("shown", "viewer")):
+        head, *rest = (out / f"profile_{fmt}_{threads}_{session}.txt").read_text().splitlines()
+        assert head.startswith(f"autzen_trim_x30000.{fmt.lower()}, session {session}") and "(profiled: " in head
+        assert any("function calls" in line for line in rest) and any("(frame)" in line for line in rest)
 
 
 def test_plan_bench_runs(tmp_path):
