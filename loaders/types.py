@@ -28,11 +28,12 @@ def available_cores() -> int:
         return os.cpu_count() or 1
 
 
-PARSER_THREADS = 4
-"""The most parser threads a loader starts by default: parsing holds the GIL between
-its numpy calls, so more contend for it. On the H200 machine's 16 cores the loader parsed
-a LAS at 52.6 M points/s with 4 and 38.2 with 16, the fast format at 286 and 206, a LAZ
-decoded by processes at 15.9 and 15.7 (bench/results/nvidia-h200/load_20M/load.md)."""
+PARSER_THREADS = 8
+"""The most parser threads a loader starts by default: each return from a numpy call to
+Python waits for the GIL, so many threads contend for it. On the H100 machine's 16 cores,
+100 M points of LAS reached the GPU after 1.55 s in `render`'s session with 8, 1.83 s
+with 4 and 1.89 s with 16 (the window's 1.97, 2.79, 2.00 s); a LAZ, bound by its decoder
+processes, after 5.6-5.9 s with each (bench/results/nvidia-h100/mainthread_56f3cf2/)."""
 
 
 def default_parser_threads() -> int:
