@@ -7,7 +7,7 @@ loading; far below: it waits (for the GIL or the loader).
                                [--parser-threads 4 16]
 
 --parser-threads: a row for each count of the loader's parser threads, in the sessions
-and the loader alone (default: the loader's own default, one a core up to 4).
+and the loader alone (default: the loader's own, one a core up to PARSER_THREADS).
 
 --profile also runs one session of each kind under cProfile, enabled around its frames,
 and writes the functions that took longest, by their own time and with what they call,

@@ -319,7 +319,7 @@ class LasSource:
             ends_finite = np.isfinite(np.float32([lo - origin, hi - origin])).all()
         record = laspy.PackedPointRecord(chunk, self.records.point_format)
         attributes = {name: self._values(record, raw, name) for name in names if name != "elevation"}
-        counts = {name: n for name, v in attributes.items() if (n := nonfinite_count(v))}
+        counts = {name: bad for name, v in attributes.items() if (bad := nonfinite_count(v))}
         for name in counts:
             quiet_nans(attributes[name])
         grid = Grid(cells, tuple(map(float, self.records.scales)), tuple(map(float, self.records.offsets)))
