@@ -1,5 +1,6 @@
 """Reading LAS/LAZ and the fast format into batches for the GPU."""
 
+from progressive.loaders import lean_imports  # noqa: F401  (first: laspy imported lean before any loader imports it)
 from progressive.loaders.describe import describe, format_text
 from progressive.loaders.fastformat import write_fast, write_fast_stream
 from progressive.loaders.pipeline import CloudLoader, open_cloud
