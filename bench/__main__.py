@@ -146,6 +146,8 @@ def main(argv=None) -> int:
     ap.add_argument("--raster-layouts", nargs="+", choices=[layout.label for layout in raster.LAYOUTS],
                     help="store orders of the raster section (default: all)")
     ap.add_argument("--progressive-points", type=int, nargs="+", help="override the progressive section's counts")
+    ap.add_argument("--load-threads", type=int, nargs="+",
+                    help="override the load section's parser threads (the default and every core are always run)")
     ap.add_argument("--cache", type=Path, default=data.CACHE, help="where generated files are kept")
     ap.add_argument("--readme", action="store_true", help="insert headline.md into README.md")
     args = ap.parse_args(argv)
@@ -154,6 +156,8 @@ def main(argv=None) -> int:
         scale = dataclasses.replace(scale, raster_points=tuple(args.raster_points))
     if args.progressive_points:
         scale = dataclasses.replace(scale, progressive_points=tuple(args.progressive_points))
+    if args.load_threads:
+        scale = dataclasses.replace(scale, threads=tuple(args.load_threads))
     glc = create_context()
     out = args.out or (args.out_root or RESULTS) / RunInfo.from_caps(glc.caps, "").machine
     run = RunInfo.from_caps(glc.caps, scale.mode + (f", ≤ {args.max_points:,} points" if args.max_points else ""))

@@ -196,7 +196,9 @@ def build(folder: Path) -> str:
     if head is None:
         return ""
     run = head["run"]
-    lines = [(f"Measured by `python -m bench` ({run['mode']}) on {run['device']}, {run['driver']}, {run['date']}; "
+    dates = sorted({t["run"]["date"] for t in tables.values() if t})
+    when = dates[0] if len(dates) == 1 else f"{dates[0][:10]} to {dates[-1][:10]} (each table names its date)"
+    lines = [(f"Measured by `python -m bench` ({run['mode']}) on {run['device']}, {run['driver']}, {when}; "
              f"tables in `bench/results/{folder.name}/`."), ""]
     if tables["raster"]:
         lines += raster_lines(tables["raster"])

@@ -25,6 +25,7 @@ import numpy as np
 import progressive
 from bench.data import drop_cache
 from bench.report import Table
+from bench.startup import frame_until_first_image
 from progressive.budget import BudgetParams
 from progressive.context import GLContext
 from progressive.loaders import CloudLoader, open_cloud
@@ -35,6 +36,8 @@ from progressive.loaders.types import PARSER_THREADS, available_cores, default_p
 BLOCK = 8 << 20
 LAZRS_PIECE = 10_000_000
 """Points per `decompress_many` of the lazrs ceiling: 200 chunks, every core busy."""
+ONE_CORE_POINTS = 2_000_000
+"""Points lazrs decodes on one core for its one-core rate (about a second on the GPU machines' cores)."""
 COLD_MIN_SLOWDOWN = 1.2
 """A cold raw read must be at least this much slower than a warm one to count as cold."""
 
@@ -73,6 +76,21 @@ def lazrs_decode(path: Path) -> None:
             n = min(left, LAZRS_PIECE)
             decoder.decompress_many(view[:n * size])
             left -= n
+
+
+def lazrs_one_core(path: Path) -> float:
+    """Points a second that lazrs's sequential `LasZipDecompressor` decodes on one core,
+    over the first ONE_CORE_POINTS points: times the cores, the ceiling of any decoding
+    spread over them (perfect scaling)."""
+    with open(path, "rb") as f:
+        header = laspy.LasHeader.read_from(f)
+        f.seek(header.offset_to_point_data)
+        vlr = header.vlrs.get("LasZipVlr")[0].record_data
+        n = min(header.point_count, ONE_CORE_POINTS)
+        buffer = bytearray(n * header.point_format.size)
+        t = time.perf_counter()
+        lazrs.LasZipDecompressor(f, vlr).decompress_many(buffer)
+        return n / (time.perf_counter() - t)
 
 
 LAZ_DECODERS = (Decoders.THREADS, Decoders.PROCESSES)
@@ -178,7 +196,8 @@ def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats
     threads = tuple(sorted({*threads, default, cores}))
     load = Table("load", "Load: points/s and GB/s, against laspy, raw reads and lazrs alone", "", "", (
         "file", "format", "points", "MB", "cache", "parser threads", "LAZ decoders", "attributes", "s", "Mpoints/s", "GB/s",
-        "× laspy.read + convert", "share of raw read GB/s", "lazrs alone Mpoints/s", "share of lazrs alone"))
+        "× laspy.read + convert", "share of raw read GB/s", "lazrs alone Mpoints/s", "share of lazrs alone",
+        "lazrs one core Mpoints/s"))
     rows = []
     cold_forced = {}
     for case in cases:
@@ -191,6 +210,7 @@ def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats
             laspy_s = timed(functools.partial(laspy_user, baseline_path), baseline_path, cold, repeats) if baseline_path else None
             lazrs_s = timed(functools.partial(lazrs_decode, case.path), case.path, cold, repeats) \
                 if case.format == "LAZ" else None
+            one_core = lazrs_one_core(case.path) if case.format == "LAZ" and not cold else None
             if cold:
                 cold_forced[f"{case.label} {case.format}"] = raw_s
             pooled = case.format == "LAZ" and not is_copc(case.path)      # COPC nodes are decoded by loaders/copc.py
@@ -206,7 +226,8 @@ def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats
                        "gb_per_s": size_b / s / 1e9, "raw_seconds": raw_s, "laspy_seconds": laspy_s,
                        "laspy_file": baseline_path.name if baseline_path else None,
                        "vs_laspy": laspy_s / s if laspy_s else None, "share_of_raw": raw_s / s,
-                       "cores": cores, "lazrs_seconds": lazrs_s, "share_of_lazrs": lazrs_s / s if lazrs_s else None}
+                       "cores": cores, "lazrs_seconds": lazrs_s, "share_of_lazrs": lazrs_s / s if lazrs_s else None,
+                       "lazrs_one_core_points_per_s": one_core}
                 rows.append(row)
         key = f"{case.label} {case.format}"
         warm_raw = next(r["raw_seconds"] for r in rows if (r["file"], r["format"], r["cold"]) == (case.label, case.format, False))
@@ -219,7 +240,8 @@ def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats
                           r["attributes"], r["seconds"],
                           r["points_per_s"] / 1e6, r["gb_per_s"], r["vs_laspy"], f"{r['share_of_raw']:.2g}",
                           r["points"] / r["lazrs_seconds"] / 1e6 if r["lazrs_seconds"] else None,
-                          f"{r['share_of_lazrs']:.2g}" if r["share_of_lazrs"] else None))
+                          f"{r['share_of_lazrs']:.2g}" if r["share_of_lazrs"] else None,
+                          r["lazrs_one_core_points_per_s"] / 1e6 if r["lazrs_one_core_points_per_s"] else None))
     load.notes = [
         (f"Cores available to the process (`os.sched_getaffinity`): {cores}; the loader's default parser threads: "
          f"one a core, at most {PARSER_THREADS} ({default} rows). A LAZ is decoded on every core whatever the parser "
@@ -237,7 +259,9 @@ def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats
         "format laspy reads the LAS file of the same cloud. Share of raw read = raw read seconds (8 MiB blocks, "
         "Python `readinto`) / loader seconds (1.0 = as fast as reading the bytes). lazrs alone = "
         f"`lazrs.ParLasZipDecompressor.decompress_many` over every point in pieces of {LAZRS_PIECE:,} (LAZ only), "
-        "share of it = lazrs seconds / loader seconds: the decoding ceiling, without parsing."),
+        "share of it = lazrs seconds / loader seconds: the decoding ceiling, without parsing. lazrs one core = "
+        f"`lazrs.LasZipDecompressor` (sequential) over the first {ONE_CORE_POINTS:,} points, warm, once a file: "
+        f"times the {cores} cores, the most any decoding spread over them could reach (perfect scaling)."),
         "Cold = `posix_fadvise(POSIX_FADV_DONTNEED)` after `fsync` before each run; it counts as forced only where "
         f"the cold raw read was ≥ {COLD_MIN_SLOWDOWN}× slower than the warm one (slowdown per file: "
         + ", ".join(f"{k} {v:.2f}×" for k, v in cold_forced.items()) + "). Where not forced, the cold rows "
@@ -248,12 +272,23 @@ def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats
     return load, first_image_table(glc, cases, size, max_frames)
 
 
+def warm_programs(glc: GLContext, path: Path, size: tuple[int, int], session: str) -> None:
+    """A session of `session` opened on `path` and framed to its first image, untimed:
+    its programs, which depend on the session and the store's size, are then compiled
+    and in the program cache, so the timed runs measure a warm start (bench.startup's
+    "first run" rows measure the compile)."""
+    opts = progressive.SessionOptions(width=size[0], height=size[1], **SESSIONS[session])
+    with progressive.open([path], opts, glc=glc) as s:
+        frame_until_first_image(s, s.auto_camera(), f"{path.name} ({session})")
+
+
 def first_image_table(glc: GLContext, cases: list[LoadCase], size: tuple[int, int], max_frames: int,
                       repeats: int = 1, parser_threads: tuple[int, ...] = ()) -> Table:
     """first_image for every case: cold and warm with the session `render` opens, warm
     with the window's (not for the fast format, which holds one attribute), and warm
     with `render`'s at each of `parser_threads` (the others at the default, one a core);
-    each the median of `repeats` runs, the sessions taking turns within each repeat."""
+    each the median of `repeats` runs, the sessions taking turns within each repeat,
+    after each session of the case opened once untimed (warm_programs)."""
     first = Table("first_image", "Time to first image and to fully loaded, through progressive.open()", "", "", (
         "file", "format", "points", "session", "parser threads", "cache", "first image s", "all points on GPU s",
         "converged s", "every attribute s", "frames", "first image / fully loaded"))
@@ -263,6 +298,8 @@ def first_image_table(glc: GLContext, cases: list[LoadCase], size: tuple[int, in
         runs = [("shown", True, None), ("shown", False, None)]
         runs += [(session, False, None) for session in SESSIONS if session != "shown"] if case.format != "fast" else []
         runs += [("shown", False, t) for t in parser_threads if t != default]
+        for session in dict.fromkeys(session for session, _, _ in runs):
+            warm_programs(glc, case.path, size, session)
         taken: dict[tuple, list[dict]] = {run: [] for run in runs}
         for _ in range(repeats):
             for session, cold, threads in runs:
@@ -288,7 +325,9 @@ def first_image_table(glc: GLContext, cases: list[LoadCase], size: tuple[int, in
                    f"the loader's (SessionOptions.parser_threads; {default} by default: one a core, at most "
                    f"{PARSER_THREADS}). "
                    f"Each row the median of {repeats} run{'s' if repeats > 1 else ''}"
-                   f"{', the sessions taking turns' if repeats > 1 else ''}.")]
+                   f"{', the sessions taking turns' if repeats > 1 else ''}, after one untimed session of each kind "
+                   "a file, to its first image: the programs (which depend on the session and the store's size) "
+                   "compiled and in the program cache, as after a first run (`bench.startup` times the first run).")]
     return first
 
 

@@ -31,6 +31,8 @@ def test_bench_writes_every_section(tmp_path):
         for image in payload["images"]:
             assert (out / image).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert json.loads((out / "accuracy.json").read_text())["images"] == ["accuracy.png"]
+    warm_laz = [r for r in json.loads((out / "load.json").read_text())["raw"]["rows"] if r["format"] == "LAZ" and not r["cold"]]
+    assert warm_laz and all(r["lazrs_one_core_points_per_s"] > 0 for r in warm_laz)
     text = (out / "headline.md").read_text()
     assert "GL_POINTS" in text and "laspy" in text and "first image" in text
     assert "Progressive, 30,000 points, adaptive" in text       # a small store's rows have gathers only
