@@ -71,15 +71,30 @@ class FastSource:
     origin: np.ndarray
     warnings: tuple[str, ...] = ()
 
-    def batches(self, batch_points: int, start: int) -> Iterator[Batch]:
-        """Batches straight from disk, still to go through parse(); positions view the
-        records' xyz."""
+    def spans(self, batch_points: int) -> Iterator[tuple[int, int]]:
+        """(first, count) of the file's batches of at most batch_points records."""
+        for first in range(0, self.info.points, batch_points):
+            yield first, min(batch_points, self.info.points - first)
+
+    def read(self, first: int, count: int, start: int) -> Batch:
+        """Records first .. first + count straight from disk in one read, as the batch of
+        cloud index `start`, still to go through parse(); positions view the records' xyz.
+        Each parser thread reads its own batches (the GIL released through the read), so
+        the reads run on every parser thread at once."""
+        records = np.empty((count, 4), dtype=np.uint32)
         with open_binary(self.info.path) as stream:
-            stream.seek(HEADER_BYTES)
-            for first in range(0, self.info.points, batch_points):
-                records = np.empty((min(batch_points, self.info.points - first), 4), dtype=np.uint32)
-                _read_exactly(self.info.path, stream, memoryview(records).cast("B"))
-                yield Batch(start=start + first, positions=records[:, :3].view(np.float32), records=records)
+            stream.seek(HEADER_BYTES + first * RECORD_BYTES)
+            _read_exactly(self.info.path, stream, memoryview(records).cast("B"))
+        return Batch(start=start, positions=records[:, :3].view(np.float32), records=records)
+
+    def read_parsed(self, first: int, count: int, start: int) -> Batch:
+        """read() then parse(): a parser thread's task."""
+        return self.parse(self.read(first, count, start))
+
+    def batches(self, batch_points: int, start: int) -> Iterator[Batch]:
+        """The file's batches in order, read one after another (see read)."""
+        for first, count in self.spans(batch_points):
+            yield self.read(first, count, start + first)
 
     def record_bounds(self, limit: int | None = None) -> np.ndarray | None:
         """(2, 3) float64 min and max of origin + position over the first `limit` records

@@ -176,12 +176,12 @@ def _common_attributes(sources: tuple[LasSource | E57Source | PlySource, ...], o
 def _tasks(source: Source, start: int, batch_points: int, origin: np.ndarray,
            names: tuple[str, ...], partial: bool, decoders: DecoderPool | None = None) -> Iterator[Task]:
     """Per batch, the work a parser thread does: parsing LAS chunks (of a LAZ, only the
-    layers `names` need were decoded, by `decoders` where they take the file), checking
-    fast-format records for non-finite values."""
+    layers `names` need were decoded, by `decoders` where they take the file),
+    reading fast-format records and checking them for non-finite values."""
     path = source.info.path
     if isinstance(source, FastSource):
-        for batch in source.batches(batch_points, start):
-            yield path, functools.partial(source.parse, batch)
+        for first, count in source.spans(batch_points):
+            yield path, functools.partial(source.read_parsed, first, count, start + first)
         return
     parse = source.parse
     if isinstance(source, CopcSource):      # its nodes are decoded by loaders/copc.py

@@ -17,6 +17,7 @@ from conftest import SAMPLE, shared_file
 from progressive.errors import InputError
 from progressive.loaders import CloudLoader
 from progressive.loaders import las as las_module
+from progressive.loaders.fastformat import HEADER_BYTES
 from progressive.loaders.las import open_las
 from progressive.loaders.laz import decode_chunks
 
@@ -192,6 +193,18 @@ def test_las_spans_are_read_by_the_parser_threads():
     expected = records_of(SAMPLE)
     batch = source.parse(spans[1], 30_000, np.zeros(3), ("intensity",))
     np.testing.assert_array_equal(batch.attributes["intensity"], expected["intensity"][30_000:60_000])
+
+
+def test_fast_records_are_read_by_the_parser_threads(fast_sample):
+    """A fast-format file's batches are read by the parser threads, each its own: at any
+    thread count and batch size (a prime, and one past the file) they are the file's
+    records exactly, each batch from its own offset."""
+    expected = np.fromfile(fast_sample, dtype=np.uint32, offset=HEADER_BYTES).reshape(-1, 4)
+    for threads, batch in ((1, 7_919), (3, 7_919), (4, 30_000), (2, len(expected) + 1)):
+        loader, batches = load([fast_sample], parser_threads=threads, batch_points=batch)
+        assert_covers(batches, len(expected), batch)
+        np.testing.assert_array_equal(np.concatenate([b.records for b in batches]), expected, err_msg=f"{threads}, {batch}")
+        np.testing.assert_array_equal(joined(batches), expected[:, :3].view(np.float32))
 
 
 LAYERED = ("lone-star.copc.laz", "lion_takanawa.copc.laz", "las_with_several_extra_byte_bloc.laz", "fullwave.laz")
