@@ -14,6 +14,8 @@ from progressive.errors import GLCapabilityError
 from progressive.glext import (
     GL_GPU_MEMORY_INFO_CURRENT_AVAILABLE_VIDMEM_NVX,
     GL_GPU_MEMORY_INFO_TOTAL_AVAILABLE_MEMORY_NVX,
+    LIBEGL,
+    LIBGL,
     GLFunctions,
     ProgramFunctions,
     egl_proc_loader,
@@ -118,7 +120,7 @@ def create_context(backend: Backend = Backend.HEADLESS, *, size: tuple[int, int]
     window = None
     if backend is Backend.HEADLESS:
         try:
-            ctx = moderngl.create_standalone_context(require=REQUIRED_VERSION, backend="egl")
+            ctx = moderngl.create_standalone_context(require=REQUIRED_VERSION, backend="egl", libgl=LIBGL, libegl=LIBEGL)
         except Exception as exc:  # glcontext raises plain Exceptions with driver text
             raise GLCapabilityError(f"no headless OpenGL 4.5 context through EGL: {exc}") from None
         loader = egl_proc_loader()

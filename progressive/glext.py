@@ -55,8 +55,16 @@ _iptr = ctypes.c_ssize_t
 _vp = ctypes.c_void_p
 
 
+LIBEGL = "libEGL.so.1"
+LIBGL = "libGL.so.1"
+"""The sonames the headless context opens (dlopen finds them as the dynamic linker
+would): named here, not found by ctypes.util.find_library, which runs ldconfig and,
+where the libraries lie outside its cache, gcc and ld (47 ms of a profiled start on
+the H100 machine, bench/results/nvidia-h100/startup_libs/)."""
+
+
 def egl_proc_loader() -> ProcLoader:
-    egl = ctypes.CDLL("libEGL.so.1")
+    egl = ctypes.CDLL(LIBEGL)
     egl.eglGetProcAddress.restype = ctypes.c_void_p
     egl.eglGetProcAddress.argtypes = [ctypes.c_char_p]
     return lambda name: egl.eglGetProcAddress(name.encode()) or 0
