@@ -9,14 +9,16 @@ through `progressive.open()`."""
 from __future__ import annotations
 
 import argparse
+import contextlib
 import functools
 import itertools
 import statistics
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import BinaryIO
 
 import laspy
 import lazrs
@@ -60,13 +62,20 @@ def raw_read(path: Path) -> None:
             pass
 
 
-def lazrs_decode(path: Path) -> None:
-    """lazrs's `ParLasZipDecompressor` alone over every point (all cores, pieces of
-    LAZRS_PIECE into one buffer): the LAZ decoding ceiling."""
+@contextlib.contextmanager
+def _at_points(path: Path) -> Iterator[tuple[BinaryIO, laspy.LasHeader, bytes]]:
+    """A LAZ file open at its first point, with its header and LASzip VLR data: where a
+    lazrs decompressor starts."""
     with open(path, "rb") as f:
         header = laspy.LasHeader.read_from(f)
         f.seek(header.offset_to_point_data)
-        vlr = header.vlrs.get("LasZipVlr")[0].record_data
+        yield f, header, header.vlrs.get("LasZipVlr")[0].record_data
+
+
+def lazrs_decode(path: Path) -> None:
+    """lazrs's `ParLasZipDecompressor` alone over every point (all cores, pieces of
+    LAZRS_PIECE into one buffer): the LAZ decoding ceiling."""
+    with _at_points(path) as (f, header, vlr):
         decoder = lazrs.ParLasZipDecompressor(f, vlr)
         size = header.point_format.size
         buffer = bytearray(min(header.point_count, LAZRS_PIECE) * size)
@@ -82,10 +91,7 @@ def lazrs_one_core(path: Path) -> float:
     """Points a second that lazrs's sequential `LasZipDecompressor` decodes on one core,
     over the first ONE_CORE_POINTS points: times the cores, the ceiling of any decoding
     spread over them (perfect scaling)."""
-    with open(path, "rb") as f:
-        header = laspy.LasHeader.read_from(f)
-        f.seek(header.offset_to_point_data)
-        vlr = header.vlrs.get("LasZipVlr")[0].record_data
+    with _at_points(path) as (f, header, vlr):
         n = min(header.point_count, ONE_CORE_POINTS)
         buffer = bytearray(n * header.point_format.size)
         t = time.perf_counter()
