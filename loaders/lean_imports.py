@@ -3,7 +3,7 @@ imports it.
 
 laspy imports both at its own import: `requests` for its CopcReader over HTTP alone,
 `pyproj` in its GeoTIFF module for a type annotation (every laspy function that uses
-pyproj imports it where it runs). Together they cost 0.2-0.3 s of every command's start
+pyproj imports it where it runs). Together they cost 0.1-0.3 s of every command's start
 on the H100 machine (the CLI imported in 0.63-0.83 s with them, 0.49-0.56 s without:
 bench/results/nvidia-h100/startup_import/).
 progressive reads URLs through loaders/http.py, never through laspy, and imports pyproj
