@@ -158,36 +158,49 @@ class CloudInfo:
 
 
 @dataclass(frozen=True)
-class CellRuns:
-    """The least and most cells of a batch's points in each run of `points` consecutive
-    cloud indices its rows touch (run r: indices r·points ..), from run `first` on: what
-    the word store frames its batches by, found on the thread that parsed the batch
-    (cell_runs)."""
+class Runs:
+    """The least and most coordinates of a batch's points in each run of `points`
+    consecutive cloud indices its rows touch (run r: indices r·points ..), from run
+    `first` on: what the word store frames its batches by, found on the thread that
+    parsed the batch. A LAS batch's are of its integer cells (cell_runs, int64), a
+    fast-format batch's of its float32 positions (progressive/batches.py boxes_of:
+    +inf/-inf where a run holds no finite point). `start` and `count`: the rows they are
+    of, so that a batch whose rows moved is not framed by another's runs."""
 
     points: int
     first: int
-    least: np.ndarray                   # (k, 3) int64
+    least: np.ndarray                   # (k, 3)
     most: np.ndarray
+    start: int
+    count: int
 
-    def rows(self, start: int, lo: int, hi: int, count: int) -> CellRuns | None:
-        """Those of rows lo..hi of the batch (`count` rows from cloud index `start`): the
-        runs they touch, where each still holds the rows it held (the rows end at the
-        batch's ends or at runs' ends); else None (a run cut short needs its rows again)."""
-        p = self.points
-        if hi <= lo or not (lo == 0 or (start + lo) % p == 0) or not (hi == count or (start + hi) % p == 0):
+    def of(self, start: int, count: int, points: int) -> bool:
+        """Whether these are the runs of `count` rows from cloud index `start`, by runs of `points`."""
+        return (self.start, self.count, self.points) == (start, count, points)
+
+    def rows(self, lo: int, hi: int) -> Runs | None:
+        """Those of rows lo..hi of the batch: the runs they touch, where each still holds
+        the rows it held (the rows end at the batch's ends or at runs' ends); else None
+        (a run cut short needs its rows again)."""
+        p, start = self.points, self.start
+        if hi <= lo or not (lo == 0 or (start + lo) % p == 0) or not (hi == self.count or (start + hi) % p == 0):
             return None
         a, b = (start + lo) // p - self.first, (start + hi - 1) // p - self.first + 1
-        return CellRuns(p, self.first + a, self.least[a:b], self.most[a:b])
+        return Runs(p, self.first + a, self.least[a:b], self.most[a:b], start + lo, hi - lo)
 
 
-def cell_runs(cells: np.ndarray, start: int, points: int) -> CellRuns:
-    """The CellRuns of a batch's (n, 3) cells whose first has cloud index `start`."""
-    n = cells.shape[0]
-    first = start // points
-    cuts = np.arange((first + 1) * points, start + n, points) - start
-    edges = np.concatenate([[0], cuts]).astype(np.int64)
-    return CellRuns(points, first, np.minimum.reduceat(cells, edges, axis=0).astype(np.int64),
-                    np.maximum.reduceat(cells, edges, axis=0).astype(np.int64))
+def run_edges(start: int, n: int, points: int) -> np.ndarray:
+    """Where each run of `points` cloud indices begins among n rows from cloud index
+    `start` (the first at row 0): what reduceat cuts a batch's rows at."""
+    cuts = np.arange((start // points + 1) * points, start + n, points) - start
+    return np.concatenate([[0], cuts]).astype(np.int64)
+
+
+def cell_runs(cells: np.ndarray, start: int, points: int) -> Runs:
+    """The Runs of a batch's (n, 3) cells whose first has cloud index `start`."""
+    edges = run_edges(start, cells.shape[0], points)
+    return Runs(points, start // points, np.minimum.reduceat(cells, edges, axis=0).astype(np.int64),
+                np.maximum.reduceat(cells, edges, axis=0).astype(np.int64), start, cells.shape[0])
 
 
 @dataclass(frozen=True)
@@ -198,7 +211,7 @@ class Grid:
     cells: np.ndarray                   # (n, 3) int32, the records' X, Y, Z
     scale: tuple[float, float, float]
     offset: tuple[float, float, float]
-    runs: CellRuns | None = None
+    runs: Runs | None = None
     """Their least and most by runs of cloud indices, where the loader was asked for
     them (CloudLoader's on_parsed)."""
 
@@ -230,6 +243,10 @@ class Batch:
     """LAS only: the points' own integer coordinates, from which `positions` were
     scaled; whoever changes `positions` drops it (the word store keeps these integers,
     so a LAS position on the GPU is lossless)."""
+    boxes: Runs | None = None
+    """Fast format: the least and most of `positions` by runs of cloud indices, where the
+    loader was asked for them (CloudLoader's on_parsed); whoever changes `positions`
+    drops them."""
 
     @property
     def count(self) -> int:
@@ -242,11 +259,11 @@ class Batch:
             return self
         grid = None if self.grid is None else replace(
             self.grid, cells=self.grid.cells[lo:hi],
-            runs=None if self.grid.runs is None else self.grid.runs.rows(self.start, lo, hi, self.count))
+            runs=None if self.grid.runs is None else self.grid.runs.rows(lo, hi))
         return replace(self, start=self.start + lo, positions=self.positions[lo:hi],
                                    attributes={k: v[lo:hi] for k, v in self.attributes.items()},
                                    records=None if self.records is None else self.records[lo:hi], bounds=None,
-                                   grid=grid)
+                                   grid=grid, boxes=None if self.boxes is None else self.boxes.rows(lo, hi))
 
 
     def reordered(self, lo: int, hi: int, order: np.ndarray) -> Batch:
@@ -255,7 +272,7 @@ class Batch:
         rows = np.concatenate([np.arange(lo), lo + np.asarray(order, dtype=np.int64), np.arange(hi, self.count)])
         grid = None if self.grid is None else replace(self.grid, cells=self.grid.cells[rows], runs=None)
         return replace(self, positions=self.positions[rows], attributes={k: v[rows] for k, v in self.attributes.items()},
-                       records=None if self.records is None else self.records[rows], grid=grid)
+                       records=None if self.records is None else self.records[rows], grid=grid, boxes=None)
 
 
 def channel8(values: np.ndarray, sixteen_bit: bool) -> np.ndarray:

@@ -10,6 +10,7 @@ import enum
 import numpy as np
 
 from progressive.camera import ViewUniforms
+from progressive.loaders.types import Runs, run_edges
 from progressive.permutation import BATCH_POINTS
 
 BOX_FLOATS = 8
@@ -100,8 +101,7 @@ def boxes_of(positions: np.ndarray, start: int, finite: bool | None = None) -> t
     first = start // BATCH_POINTS
     if n == 0:
         return first, empty_boxes(0)
-    cuts = np.arange((first + 1) * BATCH_POINTS, start + n, BATCH_POINTS) - start
-    edges = np.concatenate([[0], cuts]).astype(np.int64)
+    edges = run_edges(start, n, BATCH_POINTS)
     p = np.asarray(positions, dtype=np.float32)
     boxes = empty_boxes(edges.size)
     if all_finite(p) if finite is None else finite:     # the common case: no row test (ten times the boxes' cost)
@@ -116,6 +116,19 @@ def boxes_of(positions: np.ndarray, start: int, finite: bool | None = None) -> t
     nan = np.isnan(boxes[:, 0])
     boxes[nan] = empty_boxes(int(nan.sum()))
     return first, boxes
+
+
+def box_runs(positions: np.ndarray, start: int, finite: bool | None = None) -> Runs:
+    """boxes_of as the Runs a fast-format batch carries (found on its parser thread)."""
+    first, boxes = boxes_of(positions, start, finite)
+    return Runs(BATCH_POINTS, first, boxes[:, 0:3], boxes[:, 4:7], start, positions.shape[0])
+
+
+def boxes_from_runs(runs: Runs) -> np.ndarray:
+    """(k, BOX_FLOATS) boxes of box_runs' runs, as boxes_of gives them."""
+    boxes = empty_boxes(runs.least.shape[0])
+    boxes[:, 0:3], boxes[:, 4:7] = runs.least, runs.most
+    return boxes
 
 
 def all_finite(values: np.ndarray) -> bool:

@@ -269,22 +269,28 @@ def cell_boxes(least: np.ndarray, most: np.ndarray, scale, offset, origin: np.nd
     return boxes
 
 
-def with_cell_runs(batch: Batch) -> Batch:
-    """A LAS batch with the least and most integers of each store batch it touches
-    (Grid.runs), which cell_range then takes: the loader's parser threads find them
-    (CloudLoader's on_parsed), not the frame loop's thread."""
-    if batch.grid is None or batch.count == 0:
+def with_runs(batch: Batch) -> Batch:
+    """A loaded batch with the least and most coordinates of each store batch it
+    touches, which frame_parts then takes: a LAS batch's integers (Grid.runs), a
+    fast-format batch's float32 positions (Batch.boxes). The loader's parser threads
+    find them (CloudLoader's on_parsed), not the frame loop's thread."""
+    if batch.count == 0:
         return batch
-    return replace(batch, grid=replace(batch.grid, runs=cell_runs(batch.grid.cells, batch.start, BATCH_POINTS)))
+    if batch.grid is not None:
+        return replace(batch, grid=replace(batch.grid, runs=cell_runs(batch.grid.cells, batch.start, BATCH_POINTS)))
+    if batch.records is not None:
+        return replace(batch, boxes=batch_boxes.box_runs(batch.positions, batch.start, batch.nonfinite_positions == 0))
+    return batch
 
 
 def cell_range(grid, start: int) -> tuple[int, np.ndarray, np.ndarray]:
     """The first batch that file indices [start, start+n) of a LAS batch's Grid touch
     and the least and most (k, 3) int64 cells of the points in each batch touched
     (progressive/batches.py boxes_of, for its integers): its runs where the parser
-    found them for these batches, else from its cells."""
-    runs = grid.runs if grid.runs is not None and grid.runs.points == BATCH_POINTS else \
-        cell_runs(grid.cells, start, BATCH_POINTS)
+    found them for these rows, else from its cells."""
+    runs = grid.runs
+    if runs is None or not runs.of(start, grid.cells.shape[0], BATCH_POINTS):
+        runs = cell_runs(grid.cells, start, BATCH_POINTS)
     return runs.first, runs.least, runs.most
 
 

@@ -25,7 +25,7 @@ def pack_into(out: np.ndarray, batch: Batch, attr: AttributeInfo, words: np.ndar
     if batch.records is not None:
         src = batch.records[lo:hi]
         out[...] = src
-        hidden = nonfinite_records(src)[0]
+        hidden = nonfinite_records(src)[0] if batch.nonfinite_positions else 0     # the loader's count: none
         xyz = src[:, :3].view(np.float32)
         hides = bool(batch.nonfinite_values.get(attr.name))
     else:

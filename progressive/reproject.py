@@ -199,7 +199,7 @@ class ReprojectingLoader(BatchQueue):
         return replace(batch, start=batch.start + self._starts[k], positions=positions,
                        attributes={n: v for n, v in batch.attributes.items() if n in self._names},
                        bounds=(finite.min(axis=0), finite.max(axis=0)) if len(finite) else None,
-                       nonfinite_positions=nonfinite_rows(positions), grid=None)
+                       nonfinite_positions=nonfinite_rows(positions), grid=None, boxes=None)
 
     @property
     def total(self) -> int:

@@ -545,7 +545,8 @@ def frame_parts(parts: list[Batch], first: int, k: int, origin: np.ndarray) -> t
     one LAS grid whose batches span under 2^30 cells. (frames, boxes, least, shift) as
     PointStore.set_frames takes them (least, shift None: framed by the boxes). The boxes
     of one LAS grid's parts come from their least and most integers (encoding.cell_boxes),
-    without a pass over the positions."""
+    those of fast-format parts from the boxes their parser found (encoding.with_runs):
+    either way without a pass over the positions on this thread."""
     grids = {(p.grid.scale, p.grid.offset) if p.grid is not None else None for p in parts}
     if len(grids) == 1 and None not in grids:
         least, most = np.full((k, 3), np.iinfo(np.int64).max), np.full((k, 3), np.iinfo(np.int64).min)
@@ -561,7 +562,11 @@ def frame_parts(parts: list[Batch], first: int, k: int, origin: np.ndarray) -> t
             return encoding.integer_frames(least, shift, scale, offset, origin), boxes, least, shift
     boxes = batch_boxes.empty_boxes(k)
     for part in parts:
-        at, part_boxes = batch_boxes.boxes_of(_positions(part), part.start, _all_finite(part))
+        runs = part.boxes
+        if runs is not None and runs.of(part.start, part.count, BATCH_POINTS):
+            at, part_boxes = runs.first, batch_boxes.boxes_from_runs(runs)
+        else:
+            at, part_boxes = batch_boxes.boxes_of(_positions(part), part.start, _all_finite(part))
         batch_boxes.merge(boxes, at - first, part_boxes)
     return encoding.frames_from_boxes(boxes), boxes, None, None
 

@@ -209,12 +209,12 @@ class Session:
         self.loader = open_loader(paths, partial=options.partial, reproject=self.target,
                                   point_budget=None if stream else budget, http=options.http,
                                   view=None if stream else view, parser_threads=options.parser_threads,
-                                  on_parsed=encoding.with_cell_runs)
+                                  on_parsed=encoding.with_runs)
         if stream and options.stream is Streaming.AUTO and not streamable(self.loader.sources):
             self.loader.close()         # a hierarchy that cannot be used: read once, as with streaming off
             stream = False
             self.loader = open_loader(paths, partial=options.partial, point_budget=budget, http=options.http,
-                                      view=view, parser_threads=options.parser_threads, on_parsed=encoding.with_cell_runs)
+                                      view=view, parser_threads=options.parser_threads, on_parsed=encoding.with_runs)
         self.streamer: Streamer | None = None
         self._given_range = options.value_range
         self._notes: list[str] = []

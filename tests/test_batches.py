@@ -277,7 +277,7 @@ def test_boxes_from_integers_with_a_negative_scale_or_out_of_float32_reach():
 
 
 def test_cell_runs_of_rows_are_those_of_their_cells():
-    """CellRuns.rows keeps the runs of rows that end at the batch's ends or at runs'
+    """Runs.rows keeps the runs of rows that end at the batch's ends or at runs'
     ends, equal to cell_runs of those rows' cells; rows that cut a run short get None."""
     from progressive.loaders.types import cell_runs
 
@@ -291,17 +291,18 @@ def test_cell_runs_of_rows_are_those_of_their_cells():
         for hi in ends:
             if hi <= lo:
                 continue
-            part, expected = runs.rows(start, lo, hi, n), cell_runs(cells[lo:hi], start + lo, points)
+            part, expected = runs.rows(lo, hi), cell_runs(cells[lo:hi], start + lo, points)
             assert part is not None and part.first == expected.first
+            assert part.of(start + lo, hi - lo, points) and not part.of(start + lo + 1, hi - lo, points)
             np.testing.assert_array_equal(part.least, expected.least)
             np.testing.assert_array_equal(part.most, expected.most)
-    assert runs.rows(start, 1, n, n) is None and runs.rows(start, 0, n - 1, n) is None
-    assert runs.rows(start, ends[1], ends[2] + 1, n) is None
+    assert runs.rows(1, n) is None and runs.rows(0, n - 1) is None
+    assert runs.rows(ends[1], ends[2] + 1) is None
 
 
 def test_runs_found_by_the_parsers_frame_the_store_as_the_frame_loop_did(gl, monkeypatch):
     """A loader whose parser threads find each batch's runs (the session's on_parsed,
-    encoding.with_cell_runs) gives the word store the same frames, least integers,
+    encoding.with_runs) gives the word store the same frames, least integers,
     shifts, boxes and words as batches framed from their cells by the frame loop, which
     then finds none itself (the parts the store's batches are framed from keep them)."""
     from conftest import SAMPLE
@@ -312,7 +313,7 @@ def test_runs_found_by_the_parsers_frame_the_store_as_the_frame_loop_did(gl, mon
     from progressive.scene import Scene
 
     stores = []
-    for on_parsed in (None, encoding.with_cell_runs):
+    for on_parsed in (None, encoding.with_runs):
         with CloudLoader([SAMPLE], batch_points=37_001, on_parsed=on_parsed) as loader:
             info = loader.info
             loader.start()
@@ -330,5 +331,69 @@ def test_runs_found_by_the_parsers_frame_the_store_as_the_frame_loop_did(gl, mon
                        s.read_words()))
         scene.release()
     assert stores[1][4].all()
+    for before, after in zip(*stores):
+        np.testing.assert_array_equal(before, after)
+
+
+def test_box_runs_of_rows_are_those_of_their_positions():
+    """box_runs of a fast-format batch's positions, cut to rows, equal boxes_of of those
+    rows (a run of only non-finite points stays empty); a batch whose start moved keeps
+    no runs of another's rows."""
+    from dataclasses import replace
+
+    from progressive.loaders.types import Batch
+
+    rng = np.random.default_rng(11)
+    start, n = 3 * BATCH_POINTS - 777, 4 * BATCH_POINTS + 321
+    xyz = rng.normal(size=(n, 3)).astype(np.float32) * 100
+    xyz[:BATCH_POINTS // 2, 1] = np.nan            # the first run: every point hidden
+    xyz[2 * BATCH_POINTS, 0] = np.inf
+    runs = batches.box_runs(xyz, start)
+    assert not np.isfinite(runs.least[0]).any()
+    ends = [0, n, *(np.arange(-(-start // BATCH_POINTS) * BATCH_POINTS, start + n, BATCH_POINTS) - start).tolist()]
+    for lo in ends:
+        for hi in ends:
+            if hi <= lo:
+                continue
+            part = runs.rows(lo, hi)
+            first, expected = batches.boxes_of(xyz[lo:hi], start + lo)
+            assert part.first == first
+            np.testing.assert_array_equal(batches.boxes_from_runs(part), expected)
+    records = np.zeros((n, 4), dtype=np.uint32)
+    records[:, :3] = xyz.view(np.uint32)
+    batch = Batch(start=start, positions=records[:, :3].view(np.float32), records=records, boxes=runs)
+    moved = replace(batch, start=start + 5)
+    assert batch.rows(0, n).boxes.of(start, n, BATCH_POINTS) and not moved.boxes.of(moved.start, n, BATCH_POINTS)
+
+
+def test_fast_format_boxes_found_by_the_parsers_frame_the_store_as_the_frame_loop_did(gl, monkeypatch, fast_sample):
+    """A fast-format file loaded with its boxes found by the parser threads
+    (encoding.with_runs) gives the word store the same frames, boxes and words as batches
+    framed from their positions by the frame loop, which then reads no positions for
+    boxes (only the cut runs of the assembler's held parts, none here: the batches end
+    on store batches)."""
+    from progressive import encoding
+    from progressive.attributes import default_attribute
+    from progressive.loaders import CloudLoader
+    from progressive.scene import Scene
+
+    stores = []
+    for on_parsed in (None, encoding.with_runs):
+        with CloudLoader([fast_sample], batch_points=3 * BATCH_POINTS, on_parsed=on_parsed) as loader:
+            info = loader.info
+            loader.start()
+            loaded = sorted(loader, key=lambda b: b.start)
+        assert all((b.boxes is not None) == (on_parsed is not None) and b.grid is None for b in loaded)
+        scene = Scene(gl, info, default_attribute(info))
+        found: list = []
+        boxes_of = batches.boxes_of
+        monkeypatch.setattr(batches, "boxes_of", lambda *args, found=found: found.append(args) or boxes_of(*args))
+        for b in loaded:
+            scene.add_batch(b)
+        monkeypatch.undo()
+        assert (len(found) == 0) == (on_parsed is not None)
+        s = scene.store
+        stores.append((s.frames.copy(), s.boxes.copy(), s.read_words()))
+        scene.release()
     for before, after in zip(*stores):
         np.testing.assert_array_equal(before, after)
