@@ -386,8 +386,8 @@ def test_fast_format_boxes_found_by_the_parsers_frame_the_store_as_the_frame_loo
         assert all((b.boxes is not None) == (on_parsed is not None) and b.grid is None for b in loaded)
         scene = Scene(gl, info, default_attribute(info))
         found: list = []
-        boxes_of = batches.boxes_of
-        monkeypatch.setattr(batches, "boxes_of", lambda *args, found=found: found.append(args) or boxes_of(*args))
+        monkeypatch.setattr(batches, "boxes_of",
+                            lambda *args, found=found, boxes_of=batches.boxes_of: found.append(args) or boxes_of(*args))
         for b in loaded:
             scene.add_batch(b)
         monkeypatch.undo()
