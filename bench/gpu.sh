@@ -93,8 +93,8 @@ case "$chunk" in
                           --sources progressive/data/autzen_trim.las \
                           "${PROGRESSIVE_SHARED_DATA:-../shared/data}/las_with_several_extra_byte_bloc.laz" \
                           --out "$OUT/$(machine)/viewer_load" "${@:2}" ;;
-    # how busy the frame loop's thread is while 100M points of LAS and LAZ load (render's and the window's
-    # sessions, warm, 3 repeats), beside the loader alone
+    # how busy the frame loop's thread is while 100M points of LAS, LAZ and the fast format load (render's and
+    # the window's sessions, the fast format's one; warm, 3 repeats), beside the loader alone
     mainthread-100M)  "${PYTHON:-python3}" -m bench.mainthread --points 100000000 --repeats 3 \
                           --out "$OUT/$(machine)/mainthread" "${@:2}" ;;
     # the time to the first image of a 1 B-point LAZ (view, both caches warm): the store's 16 GB filled at

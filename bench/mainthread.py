@@ -4,10 +4,12 @@ alone over the same file. CPU close to the frames' wall time: the frame loop bou
 loading; far below: it waits (for the GIL or the loader).
 
     python -m bench.mainthread [--points 100000000] [--repeats 3] [--label TREE] [--out DIR] [--profile 40]
-                               [--parser-threads 4 16]
+                               [--parser-threads 4 16] [--formats LAS fast]
 
 --parser-threads: a row for each count of the loader's parser threads, in the sessions
 and the loader alone (default: the loader's own, one a core up to PARSER_THREADS).
+--formats: which of the tiled files (bench/data.py): LAS, LAZ and the fast format (its
+one attribute shown: `render`'s session only, as the window's keeps every attribute).
 
 --profile also runs one session of each kind under cProfile, enabled around its frames,
 and writes the functions that took longest, by their own time and with what they call,
@@ -70,6 +72,16 @@ def loading(glc: GLContext, path: Path, session: str, size: tuple[int, int],
             "frames_cpu_s": frames_cpu}
 
 
+FORMATS = ("LAS", "LAZ", "fast")
+
+
+def tiled_file(fmt: str, points: int, cache: Path) -> Path:
+    """The tiled file of one of FORMATS (the fast format converted from the LAS)."""
+    if fmt == "fast":
+        return data.scaled(points, cache).fast
+    return data.tiled(points, fmt == "LAZ", cache)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="The frame loop's wall and CPU time while a session loads")
     parser.add_argument("--points", type=int, default=2_000_000)
@@ -82,6 +94,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="also profile one session of each kind: its TOP functions by own time")
     parser.add_argument("--parser-threads", type=int, nargs="+", default=[default_parser_threads()],
                         help="the loader's parser threads, a row each")
+    parser.add_argument("--formats", nargs="+", choices=FORMATS, default=list(FORMATS), help="the files, a row each")
     args = parser.parse_args(argv)
     size = tuple(int(v) for v in args.size.split("x"))
     glc = create_context()
@@ -89,15 +102,15 @@ def main(argv: list[str] | None = None) -> int:
         "tree", "format", "parser threads", "session", "loader alone s", "all points on GPU s", "open s", "frames",
         "frames' wall s", "frames' CPU s", "CPU / wall of frames", "frames' wall / loading"))
     profiles = []
-    for (fmt, compress), threads in itertools.product((("LAS", False), ("LAZ", True)), args.parser_threads):
-        path = data.tiled(args.points, compress, args.cache)
+    for fmt, threads in itertools.product(args.formats, args.parser_threads):
+        path = tiled_file(fmt, args.points, args.cache)
         raw_read(path)
         alone = []
         for _ in range(args.repeats):
             t = time.perf_counter()
             pipeline(path, threads, attributes=shown(path))
             alone.append(time.perf_counter() - t)
-        for session in ("shown", "viewer, others later"):
+        for session in ("shown",) if fmt == "fast" else ("shown", "viewer, others later"):
             loading(glc, path, session, size, threads=threads)   # untimed: programs compiled and cached, caches warm
             runs = [loading(glc, path, session, size, threads=threads) for _ in range(args.repeats)]
             median = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
@@ -110,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
                                median["frames_wall_s"] / median["loaded_s"]))
             if args.profile:
                 profiles.append((fmt, threads, session, profiled(glc, path, session, size, args.profile, threads)))
-    table.data = "autzen_trim.las tiled on a grid (bench/data.py), written as LAS and LAZ"
+    table.data = "autzen_trim.las tiled on a grid (bench/data.py), written as " + ", ".join(args.formats)
     table.notes = [f"Warm cache, {size[0]}x{size[1]}, adaptive budget 16.6 ms, auto camera, frames issued in a tight "
                    "loop from `progressive.open()` until `status().complete` (then glFinish). Frames' CPU = "
                    "`time.thread_time()` of the frame loop's thread inside `Session.frame`. Loader alone = the "

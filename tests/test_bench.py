@@ -3,7 +3,6 @@ well-formed tables, JSON and PNG plots (not a timed test)."""
 
 from __future__ import annotations
 
-import itertools
 import json
 
 import numpy as np
@@ -101,7 +100,8 @@ def test_convert_bench_runs(tmp_path):
 
 def test_mainthread_bench_runs(tmp_path):
     """bench.mainthread times the frames of loading sessions beside the loader alone, a
-    row for each count of parser threads, and profiles one session of each."""
+    row for each count of parser threads, and profiles one session of each (the fast
+    format's one session: it holds one attribute)."""
     from bench import mainthread
 
     out = tmp_path / "out"
@@ -109,14 +109,17 @@ def test_mainthread_bench_runs(tmp_path):
                             "--cache", str(tmp_path / "cache"), "--out", str(out), "--profile", "5",
                             "--parser-threads", "1", "2"]) == 0
     rows = json.loads((out / "mainthread.json").read_text())["raw"]["rows"]
-    assert [(r["format"], r["parser_threads"], r["session"]) for r in rows] == [
-        (f, t, s) for f in ("LAS", "LAZ") for t in (1, 2) for s in ("shown", "viewer, others later")]
+    expected = [(f, t, s) for f in ("LAS", "LAZ", "fast") for t in (1, 2)
+                for s in (("shown",) if f == "fast" else ("shown", "viewer, others later"))]
+    assert [(r["format"], r["parser_threads"], r["session"]) for r in rows] == expected
     for r in rows:
         assert r["loaded_s"] >= r["frames_wall_s"] > 0 and r["frames"] >= 1 and r["loader_alone_s"] > 0
         assert 0 < r["frames_cpu_s"] <= r["frames_wall_s"] * 1.05
-    for fmt, threads, session in itertools.product(("LAS", "LAZ"), (1, 2), ("shown", "viewer")):
+    suffixes = {"LAS": "las", "LAZ": "laz", "fast": "prg"}
+    for fmt, threads, session in expected:
+        session = session.split(",")[0]
         head, *rest = (out / f"profile_{fmt}_{threads}_{session}.txt").read_text().splitlines()
-        assert head.startswith(f"autzen_trim_x30000.{fmt.lower()}, session {session}") and "(profiled: " in head
+        assert head.startswith(f"autzen_trim_x30000.{suffixes[fmt]}, session {session}") and "(profiled: " in head
         assert any("function calls" in line for line in rest) and any("(frame)" in line for line in rest)
 
 
