@@ -244,12 +244,10 @@ class PointStore:
                 self.frame_buffer.write(self.frames[lo:hi].tobytes(),
                                         offset=lo * self.frames.itemsize * encoding.FRAME_FLOATS)
 
-    def add_boxes(self, positions, start: int) -> None:
-        """Grow the boxes of the batches that file indices [start, start+n) belong to
-        (batched layout; the rasterizer culls batches outside the view with them)."""
-        if not self.batched:
-            return
-        first, new = batches.boxes_of(positions, start)
+    def add_boxes(self, first: int, new: np.ndarray) -> None:
+        """Grow the boxes of batches first, first + 1, ... by `new` ((k, BOX_FLOATS), as
+        batches.boxes_of gives them; batched layout: the rasterizer culls batches outside
+        the view with them)."""
         batches.merge(self.boxes, first, new)
         part = self.boxes[first: first + new.shape[0]]
         self.box_buffer.write(part.tobytes(), offset=first * part.itemsize * batches.BOX_FLOATS)

@@ -139,7 +139,7 @@ class Scene:
             hidden = self._encode_group([(at, part.count, [(placed, 0, part.count)])])
         else:
             hidden = self._upload_records(placed, self.attribute)
-            self.store.add_boxes(_positions(placed), at)
+            self._add_boxes(placed)
         if self.store.has_classes:
             self._upload_flags(placed, at)
         for i in range(-(-part.count // BATCH_POINTS)):
@@ -173,7 +173,7 @@ class Scene:
             self.skipped += _hidden_points(batch, self.attribute, float(self.info.origin[2]))
         else:
             self.skipped += self._upload_records(batch, self.attribute)
-            self.store.add_boxes(batch.positions, batch.start)
+            self._add_boxes(batch)
         if self.store.has_classes:
             self._upload_flags(batch, batch.start)
         if self.keep_batches:
@@ -184,6 +184,12 @@ class Scene:
             self.held.append(self.attribute)
         self.loaded += batch.count
         self.upload_seconds += time.perf_counter() - t0
+
+    def _add_boxes(self, part: Batch) -> None:
+        """The float record store's batch boxes grow by a loaded part's (the batched
+        layout's, which the rasterizer culls by; the word store's come with its frames)."""
+        if self.store.batched:
+            self.store.add_boxes(*part_boxes(part))
 
     def add_attributes(self, part: Batch) -> None:
         """Attributes read after the kept batches (a session's later pass) join them:
@@ -562,13 +568,19 @@ def frame_parts(parts: list[Batch], first: int, k: int, origin: np.ndarray) -> t
             return encoding.integer_frames(least, shift, scale, offset, origin), boxes, least, shift
     boxes = batch_boxes.empty_boxes(k)
     for part in parts:
-        runs = part.boxes
-        if runs is not None and runs.of(part.start, part.count, BATCH_POINTS):
-            at, part_boxes = runs.first, batch_boxes.boxes_from_runs(runs)
-        else:
-            at, part_boxes = batch_boxes.boxes_of(_positions(part), part.start, _all_finite(part))
-        batch_boxes.merge(boxes, at - first, part_boxes)
+        at, new = part_boxes(part)
+        batch_boxes.merge(boxes, at - first, new)
     return encoding.frames_from_boxes(boxes), boxes, None, None
+
+
+def part_boxes(part: Batch) -> tuple[int, np.ndarray]:
+    """The first store batch a loaded part touches and the boxes of its points in each
+    (batches.boxes_of): those its parser found (encoding.with_runs) where they are of
+    its rows, else from its positions."""
+    runs = part.boxes
+    if runs is not None and runs.of(part.start, part.count, BATCH_POINTS):
+        return runs.first, batch_boxes.boxes_from_runs(runs)
+    return batch_boxes.boxes_of(_positions(part), part.start, _all_finite(part))
 
 
 def stage_cells(out: np.ndarray, batch: Batch, shown: np.ndarray, hides: bool, lo: int, hi: int) -> int:

@@ -397,3 +397,31 @@ def test_fast_format_boxes_found_by_the_parsers_frame_the_store_as_the_frame_loo
         scene.release()
     for before, after in zip(*stores):
         np.testing.assert_array_equal(before, after)
+
+
+def test_float_record_store_takes_the_parsers_boxes(gl, monkeypatch, fast_sample):
+    """The float record store's batch boxes from a fast-format file's parser-found boxes
+    equal those from its positions, and the frame loop then reads no positions for them."""
+    from progressive import encoding
+    from progressive.attributes import default_attribute
+    from progressive.loaders import CloudLoader
+    from progressive.scene import Scene
+
+    boxes = []
+    for on_parsed in (None, encoding.with_runs):
+        with CloudLoader([fast_sample], batch_points=2 * BATCH_POINTS + 99, on_parsed=on_parsed) as loader:
+            info = loader.info
+            loader.start()
+            loaded = sorted(loader, key=lambda b: b.start)
+        scene = Scene(gl, info, default_attribute(info), position_encoding=encoding.Encoding.FLOAT)
+        found: list = []
+        monkeypatch.setattr(batches, "boxes_of",
+                            lambda *args, found=found, boxes_of=batches.boxes_of: found.append(args) or boxes_of(*args))
+        for b in loaded:
+            scene.add_batch(b)
+        monkeypatch.undo()
+        assert scene.store.batched and (len(found) == 0) == (on_parsed is not None)
+        boxes.append(scene.store.boxes.copy())
+        scene.release()
+    assert np.isfinite(boxes[0]).any()
+    np.testing.assert_array_equal(boxes[0], boxes[1])
