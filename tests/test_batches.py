@@ -366,6 +366,26 @@ def test_box_runs_of_rows_are_those_of_their_positions():
     assert batch.rows(0, n).boxes.of(start, n, BATCH_POINTS) and not moved.boxes.of(moved.start, n, BATCH_POINTS)
 
 
+def _fast_scene(gl, monkeypatch, path, on_parsed, batch_points: int, **scene_options):
+    """A Scene of a fast-format file loaded with `on_parsed`, its loaded batches, and the
+    calls its frame loop made to batches.boxes_of while they were added."""
+    from progressive.attributes import default_attribute
+    from progressive.loaders import CloudLoader
+    from progressive.scene import Scene
+
+    with CloudLoader([path], batch_points=batch_points, on_parsed=on_parsed) as loader:
+        info = loader.info
+        loader.start()
+        loaded = sorted(loader, key=lambda b: b.start)
+    scene = Scene(gl, info, default_attribute(info), **scene_options)
+    found: list = []
+    monkeypatch.setattr(batches, "boxes_of", lambda *args, boxes_of=batches.boxes_of: found.append(args) or boxes_of(*args))
+    for b in loaded:
+        scene.add_batch(b)
+    monkeypatch.undo()
+    return scene, loaded, found
+
+
 def test_fast_format_boxes_found_by_the_parsers_frame_the_store_as_the_frame_loop_did(gl, monkeypatch, fast_sample):
     """A fast-format file loaded with its boxes found by the parser threads
     (encoding.with_runs) gives the word store the same frames, boxes and words as batches
@@ -373,24 +393,11 @@ def test_fast_format_boxes_found_by_the_parsers_frame_the_store_as_the_frame_loo
     boxes (only the cut runs of the assembler's held parts, none here: the batches end
     on store batches)."""
     from progressive import encoding
-    from progressive.attributes import default_attribute
-    from progressive.loaders import CloudLoader
-    from progressive.scene import Scene
 
     stores = []
     for on_parsed in (None, encoding.with_runs):
-        with CloudLoader([fast_sample], batch_points=3 * BATCH_POINTS, on_parsed=on_parsed) as loader:
-            info = loader.info
-            loader.start()
-            loaded = sorted(loader, key=lambda b: b.start)
+        scene, loaded, found = _fast_scene(gl, monkeypatch, fast_sample, on_parsed, 3 * BATCH_POINTS)
         assert all((b.boxes is not None) == (on_parsed is not None) and b.grid is None for b in loaded)
-        scene = Scene(gl, info, default_attribute(info))
-        found: list = []
-        monkeypatch.setattr(batches, "boxes_of",
-                            lambda *args, found=found, boxes_of=batches.boxes_of: found.append(args) or boxes_of(*args))
-        for b in loaded:
-            scene.add_batch(b)
-        monkeypatch.undo()
         assert (len(found) == 0) == (on_parsed is not None)
         s = scene.store
         stores.append((s.frames.copy(), s.boxes.copy(), s.read_words()))
@@ -403,23 +410,11 @@ def test_float_record_store_takes_the_parsers_boxes(gl, monkeypatch, fast_sample
     """The float record store's batch boxes from a fast-format file's parser-found boxes
     equal those from its positions, and the frame loop then reads no positions for them."""
     from progressive import encoding
-    from progressive.attributes import default_attribute
-    from progressive.loaders import CloudLoader
-    from progressive.scene import Scene
 
     boxes = []
     for on_parsed in (None, encoding.with_runs):
-        with CloudLoader([fast_sample], batch_points=2 * BATCH_POINTS + 99, on_parsed=on_parsed) as loader:
-            info = loader.info
-            loader.start()
-            loaded = sorted(loader, key=lambda b: b.start)
-        scene = Scene(gl, info, default_attribute(info), position_encoding=encoding.Encoding.FLOAT)
-        found: list = []
-        monkeypatch.setattr(batches, "boxes_of",
-                            lambda *args, found=found, boxes_of=batches.boxes_of: found.append(args) or boxes_of(*args))
-        for b in loaded:
-            scene.add_batch(b)
-        monkeypatch.undo()
+        scene, _, found = _fast_scene(gl, monkeypatch, fast_sample, on_parsed, 2 * BATCH_POINTS + 99,
+                                      position_encoding=encoding.Encoding.FLOAT)
         assert scene.store.batched and (len(found) == 0) == (on_parsed is not None)
         boxes.append(scene.store.boxes.copy())
         scene.release()
