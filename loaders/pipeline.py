@@ -28,6 +28,7 @@ from collections.abc import Callable, Iterable, Iterator
 import numpy as np
 
 from progressive.errors import InputError
+from progressive.loaders.allocator import keep_large_blocks
 from progressive.loaders.copc import CopcSource, is_copc, keep_levels, open_copc, open_copc_url
 from progressive.loaders.e57 import E57Source, is_e57, open_e57
 from progressive.loaders.fastformat import FastSource, is_fast, open_fast
@@ -309,6 +310,7 @@ class CloudLoader(BatchQueue):
         parser_threads = default_parser_threads() if parser_threads is None else parser_threads
         if batch_points < 1 or parser_threads < 1:
             raise ValueError("batch_points and parser_threads must be at least 1")
+        keep_large_blocks()
         self.info, self._sources = open_sources(paths, partial=partial, point_budget=point_budget, http=http,
                                                 keep_first=True, view=view, check_count=check_count)
         self.attributes = self._chosen(attributes)

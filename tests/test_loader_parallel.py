@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import io
 import os
+import platform
+import subprocess
+import sys
 import time
 
 import laspy
@@ -482,3 +485,45 @@ def test_later_pass_reads_the_other_attributes_after_the_first(name):
     np.testing.assert_array_equal(joined(batches, first[0]), joined(full, first[0]))
     for n in later:
         np.testing.assert_array_equal(joined(rest, n), joined(full, n), err_msg=n)
+
+
+# --- the allocator's large blocks -------------------------------------------------------
+
+MAPPED_PROBE = """
+import ctypes, sys
+import numpy as np
+from progressive.loaders.allocator import keep_large_blocks
+
+class MallInfo2(ctypes.Structure):
+    _fields_ = [(name, ctypes.c_size_t) for name in (
+        "arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks", "fsmblks", "uordblks", "fordblks", "keepcost")]
+
+libc = ctypes.CDLL(None)
+libc.mallinfo2.restype = MallInfo2
+if sys.argv[1] == "kept":
+    assert keep_large_blocks()
+before = libc.mallinfo2().hblkhd
+block = np.ones(2 << 20)        # 16 MiB, a loader batch's array
+print(libc.mallinfo2().hblkhd - before)
+"""
+
+
+@pytest.mark.skipif(platform.libc_ver()[0] != "glibc", reason="glibc's mallopt and mallinfo2")
+def test_large_blocks_come_from_the_heap():
+    """A fresh process maps a 16 MiB array by itself (glibc's first threshold is 128 KiB);
+    after keep_large_blocks the heap serves it, so its pages are reused batch after batch."""
+    mapped = {mode: int(subprocess.run([sys.executable, "-c", MAPPED_PROBE, mode], capture_output=True, text=True,
+                                       check=True, timeout=60).stdout) for mode in ("default", "kept")}
+    assert mapped["default"] >= 16 << 20
+    assert mapped["kept"] == 0
+
+
+def test_loader_keeps_large_blocks(monkeypatch):
+    """Every loader sets the allocator up before its threads allocate."""
+    from progressive.loaders import pipeline
+
+    calls = []
+    monkeypatch.setattr(pipeline, "keep_large_blocks", lambda: calls.append(1))
+    with pipeline.CloudLoader([SAMPLE]) as loader:
+        loader.start()
+    assert calls == [1]
