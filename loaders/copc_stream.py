@@ -19,6 +19,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 import numpy as np
 
 from progressive.errors import InputError
+from progressive.loaders.allocator import keep_large_blocks
 from progressive.loaders.copc import COPC_SUFFIX, CopcSource, hierarchy_nodes, is_copc
 from progressive.loaders.http import is_url
 from progressive.loaders.laz_pool import DecoderPool
@@ -52,6 +53,7 @@ class NodeReader:
                  decoders: DecoderPool | None = None):
         if not streamable(sources):
             raise ValueError("every source must be a COPC file with a usable hierarchy")
+        keep_large_blocks()
         h = [s.hierarchy for s in sources]
         self.nodes = hierarchy_nodes(h)
         self.sources = sources

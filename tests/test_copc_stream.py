@@ -665,3 +665,13 @@ def test_nodes_evicted_while_in_view_leave_the_image():
         assert shown - set(index.tolist()) - {EMPTY}         # some points on screen were evicted
         converge(s, overview)
         assert_exact(s, overview, xyz, most_wrong=2)
+
+
+def test_reader_keeps_large_blocks(monkeypatch):
+    """The node reader sets the allocator up, as the loader does (loaders/allocator.py)."""
+    from progressive.loaders import copc_stream
+
+    calls = []
+    monkeypatch.setattr(copc_stream, "keep_large_blocks", lambda: calls.append(1))
+    copc_stream.NodeReader((open_copc(shared_file(LONE_STAR)),), np.zeros(3), ("intensity",), threads=1).close()
+    assert calls == [1]
