@@ -524,6 +524,5 @@ def test_loader_keeps_large_blocks(monkeypatch):
 
     calls = []
     monkeypatch.setattr(pipeline, "keep_large_blocks", lambda: calls.append(1))
-    with pipeline.CloudLoader([SAMPLE]) as loader:
-        loader.start()
-    assert calls == [1]
+    with pipeline.CloudLoader([SAMPLE]):
+        assert calls == [1]
