@@ -78,17 +78,19 @@ STATE_CALLS = frozenset({
 so are the glProgramUniform* ones. The others may do the work they order (llvmpipe runs
 a compute dispatch inside glDispatchCompute) or wait for the GPU or a compile (a link
 status waits for a parallel link), and release it. Each release hands the GIL to any
-thread that wants it, and the frame loop then waits to take it back: a frame makes 86
-state calls of its 117, and beside a thread busy in Python the frame loop ran 5.3-5.9
-frames a second with them holding it against 2.3-3.3 without (llvmpipe,
-bench/results/llvmpipe/gil_state_calls/)."""
+thread that wants it, and the frame loop then waits to take it back: a frame makes 93
+state calls of its 117 (with GLFunctions.query_into_buffer), and beside a thread busy
+in Python the frame loop ran 6.2-7.7 frames a second with them holding it against
+2.5-3.1 without (llvmpipe, bench/results/llvmpipe/gil_state_calls/)."""
 
 
-def _entry(loader: ProcLoader, name: str, *argtypes, restype=None) -> Callable:
+def _entry(loader: ProcLoader, name: str, *argtypes, restype=None, state: bool | None = None) -> Callable:
+    """`name`'s function; `state`: whether the call holds the GIL (default: STATE_CALLS says)."""
     address = loader(name)
     if not address:
         raise RuntimeError(f"OpenGL entry point {name} not found")
-    state = name in STATE_CALLS or name.startswith("glProgramUniform")
+    if state is None:
+        state = name in STATE_CALLS or name.startswith("glProgramUniform")
     return (ctypes.PYFUNCTYPE if state else ctypes.CFUNCTYPE)(restype, *argtypes)(address)
 
 
@@ -101,6 +103,9 @@ class GLFunctions:
     delete_queries: Callable
     query_counter: Callable
     get_query_object_ui64v: Callable
+    query_into_buffer: Callable
+    """glGetQueryObjectui64v with a GL_QUERY_BUFFER bound: the GPU writes the result
+    when it has it, so the call never waits (a state call: holds the GIL)."""
     get_query_object_iv: Callable
     get_integerv: Callable
     bind_buffer: Callable
@@ -118,8 +123,8 @@ class GLFunctions:
 
     @classmethod
     def load(cls, loader: ProcLoader) -> GLFunctions:
-        def fn(name: str, *argtypes, restype=None):
-            return _entry(loader, name, *argtypes, restype=restype)
+        def fn(name: str, *argtypes, restype=None, state=None):
+            return _entry(loader, name, *argtypes, restype=restype, state=state)
 
         return cls(
             clear_named_buffer_sub_data=fn("glClearNamedBufferSubData", _u, _u, _iptr, _iptr, _u, _u, _vp),
@@ -127,6 +132,7 @@ class GLFunctions:
             delete_queries=fn("glDeleteQueries", _i, ctypes.POINTER(_u)),
             query_counter=fn("glQueryCounter", _u, _u),
             get_query_object_ui64v=fn("glGetQueryObjectui64v", _u, _u, _vp),
+            query_into_buffer=fn("glGetQueryObjectui64v", _u, _u, _vp, state=True),
             get_query_object_iv=fn("glGetQueryObjectiv", _u, _u, ctypes.POINTER(_i)),
             get_integerv=fn("glGetIntegerv", _u, ctypes.POINTER(_i)),
             bind_buffer=fn("glBindBuffer", _u, _u),

@@ -40,8 +40,18 @@ def test_state_calls_name_entry_points_the_renderer_loads():
 
     def loader(name: str) -> int:
         asked.append(name)
-        return GIL_CHECK        # never called here: any address makes the function pointer
+        return GIL_CHECK        # not called: any address makes the function pointer
 
     GLFunctions.load(loader)
     ProgramFunctions.load(loader)
     assert STATE_CALLS <= set(asked)
+
+
+def test_a_query_written_into_a_buffer_holds_it_a_query_read_releases_it():
+    """The budget pass's timestamps go into a buffer (the call never waits); timing.py
+    reads results back, which waits for the GPU."""
+    gl = GLFunctions.load(lambda _: GIL_CHECK)
+    holds = ctypes._FUNCFLAG_PYTHONAPI
+    assert type(gl.query_into_buffer)._flags_ & holds
+    assert not type(gl.get_query_object_ui64v)._flags_ & holds
+    assert glext._entry(lambda _: GIL_CHECK, "glGetQueryObjectui64v", restype=ctypes.c_int, state=True)()

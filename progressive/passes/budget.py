@@ -101,7 +101,7 @@ class BudgetPass:
         slot = self.parity * TIMESTAMP_SLOTS + int(which)
         gl.query_counter(self.queries[slot], GL_TIMESTAMP)
         gl.bind_buffer(GL_QUERY_BUFFER, self.stamps.glo)
-        gl.get_query_object_ui64v(self.queries[slot], GL_QUERY_RESULT, ctypes.c_void_p(slot * 8))
+        gl.query_into_buffer(self.queries[slot], GL_QUERY_RESULT, ctypes.c_void_p(slot * 8))
         gl.bind_buffer(GL_QUERY_BUFFER, 0)
 
     def _run(self, stage: Stage, reset: bool = False, grow: int = 0) -> None:

@@ -16,8 +16,8 @@ made = glext._entry
 calls = collections.defaultdict(lambda: [0, 0.0])
 
 
-def _entry(loader, name, *argtypes, restype=None):
-    call = made(loader, name, *argtypes, restype=restype)
+def _entry(loader, name, *argtypes, restype=None, state=None):
+    call = made(loader, name, *argtypes, restype=restype, state=state)
 
     def timed(*args):
         t0 = time.perf_counter()

@@ -21,7 +21,7 @@ from progressive import glext
 
 mode, what = sys.argv[1], sys.argv[2]
 if mode == "before":
-    def _entry(loader, name, *argtypes, restype=None):
+    def _entry(loader, name, *argtypes, restype=None, state=None):
         address = loader(name)
         if not address:
             raise RuntimeError(f"OpenGL entry point {name} not found")
