@@ -81,9 +81,11 @@ status waits for a parallel link), and release it. Each release hands the GIL to
 thread that wants it, and the frame loop then waits to take it back: a frame makes 93
 state calls of its 117 (with GLFunctions.query_into_buffer), and beside a thread busy
 in Python the frame loop ran 6.2-7.7 frames a second with them holding it against
-2.5-3.1 without (llvmpipe, bench/results/llvmpipe/gil_state_calls/). Not free: light
-frames issued back to back while loading keep the GIL from the parser threads longer
-(that folder's emulated GPU driver: half the parsing in a tight loop, the same paced)."""
+2.5-3.1 without (llvmpipe, bench/results/llvmpipe/gil_state_calls/); on the H100
+machine a streamed COPC's frames while its overview loaded had a p95 of 22-24 ms against
+31-40 ms, loading as fast (bench/results/nvidia-h100/gil_state_calls/). Dispatches
+release it: holding it too, frames issued back to back kept it from the parser threads
+(the window's load of 100 M points took twice as long there)."""
 
 
 def _entry(loader: ProcLoader, name: str, *argtypes, restype=None, state: bool | None = None) -> Callable:
