@@ -10,7 +10,6 @@ that thread's count per second. stream: a streamed COPC session held still until
 settled (640x360, every node fitting the limit): seconds, frames, median frame ms.
 """
 
-import ctypes
 import sys
 import threading
 import time
@@ -21,11 +20,10 @@ from progressive import glext
 
 mode, what = sys.argv[1], sys.argv[2]
 if mode == "before":
+    made = glext._entry
+
     def _entry(loader, name, *argtypes, restype=None, state=None):
-        address = loader(name)
-        if not address:
-            raise RuntimeError(f"OpenGL entry point {name} not found")
-        return ctypes.CFUNCTYPE(restype, *argtypes)(address)
+        return made(loader, name, *argtypes, restype=restype, state=False)     # every call releases the GIL
     glext._entry = _entry
 
 from progressive.camera import Camera  # noqa: E402  (after the entry points are chosen)
