@@ -64,8 +64,11 @@ apart on screen (or farther) is shown."""
 NAME = "cloud.copc.laz"
 """The file's name on the range server."""
 FIELDS = ("seconds", "resident_nodes", "resident_points", "loading_nodes", "held_nodes", "evicted_nodes",
-          "settled", "converged", "missing_px")
-"""What is recorded of each frame (raw JSON, a list per field)."""
+          "settled", "converged", "missing_px", "frame", "stream_s", "issue_s")
+"""What is recorded of each frame (raw JSON, a list per field): frame is the renderer's
+index (its GPU record joins it after the leg), stream_s and issue_s Session.host's parts."""
+SLOW_MS = 1e3 / 60
+"""A moving frame slower than this missed the viewer's frame target (BudgetParams.target_ns)."""
 
 
 @dataclass(frozen=True)
@@ -142,18 +145,26 @@ def legs(overview: Camera, lo: np.ndarray, hi: np.ndarray, frames: int) -> list[
             ("zoom out", [between(along, overview, t) for t in steps])]
 
 
-def record(s: Session, seconds: float, log: dict[str, list]) -> None:
+def record(s: Session, frame: int, seconds: float, log: dict[str, list]) -> None:
     st = s.status().stream
-    values = {"seconds": seconds, "converged": s.converged,
-              **{k: getattr(st, k) for k in FIELDS if k not in ("seconds", "converged")}}
+    values = {"seconds": seconds, "converged": s.converged, "frame": frame, "stream_s": s.host.stream_s,
+              "issue_s": s.host.issue_s, **{k: getattr(st, k) for k in FIELDS if hasattr(st, k)}}
     for k in FIELDS:
         log[k].append(values[k])
 
 
 def timed_frame(s: Session, camera: Camera, log: dict[str, list]) -> None:
+    frame = s.status().frames
     t0 = time.perf_counter()
     s.frame(camera)
-    record(s, time.perf_counter() - t0, log)
+    record(s, frame, time.perf_counter() - t0, log)
+
+
+def gpu_ms(s: Session, log: dict[str, list]) -> list[float | None]:
+    """Each logged frame's GPU time from its first stamp to its last (None: a frame that
+    ran no fill); waits for the GPU, so only once a leg is over."""
+    frames = {f.frame: f.gpu_ms.get("frame") for f in s.stats()}
+    return [frames.get(f) for f in log["frame"]]
 
 
 def hold(s: Session, camera: Camera, since: float, log: dict[str, list], limit_s: float) -> dict:
@@ -176,11 +187,30 @@ def hold(s: Session, camera: Camera, since: float, log: dict[str, list], limit_s
     return {"detailed_s": detailed, "settled_s": settled, "converged_s": converged, "still_frames": frames}
 
 
+def parts(log: dict[str, list], moving: int) -> dict:
+    """Where the time of a leg's moving frames (the overview: every frame) went: p95 of
+    the host's node update and GPU issue, and of the GPU's frame; the median of each over
+    the frames slower than SLOW_MS, and how many those were."""
+    n = moving or len(log["seconds"])
+    ms = {name: np.array(log[k][:n], dtype=float) * 1e3
+          for name, k in (("frame", "seconds"), ("update", "stream_s"), ("issue", "issue_s"))}
+    ms["gpu"] = np.array([np.nan if g is None else g for g in log["gpu_ms"][:n]], dtype=float)
+    slow = ms["frame"] > SLOW_MS
+
+    def pick(values: np.ndarray, q: float) -> float | None:
+        values = values[~np.isnan(values)]
+        return float(np.percentile(values, q)) if values.size else None
+
+    out = {f"{k}_ms_p95": pick(v, 95) for k, v in ms.items() if k != "frame"}
+    out |= {f"slow_{k}_ms_p50": pick(v[slow], 50) for k, v in ms.items()}
+    return out | {"slow_frames": int(slow.sum())}
+
+
 def summary(log: dict[str, list], moving: int, before_evicted: int) -> dict:
     """A leg's frame times (its moving frames; the overview: every frame) and node counts."""
     ms = np.array(log["seconds"][:moving] or log["seconds"]) * 1e3
     return {"frames": moving, "frame_ms_p50": float(np.percentile(ms, 50)),
-            "frame_ms_p95": float(np.percentile(ms, 95)), "frame_ms_max": float(ms.max()),
+            "frame_ms_p95": float(np.percentile(ms, 95)), "frame_ms_max": float(ms.max()), **parts(log, moving),
             "still_frame_ms_max": float(max(log["seconds"][moving:], default=0.0) * 1e3),
             "resident_nodes": log["resident_nodes"][-1], "resident_points": log["resident_points"][-1],
             "loading_max": max(log["loading_nodes"]), "held_max": max(log["held_nodes"]),
@@ -210,6 +240,7 @@ def stream(source: str, options: SessionOptions, frames: int, limit_s: float) ->
         overview = s.auto_camera()
         log = {k: [] for k in FIELDS}
         still = hold(s, overview, opened, log, limit_s)
+        log["gpu_ms"] = gpu_ms(s, log)
         legs_out = [{"leg": "overview", **summary(log, 0, 0), **still, **fetched(s), "log": log}]
         status = s.status().stream
         capacity, first_image = status.capacity_points, s.first_image_seconds
@@ -219,6 +250,7 @@ def stream(source: str, options: SessionOptions, frames: int, limit_s: float) ->
             for camera in cameras:
                 timed_frame(s, camera, log)
             still = hold(s, cameras[-1], time.perf_counter(), log, limit_s)
+            log["gpu_ms"] = gpu_ms(s, log)
             legs_out.append({"leg": name, **summary(log, len(cameras), before), **still, **fetched(s), "log": log})
         end = s.status()
         state = s.streamer.state
@@ -251,7 +283,8 @@ def served(path: Path, options: SessionOptions, frames: int, limit_s: float) -> 
     return out
 
 
-COLUMNS = ("source", "leg", "moving frames", "frame ms p50", "frame ms p95", "frame ms max", "first image s",
+COLUMNS = ("source", "leg", "moving frames", "frame ms p50", "frame ms p95", "frame ms max", "update ms p95",
+           "issue ms p95", "GPU ms p95", "slow frames", "slow: update ms", "slow: issue ms", "slow: GPU ms", "first image s",
            "1 px detail s", "settled s", "converged s", "still frames", "still frame ms max", "resident nodes", "resident points",
            "loading max", "evicted", "nodes read", "MB fetched", "requests")
 
@@ -262,6 +295,8 @@ def rows(label: str, run: dict) -> list[tuple]:
     for leg in run["legs"]:
         over = leg["leg"] == "overview"
         out.append((label, leg["leg"], leg["frames"], leg["frame_ms_p50"], leg["frame_ms_p95"], leg["frame_ms_max"],
+                    leg["update_ms_p95"], leg["issue_ms_p95"], leg["gpu_ms_p95"], leg["slow_frames"],
+                    leg["slow_update_ms_p50"], leg["slow_issue_ms_p50"], leg["slow_gpu_ms_p50"],
                     run["first_image_s"] if over else None, leg["detailed_s"], leg["settled_s"], leg["converged_s"],
                     leg["still_frames"], leg["still_frame_ms_max"], leg["resident_nodes"], leg["resident_points"],
                     leg["loading_max"], leg["evicted"], leg["nodes_read"],
@@ -319,7 +354,10 @@ def run(points: int, limit: int, size: tuple[int, int], frames: int, cache: Path
          f"front; settled: nothing more to read or write for the view; converged: settled and the still image exact, "
          f"Session.converged). Frame ms: wall time of Session.frame over the moving frames (the frame loop paces "
          f"itself against the GPU, which on llvmpipe is the CPU); still frame ms max: the longest frame of the "
-         f"stop. Resident nodes and points: at the end of the leg; loading max: most nodes in flight in a frame; "
+         f"stop. Update and issue ms: the host's parts of a frame (Session.host: the streamed nodes' writes, plans "
+         f"and evictions; issuing the GPU work, where a driver with a full queue blocks), GPU ms: the frame's GPU time "
+         f"from its first timestamp to its last (frames that filled; read after the leg); slow frames: moving frames "
+         f"over {SLOW_MS:.1f} ms (the frame target), and the median of each part over them. Resident nodes and points: at the end of the leg; loading max: most nodes in flight in a frame; "
          f"evicted: nodes evicted during the leg and its stop; nodes read: since open (a node evicted and needed again "
          f"is read again). Frames that changed the store (nodes written, for at most {WRITE_SECONDS * 1e3:g} ms "
          f"a frame past the first node while the camera moves, {WRITE_STILL_SECONDS * 1e3:g} ms while it holds still, "

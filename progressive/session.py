@@ -99,6 +99,17 @@ class LaterStatus:
 
 
 @dataclass(frozen=True)
+class FrameHost:
+    """Where the last progressive frame's wall time went on the host: taking loaded
+    batches, updating a streamed cloud's nodes (writes, plans, evictions), issuing the
+    GPU work (where a driver whose queue is full blocks). A slow frame says which."""
+
+    pump_s: float = 0.0
+    stream_s: float = 0.0
+    issue_s: float = 0.0
+
+
+@dataclass(frozen=True)
 class SessionStatus:
     """What the CLI, the viewer and the benchmarks read of a session, at one moment."""
 
@@ -272,6 +283,8 @@ class Session:
         self.load_seconds: float | None = None
         self.first_image_seconds: float | None = None
         self._last: Frame | None = None
+        self.host = FrameHost()
+        """The last frame's host seconds by part (progressive frames)."""
         self.size = (options.width, options.height)
         self.loading = not stream
 
@@ -595,10 +608,13 @@ class Session:
             passes = ("distribute", "raster", "resolve")
         else:
             self._pump(block=False)
+            t1 = time.perf_counter()
             if self.streamer is not None and (change := self.streamer.update(node_view(camera, *self.size))):
                 self.renderer.nodes_changed(StoreChange.EMPTIED in change, self.streamer.written)
+            t2 = time.perf_counter()
             passes = self.renderer.frame(camera, style or self.style(), effects, hidden, clip, returns)
             self.loader.resume()
+            self.host = FrameHost(t1 - t0, t2 - t1, time.perf_counter() - t2)
         if self.first_image_seconds is None and self.renderer.scene.loaded > 0:
             now = time.perf_counter()
             self.first_image_seconds = now - self.opened
