@@ -45,7 +45,7 @@ from progressive.loaders.types import default_parser_threads
 
 def loading(glc: GLContext, path: Path, session: str, size: tuple[int, int],
             profile: cProfile.Profile | None = None, threads: int | None = None) -> dict:
-    """One warm session framed in a tight loop (as bench.load does) until every point is
+    """One warm session framed back to back (as bench.load does) until every point is
     on the GPU; `profile` enabled around each frame."""
     raw_read(path)
     opts = progressive.SessionOptions(width=size[0], height=size[1], **SESSIONS[session], parser_threads=threads,
@@ -124,8 +124,9 @@ def main(argv: list[str] | None = None) -> int:
             if args.profile:
                 profiles.append((fmt, threads, session, profiled(glc, path, session, size, args.profile, threads)))
     table.data = "autzen_trim.las tiled on a grid (bench/data.py), written as " + ", ".join(args.formats)
-    table.notes = [f"Warm cache, {size[0]}x{size[1]}, adaptive budget 16.6 ms, auto camera, frames issued in a tight "
-                   "loop from `progressive.open()` until `status().complete` (then glFinish). Frames' CPU = "
+    table.notes = [f"Warm cache, {size[0]}x{size[1]}, adaptive budget 16.6 ms, auto camera, frames issued back to "
+                   "back from `progressive.open()` until `status().complete` (then glFinish); a frame where "
+                   "everything loaded was drawn waits up to `RESTING_WAIT_S` for the next batch (in its wall time). Frames' CPU = "
                    "`time.thread_time()` of the frame loop's thread inside `Session.frame`. Loader alone = the "
                    "loader over the file at the row's parser threads reading the attribute `render` shows, nothing "
                    f"else running. Sessions as bench.load's. Each value the median of {args.repeats} runs after "

@@ -23,7 +23,7 @@ from progressive.loaders.allocator import keep_large_blocks
 from progressive.loaders.copc import COPC_SUFFIX, CopcSource, hierarchy_nodes, is_copc
 from progressive.loaders.http import is_url
 from progressive.loaders.laz_pool import DecoderPool
-from progressive.loaders.types import Batch
+from progressive.loaders.types import Batch, ReadyQueue
 from progressive.loaders.validate import one_line
 
 
@@ -70,7 +70,7 @@ class NodeReader:
         self._lanes: queue.SimpleQueue = queue.SimpleQueue()     # a process's answers are for one read at a time
         for lane in range(decoders.processes if decoders is not None else 0):
             self._lanes.put(lane)
-        self._done: queue.SimpleQueue = queue.SimpleQueue()
+        self._done = ReadyQueue()
         self._futures: dict[int, Future] = {}
         self._lock = threading.Lock()
         self._closed = False
@@ -114,6 +114,10 @@ class NodeReader:
             if self._closed:
                 return
         self._done.put((row, got))
+
+    def wait(self, timeout: float) -> bool:
+        """Whether a read has ended (to take with arrivals()), waiting at most `timeout` seconds."""
+        return self._done.wait(timeout)
 
     def arrivals(self) -> list[tuple[int, Batch | str]]:
         out = []

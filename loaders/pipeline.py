@@ -39,7 +39,7 @@ from progressive.loaders.laz_pool import DEFAULTS as LAZ_DEFAULTS
 from progressive.loaders.laz_pool import DecoderPool, LazOptions, PoolClosed
 from progressive.loaders.ply import PlySource, is_ply, open_ply
 from progressive.loaders.records import ELEVATION
-from progressive.loaders.types import BATCH_POINTS, AttributeInfo, Batch, CloudInfo, default_parser_threads
+from progressive.loaders.types import BATCH_POINTS, AttributeInfo, Batch, CloudInfo, ReadyQueue, default_parser_threads
 from progressive.loaders.validate import fail, shown
 
 Source = LasSource | FastSource | E57Source | PlySource
@@ -257,6 +257,11 @@ class BatchQueue:
             self._raise_failure()
         return batches
 
+    def wait(self, timeout: float) -> bool:
+        """Whether a batch (or the end, or a failure) is there to poll, waiting at most
+        `timeout` seconds for one."""
+        return self._results.wait(timeout)
+
     def __iter__(self) -> Iterator[Batch]:
         self.start()
         self.resume()
@@ -329,7 +334,7 @@ class CloudLoader(BatchQueue):
         self._first_taken = 0
         self._later_ready: deque[Batch] = deque()
         self._tasks: queue.Queue = queue.Queue(maxsize=1)
-        self._results: queue.Queue = queue.Queue(maxsize=self.parser_threads)
+        self._results = ReadyQueue(maxsize=self.parser_threads)
         self._stop = threading.Event()
         self._error: InputError | None = None
         self._threads: list[threading.Thread] = []

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import enum
 import os
+import queue
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -17,6 +18,16 @@ LAZ chunks of the usual 50,000 points), while later batches are large for throug
 
 RGB8_MAX = 255
 """A file is 16-bit colour iff a channel among its first BATCH_POINTS points exceeds this."""
+
+
+class ReadyQueue(queue.Queue):
+    """What loader threads hand to the frame loop: a frame loop with nothing to draw
+    until something arrives waits here (without taking it) instead of spinning."""
+
+    def wait(self, timeout: float) -> bool:
+        """Whether an item is there, waiting at most `timeout` seconds for one."""
+        with self.not_empty:
+            return self.not_empty.wait_for(self._qsize, timeout)
 
 
 def available_cores() -> int:

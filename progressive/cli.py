@@ -631,9 +631,13 @@ def _view_headless(paths: list[str], effects, clip, args, options) -> int:
         camera = session.auto_camera()
         frames = 0
         while not session.converged and frames < MAX_HEADLESS_FRAMES:
-            session.frame(camera, None, effects, args.hide_classes, clip, args.returns)
+            drawn = session.frame(camera, None, effects, args.hide_classes, clip, args.returns)
             session.stats()
-            frames += 1
+            if drawn:
+                frames += 1         # frames that rested while points load do not count
+            elif not session.status().loading:
+                break               # nothing to draw and nothing on its way
+
         for w in session.warnings:
             warn(w)
         outputs.write(args.out, png_writer(session.image()))

@@ -1,7 +1,8 @@
 """Progressive rendering (paper 3.4): each frame reprojects what was visible, fills
 holes with the next range of shuffled points within a GPU-measured budget, and
 prepares the next reprojection. A still camera converges to the brute-force image;
-once it has, frames do no GPU work at all. The CPU never waits for the GPU here."""
+once it has (or, while a cloud loads, once what has loaded is filled), frames do no
+GPU work at all. The CPU never waits for the GPU here."""
 
 from __future__ import annotations
 
@@ -86,7 +87,6 @@ class FrameTag:
     points_loaded: int
     pixels: int
     reference: bool
-    complete: bool          # every point there will be was on the GPU (Scene.complete)
     cold: bool = False      # no fill rate known: the growth stages ran (COLD_TIMES)
 
 
@@ -155,7 +155,7 @@ class ProgressiveRenderer:
         self.pending: deque[Batch] = deque()
         self.frame_index = 0
         self.change = 0
-        self.converged_change = -1
+        self.filled_change = -1
         self.history: list[FrameStats] = []
         self._camera: tuple[Camera, frozenset[int], Clip, Returns] | None = None
         self._look: tuple[ColorStyle, Effects] | None = None
@@ -173,15 +173,22 @@ class ProgressiveRenderer:
 
     @property
     def converged(self) -> bool:
-        """Filled (known a few frames late), and no switch is left to show: words still to
-        stream, or the visible points' copies to read anew once they are (the next frame's
-        regather)."""
-        return self._filled and not self.switching and not self._regather
+        """Resting with every point there will be (Scene.complete): the still image is exact."""
+        return self.resting and self.scene.complete
+
+    @property
+    def resting(self) -> bool:
+        """Filled (known a few frames late), no batch waits to be distributed and no switch
+        is left to show (words still to stream, or the visible points' copies to read anew
+        once they are: the next frame's regather): until the camera, the style or the
+        points change, a frame does no GPU work. While a cloud loads, frames rest between
+        batches instead of filling again what is drawn (a loop may wait for the next one)."""
+        return self._filled and not self.pending and not self.switching and not self._regather
 
     @property
     def _filled(self) -> bool:
         """The GPU reported a full ring of fills since the last change: no fill is left to run."""
-        return self.converged_change == self.change
+        return self.filled_change == self.change
 
     def add_batch(self, batch: Batch) -> None:
         """Queue a loaded batch; frames distribute a bounded number each."""
@@ -342,7 +349,7 @@ class ProgressiveRenderer:
             self.compare.run(view)
             passes.append("reference")
         tag = FrameTag(self.frame_index, self.change, tuple(passes), self.scene.loaded, self.vis.pixels, reference,
-                       self.scene.complete, stages > 0)
+                       stages > 0)
         self.stats_ring.record(tag, b.state, b.stamps, b.parity * TIMESTAMP_SLOTS * 8, self.prepare.previous.meta,
                                self.compare.counter if reference else None)
         b.end_frame(complete=True)
@@ -379,8 +386,8 @@ class ProgressiveRenderer:
         for r in records:
             tag: FrameTag = r.tag
             filled = int(r.state[StateWord.FILLED])
-            if tag.change == self.change and tag.complete and filled >= self.store.capacity:
-                self.converged_change = tag.change
+            if tag.change == self.change and filled >= self.store.capacity:
+                self.filled_change = tag.change
             t = r.stamps.astype(np.int64)
             gpu_ms = {name: (t[b] - t[a]) / 1e6 for name, (a, b) in (PASS_TIMES | (COLD_TIMES if tag.cold else {})).items()}
             equal = r.equal / tag.pixels if tag.reference else None

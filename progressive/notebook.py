@@ -244,10 +244,10 @@ class Interaction:
     def still(self, max_frames: int = STILL_MAX_FRAMES) -> np.ndarray:
         """Frames until the view is exact (or `max_frames`), then the image."""
         image = self.frame()
-        for _ in range(max_frames - 1):
-            if not self.animating:
-                break
+        frames = 1
+        while frames < max_frames and self.animating:
             image = self.frame()
+            frames += bool(self.last_passes)       # frames that rested while points load do not count
         return image
 
 

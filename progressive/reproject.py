@@ -27,7 +27,7 @@ from progressive.loaders.http import DEFAULTS as HTTP_DEFAULTS
 from progressive.loaders.http import HttpOptions
 from progressive.loaders.lookup import locate, read_point
 from progressive.loaders.pipeline import JOIN_S, WAIT_S, BatchQueue, Hold
-from progressive.loaders.types import AttributeInfo, Batch, CloudInfo, FileInfo, nonfinite_rows
+from progressive.loaders.types import AttributeInfo, Batch, CloudInfo, FileInfo, ReadyQueue, nonfinite_rows
 from progressive.loaders.validate import fail, shown
 from progressive.permutation import LAYOUT, Permutation
 
@@ -146,7 +146,7 @@ class ReprojectingLoader(BatchQueue):
             raise
         self._starts = np.cumsum([0] + [f.points for f in files])[:-1].tolist()
         self.loaded = 0
-        self._results: queue.Queue = queue.Queue(maxsize=READY_BATCHES)
+        self._results = ReadyQueue(maxsize=READY_BATCHES)
         self._error: BaseException | None = None
         self._finished = False
 

@@ -54,6 +54,9 @@ from progressive.streaming import PLAN, READS_QUEUED, StoreChange, Streamer, Str
 
 PICK_RADIUS = 7
 """Pixels around a picked pixel searched for the nearest point shown."""
+RESTING_WAIT_S = 0.008
+"""Longest a loop whose frames rest (Session.resting) waits for an arrival before it
+looks at its input again: half a frame at 60 Hz."""
 LATER_WAIT_S = 0.01
 """How often a brute-force frame whose switch waits for the later pass looks for its batches."""
 FIRST_HELD = 1
@@ -375,6 +378,25 @@ class Session:
         return self.progressive and self.renderer.converged
 
     @property
+    def resting(self) -> bool:
+        """Frames change nothing until a batch or node arrives, or the camera or the style
+        changes: everything on the GPU is drawn (frame() then waits a little for one)."""
+        return (self.progressive and self.renderer.resting
+                and (self.streamer is None or not self.streamer.busy))
+
+    def _rest(self) -> None:
+        """Where frames rest, wait at most RESTING_WAIT_S for what would change the next
+        one: a loaded batch (or a part of the later pass), a streamed node; at once where
+        nothing is on its way. Frames issued back to back that change nothing would take
+        the GIL (and, on a CPU GL, the cores) from the loader's threads."""
+        if not self.resting:
+            return
+        if self.streamer is not None:
+            self.streamer.wait(RESTING_WAIT_S)
+        elif self.loading and (not self.loader.done or self.later):
+            self.loader.wait(RESTING_WAIT_S)
+
+    @property
     def warnings(self) -> list[str]:
         if self.streamer is not None:
             subset = [self._stream_note()] if self.memory.subset else []
@@ -596,7 +618,9 @@ class Session:
     def frame(self, camera: Camera, style: ColorStyle | None = None, effects: Effects = Effects(),
               hidden: frozenset[int] = frozenset(), clip: Clip = NO_CLIP,
               returns: Returns = Returns.ALL) -> tuple[str, ...]:
-        """Progressive: one frame with whatever has loaded. Brute: load all, render.
+        """Progressive: one frame with whatever has loaded (where everything loaded is
+        drawn and the view has not changed, after waiting up to RESTING_WAIT_S for the next
+        batch or node). Brute: load all, render.
         `hidden`: category codes not drawn while a category attribute is shown; `clip`:
         the box (file coordinates) points must lie in to be drawn; `returns`: which
         returns of each pulse are drawn (with filters_classes)."""
@@ -607,6 +631,7 @@ class Session:
                                               returns, self.options.precision)
             passes = ("distribute", "raster", "resolve")
         else:
+            self._rest()
             self._pump(block=False)
             t1 = time.perf_counter()
             if self.streamer is not None and (change := self.streamer.update(node_view(camera, *self.size))):

@@ -115,6 +115,28 @@ class Streamer:
         self.written: list[int] = []
         """The batches the last update wrote (into empty ones, where it emptied none)."""
 
+    def _plan_due(self) -> float:
+        """Seconds until the last view asked for may be planned (inf: it was planned)."""
+        if self._asked == self._view:
+            return np.inf
+        return self._planned_at + PLAN_SECONDS - time.perf_counter()
+
+    @property
+    def busy(self) -> bool:
+        """The next update has work without a read ending: nodes to write (or write again),
+        arrivals to plan for, or a view whose plan is due."""
+        return bool(self._to_write or self._to_rewrite or self._events) or self._plan_due() <= 0
+
+    def wait(self, timeout: float) -> None:
+        """Wait at most `timeout` seconds for the next update to have work: a read ending,
+        or a view's plan falling due; at once where neither can come."""
+        due = self._plan_due()
+        timeout = min(timeout, max(0.0, due))
+        if self.state.in_flight > 0:
+            self.reader.wait(timeout)
+        elif due < np.inf:
+            time.sleep(timeout)
+
     @staticmethod
     def residency(reader: NodeReader, budget_points: int) -> Residency:
         """The plan's state for a budget of points (the store gets its capacity)."""

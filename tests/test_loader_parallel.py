@@ -526,3 +526,18 @@ def test_loader_keeps_large_blocks(monkeypatch):
     monkeypatch.setattr(pipeline, "keep_large_blocks", lambda: calls.append(1))
     with pipeline.CloudLoader([SAMPLE]):
         assert calls == [1]
+
+
+def test_a_frame_loop_waits_for_the_next_batch_without_taking_it():
+    """CloudLoader.wait: true at once while a batch is ready (and it stays for poll),
+    false after the timeout while none comes (the loader held after its first), true
+    once one does."""
+    with CloudLoader([SAMPLE], batch_points=20_000) as loader:
+        loader.start(first=1)
+        assert loader.wait(10.0) and loader.wait(0.0)
+        assert len(loader.poll()) == 1
+        t0 = time.perf_counter()
+        assert not loader.wait(0.05)
+        assert time.perf_counter() - t0 >= 0.05
+        loader.resume()
+        assert loader.wait(10.0) and loader.poll()

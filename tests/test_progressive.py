@@ -129,6 +129,34 @@ def test_only_needed_passes_run(gl, cloud):
     pr.release()
 
 
+def test_frames_rest_while_loading_once_what_has_loaded_is_drawn(gl, cloud, brute):
+    """While a cloud loads, a frame whose points are all drawn (the GPU said so) and that
+    has no batch to distribute runs no pass, its image the brute-force render of the
+    points loaded; the next batch sets frames going again, and the whole cloud converges
+    to its own brute-force render."""
+    info, batches = cloud
+    cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
+    slots = Permutation.for_count(info.points, order=LAYOUT).slots
+    pr = make(gl, cloud, budget=BudgetParams(fixed=slots), load=False)
+    style = pr.scene.style()
+    pr.add_batch(batches[0])
+    assert "fill" in pr.frame(cam, style) and not pr.resting
+    pr.flush()
+    assert pr.resting and not pr.converged and not pr.scene.complete
+    assert pr.frame(cam, style) == ()
+    first = Renderer(gl, info, default_attribute(info), width=W, height=H)
+    first.add_batch(batches[0])
+    assert np.array_equal(pr.read_ids(), first.render(cam, W, H, first.style()).ids)
+    first.release()
+    for b in batches[1:]:
+        pr.add_batch(b)
+    assert "distribute" in pr.frame(cam, style) and not pr.resting
+    pr.flush()
+    assert pr.converged
+    assert np.array_equal(pr.read_ids(), brute(cam))
+    pr.release()
+
+
 def test_history_keeps_the_last_frames_in_frame_order(gl, cloud):
     """Frames with fill are recorded when the GPU reports them, idle ones as issued: the
     history holds the last history_frames of them by frame number."""
