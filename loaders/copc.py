@@ -376,23 +376,27 @@ class CopcSource(LasSource):
             self.remote.close()
 
     def node_batch(self, k: int, start: int, origin: np.ndarray, names: tuple[str, ...],
-                   decoders: DecoderPool | None = None, lane: int = 0) -> Batch:
+                   decoders: DecoderPool | None = None,
+                   lane: Callable[[], contextlib.AbstractContextManager[int]] | None = None) -> Batch:
         """Node k (an index into hierarchy.nodes) read on its own, its points numbered from
         `start`: for a streaming reader's threads (each read opens the file, or fetches the
-        node's range, for itself). A local file's node is decoded by `decoders`' process
-        `lane` where given (lazrs holds the GIL while it decodes: in this process a node
-        stalls the frame loop), else here, as where the processes fail. InputError where
-        the node cannot be read or decoded. A fetched node's bytes go to the process with
-        its job. Records the processes decoded are parsed under their pool's parse_gate,
-        as the loader's parser threads parse them: every reading thread parsing at once
-        would contend for the GIL (laz_pool.CORES_PER_PARSER)."""
+        node's range, for itself). Where `decoders` are given, a process of theirs decodes
+        the node, held through `lane()` while it does (lazrs holds the GIL while it
+        decodes: in this process a node stalls the frame loop); else, or where the
+        processes fail, it is decoded here. InputError where the node cannot be read or
+        decoded. A fetched node takes its process once its bytes are here: a slow server
+        leaves the processes to the nodes that have arrived. Records the processes decoded
+        are parsed under their pool's parse_gate, as the loader's parser threads parse
+        them: every reading thread parsing at once would contend for the GIL
+        (laz_pool.CORES_PER_PARSER)."""
         node = self.hierarchy.nodes[k]
         count, size = int(node["point_count"]), int(node["byte_size"])
         elsewhere = None
         if decoders is not None and self.remote is None:
             try:
-                records = decoders.decode_run(lane, self.info.path, int(node["offset"]), ((count, size),),
-                                              self.laz.vlr_data, las.layers(names), self.records.dtype)
+                with lane() as process:
+                    records = decoders.decode_run(process, self.info.path, int(node["offset"]), ((count, size),),
+                                                  self.laz.vlr_data, las.layers(names), self.records.dtype)
             except DecodeFailed:
                 pass
             else:
@@ -402,7 +406,9 @@ class CopcSource(LasSource):
         elif decoders is not None:
             def elsewhere(compressed: bytes, records: np.ndarray, table: list) -> bool:
                 try:
-                    decoders.decode_bytes(lane, compressed, tuple(table), self.laz.vlr_data, las.layers(names), records)
+                    with lane() as process:
+                        decoders.decode_bytes(process, compressed, tuple(table), self.laz.vlr_data, las.layers(names),
+                                              records)
                 except DecodeFailed:
                     return False        # decoded here, which names what is wrong with it
                 return True

@@ -10,10 +10,12 @@ ids and picks of a streamed cloud mean what they mean for the plain file.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import queue
 import threading
 import urllib.parse
+from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
@@ -95,20 +97,25 @@ class NodeReader:
                     del self._futures[row]
                     self._done.put((row, None))
 
+    @contextlib.contextmanager
+    def _lane(self) -> Iterator[int]:
+        """A decoder process to this read alone while it decodes (each answers one at a time)."""
+        lane = self._lanes.get()
+        try:
+            yield lane
+        finally:
+            self._lanes.put(lane)
+
     def _read(self, row: int) -> None:
         source = self.sources[int(self._file[row])]
         ready = self.decoders is not None and self.decoders.ready
-        lane = self._lanes.get() if ready else None
         try:
             got: Batch | str = source.node_batch(int(self._local[row]), self.first_index(row), self.origin, self.names,
-                                                 None if lane is None else self.decoders, lane or 0)
+                                                 self.decoders if ready else None, self._lane)
         except InputError as exc:
             got = one_line(exc)
         except Exception as exc:        # any other failure is one node's too: the viewer goes on
             got = f"{type(exc).__name__}: {one_line(exc)}"
-        finally:
-            if lane is not None:
-                self._lanes.put(lane)
         with self._lock:
             self._futures.pop(row, None)
             if self._closed:

@@ -279,6 +279,44 @@ def test_nodes_fetched_over_http_are_decoded_by_the_processes(sample_copc, monke
 
 
 @pytest.mark.skipif(not laz_pool.available(), reason="decoder processes are for Linux")
+def test_fetches_under_way_leave_the_decoder_processes_free(sample_copc):
+    """A URL's node takes a decoder process only once its bytes are here: with every
+    answer held by the server, as many requests are in flight as the reader has threads
+    (four), more than its two processes, well before a held request times out and is
+    asked again; let go, every node is laspy's. (The nodes the open fetched for the first
+    image are dropped, so that every node is fetched.)"""
+    import threading
+
+    from range_server import RangeServer
+
+    from progressive.loaders.copc import open_copc_url
+    from progressive.loaders.http import HttpOptions
+
+    las, xyz = las_xyz(sample_copc)
+    pool = ready_pool()
+    hold = threading.Event()
+    with RangeServer({"sample.copc.laz": sample_copc}) as server:
+        source = open_copc_url(server.url("sample.copc.laz"), http=HttpOptions(timeout_s=4 * READ_BOUND_S))
+        source.held.clear()
+        reader = NodeReader((source,), np.zeros(3), ("intensity",), threads=4, decoders=pool)
+        rows = range(reader.nodes.level.size)
+        assert len(rows) > 4
+        server.faults.hold = hold
+        try:
+            for row in rows:
+                reader.request(row)
+            deadline = time.monotonic() + READ_BOUND_S
+            while server.active < 4 and time.monotonic() < deadline:
+                time.sleep(0.005)
+            assert server.active == 4
+            hold.set()
+            assert_every_node_is_laspys(reader, read_all(reader, rows), las, xyz)
+        finally:
+            hold.set()
+            reader.close()
+
+
+@pytest.mark.skipif(not laz_pool.available(), reason="decoder processes are for Linux")
 def test_decoder_processes_lost_or_given_a_damaged_node(tmp_path):
     """A damaged node decoded by a process is that node's failure, the others arrive; a
     process killed under the reader leaves the decoding to this process, every point
