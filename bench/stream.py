@@ -20,7 +20,7 @@ import json
 import os
 import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -34,6 +34,7 @@ from progressive.camera import Camera
 from progressive.cli import bytes_arg
 from progressive.loaders.copc_residency import Status
 from progressive.loaders.copc_write import write_copc
+from progressive.loaders.http import REQUESTS_IN_FLIGHT, HttpOptions
 from progressive.loaders.records import RECORD_BYTES
 from progressive.loaders.types import BATCH_POINTS
 from progressive.session import Session, SessionOptions, Streaming
@@ -271,13 +272,15 @@ def warm_up(source: str, options: SessionOptions) -> dict:
         return {"first_image_s": s.first_image_seconds, "startup": dict(s.startup)}
 
 
-def served(path: Path, options: SessionOptions, frames: int, limit_s: float) -> dict:
+def served(path: Path, options: SessionOptions, frames: int, limit_s: float, latency_s: float = 0.0) -> dict:
     """The same over HTTP from tests/range_server.py's RangeServer on 127.0.0.1 (python's
-    own http.server answers no ranges); the server's counts beside the client's."""
+    own http.server answers no ranges), in a process of its own as a real server would
+    be, each answer `latency_s` late (a round trip to a server farther away); the
+    server's counts beside the client's."""
     sys.path.insert(0, str(TESTS))
-    from range_server import RangeServer
+    from range_server import RangeServerProcess
 
-    with RangeServer({NAME: path}) as server:
+    with RangeServerProcess({NAME: path}, latency_s) as server:
         out = stream(server.url(NAME), options, frames, limit_s)
         out["server_requests"], out["server_bytes"] = server.counts()
     return out
@@ -291,7 +294,7 @@ COLUMNS = ("source", "leg", "moving frames", "frame ms p50", "frame ms p95", "fr
 
 def rows(label: str, run: dict) -> list[tuple]:
     """A row per leg; the first image on the overview's, what was fetched on HTTP's."""
-    out = []
+    out, remote = [], label.startswith("HTTP")
     for leg in run["legs"]:
         over = leg["leg"] == "overview"
         out.append((label, leg["leg"], leg["frames"], leg["frame_ms_p50"], leg["frame_ms_p95"], leg["frame_ms_max"],
@@ -300,38 +303,41 @@ def rows(label: str, run: dict) -> list[tuple]:
                     run["first_image_s"] if over else None, leg["detailed_s"], leg["settled_s"], leg["converged_s"],
                     leg["still_frames"], leg["still_frame_ms_max"], leg["resident_nodes"], leg["resident_points"],
                     leg["loading_max"], leg["evicted"], leg["nodes_read"],
-                    leg["bytes_fetched"] / 2**20 if label == "HTTP" else None, leg["requests"] if label == "HTTP" else None))
+                    leg["bytes_fetched"] / 2**20 if remote else None, leg["requests"] if remote else None))
     return out
 
 
 def run(points: int, limit: int, size: tuple[int, int], frames: int, cache: Path = CACHE,
-        limit_s: float = STILL_SECONDS, compress: bool = False, scratch: Path | None = None) -> tuple[Table, RunInfo]:
+        limit_s: float = STILL_SECONDS, compress: bool = False, scratch: Path | None = None,
+        requests: tuple[int, ...] = (REQUESTS_IN_FLIGHT,), latency_s: float = 0.0) -> tuple[Table, RunInfo]:
     load_before = os.getloadavg()[0]
     built = build(points, cache, compress, scratch)
     width, height = size
     options = SessionOptions(width=width, height=height, stream=Streaming.ON, gpu_memory_limit=limit)
     warm = warm_up(str(built.path), options)
     local = stream(str(built.path), options, frames, limit_s)
-    remote = served(built.path, options, frames, limit_s)
+    remotes = {(f"HTTP {n}" if len(requests) > 1 else "HTTP"): served(
+        built.path, replace(options, http=HttpOptions(in_flight=n)), frames, limit_s, latency_s) for n in requests}
+    runs = {"file": local, **remotes}
     load_after = os.getloadavg()[0]
     caps = local.pop("device")
-    remote.pop("device")
+    for remote in remotes.values():
+        remote.pop("device")
     pixel_bytes = width * height * memory.PIXEL_BYTES
     staging = BATCH_POINTS * RECORD_BYTES
     table = Table("stream", "Streaming COPC: a file larger than the GPU memory limit, by level of detail",
                   f"{SAMPLE.name} tiled, converted to COPC ({built.nodes:,} nodes, {built.levels} levels, "
                   f"{built.bytes / 2**20:.0f} MiB)", f"{built.points:,}", COLUMNS)
-    table.rows = rows("file", local) + rows("HTTP", remote)
+    table.rows = [row for label, r in runs.items() for row in rows(label, r)]
     convert = (f"converted in {built.convert_seconds:.1f} s (loaders/copc_write.write_copc, what `progressive "
                f"convert IN OUT.copc.laz` runs; the tiled LAS written in {built.tile_seconds:.1f} s before)")
-    ends = ", ".join(f"{label} {r['legs'][-1]['resident_nodes']:,} nodes resident"
-                     for label, r in (("file", local), ("HTTP", remote)))
-    medians = {label: writing(r) for label, r in (("file", local), ("HTTP", remote))}
+    ends = ", ".join(f"{label} {r['legs'][-1]['resident_nodes']:,} nodes resident" for label, r in runs.items())
+    medians = {label: writing(r) for label, r in runs.items()}
     changes = " and ".join(f"{m[0]:.0f} ms ({label})" for label, m in medians.items())
     others = " and ".join(f"{m[1]:.0f} ms" for m in medians.values())
     used, batches, batch_points = local["batches"]
     filled = local["resident_points"] / (used * batch_points) if used else 0.0     # nothing came: said below
-    unsettled = [f"{label} {leg['leg']}" for label, r in (("file", local), ("HTTP", remote)) for leg in r["legs"]
+    unsettled = [f"{label} {leg['leg']}" for label, r in runs.items() for leg in r["legs"]
                  if leg["converged_s"] is None]
     table.notes = [
         (f"{built.points:,} points: bench/data.py's tiling of the bundled sample (raw-integer copies shifted by whole "
@@ -363,13 +369,15 @@ def run(points: int, limit: int, size: tuple[int, int], frames: int, cache: Path
          f"a frame past the first node while the camera moves, {WRITE_STILL_SECONDS * 1e3:g} ms while it holds still, "
          f"or evicted) took a median {changes}, the others {others}."),
         (f"HTTP: tests/range_server.py's RangeServer on 127.0.0.1 (the file held in memory, answering in threads of "
-         f"this process, so it shares the cores and the GIL with the renderer); MB fetched and requests: the "
-         f"client's counts (Session.status().copc[0]) at the end of each leg, cumulative; the server counted "
-         f"{remote['server_requests']:,} requests and {remote['server_bytes'] / 2**20:.1f} MiB in all."),
+         f"a process of its own: RangeServerProcess, each answer {latency_s * 1e3:g} ms late), one session for each number of range requests in flight "
+         f"(HttpOptions.in_flight, `--http-requests`; 'HTTP n' where the run compares several); MB fetched and "
+         f"requests: the client's counts (Session.status().copc[0]) at the end of each leg, cumulative; the server "
+         f"counted " + ", ".join(f"{r['server_requests']:,} requests and {r['server_bytes'] / 2**20:.1f} MiB "
+                                 f"({label})" for label, r in remotes.items()) + " in all."),
         (f"End of the path: {ends}; the file session's nodes took {used} of the store's {batches} batches of {batch_points:,} "
          f"points, their points filling {filled:.0%} of them (a node takes whole batches: the rest is each node's "
          f"last batch's padding); "
-         f"failed nodes: file {local['failed_nodes']}, HTTP {remote['failed_nodes']}. "
+         f"failed nodes: " + ", ".join(f"{label} {r['failed_nodes']}" for label, r in runs.items()) + ". "
          + (f"Not converged within {limit_s:.0f} s: {', '.join(unsettled)}. " if unsettled else "")
          + f"Load average (1 min) {load_before:.1f} before, {load_after:.1f} after, on {os.cpu_count()} cores shared "
            f"with other work: other processes show in the frame times and the seconds to settle."),
@@ -377,7 +385,9 @@ def run(points: int, limit: int, size: tuple[int, int], frames: int, cache: Path
     table.raw = {"built": {k: str(v) if isinstance(v, Path) else v for k, v in asdict(built).items()},
                  "limit_bytes": limit, "size": list(size), "frames_per_leg": frames, "pixel_bytes": pixel_bytes,
                  "staging_bytes": staging, "corner": CORNER, "close": CLOSE, "fly": FLY, "still_seconds": limit_s,
-                 "load_average": [load_before, load_after], "warm_up": warm, "file": local, "http": remote}
+                 "load_average": [load_before, load_after], "warm_up": warm, "file": local,
+                 "http": {str(n): remotes[label] for n, label in zip(requests, remotes)},
+                 "http_latency_s": latency_s}
     return table, RunInfo.from_caps(caps, f"streamed, {limit / 2**20:.0f} MiB limit, {width}x{height}")
 
 
@@ -392,6 +402,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--laz", action="store_true", help="tile the sample as LAZ before converting (default LAS)")
     ap.add_argument("--build-only", action="store_true", help="make the COPC file and stop (a device call of its own)")
     ap.add_argument("--scratch", type=Path, help="where the convert's out-of-core scratch goes (default: --cache)")
+    ap.add_argument("--http-requests", type=int, nargs="+", default=[REQUESTS_IN_FLIGHT], metavar="N",
+                    help="range requests in flight over HTTP; several: one HTTP session each, side by side")
+    ap.add_argument("--http-latency", type=float, default=0.0, metavar="MS",
+                    help="milliseconds each HTTP answer waits before it starts (a farther server's round trip)")
     ap.add_argument("--out", type=Path, default=None, help="default: bench/results/<machine>/")
     args = ap.parse_args(argv)
     if args.build_only:
@@ -401,7 +415,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     width, height = (int(v) for v in args.size.split("x"))
     table, info = run(args.points, args.limit, (width, height), args.frames, args.cache, args.still_seconds,
-                      args.laz, args.scratch)
+                      args.laz, args.scratch, tuple(args.http_requests),
+                      args.http_latency / 1e3)
     table.publish(info, args.out, RESULTS)
     return 0
 

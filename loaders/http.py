@@ -40,9 +40,14 @@ SLOW_BYTES = 1 << 14
 """Bytes an answer must bring in every timeout_s while it comes (or all it has left): a
 server that trickles its bytes (16 KiB in 20 s is 0.8 KB/s) fails as a silent one does,
 within about two timeouts, instead of holding the file for hours."""
-REQUESTS_IN_FLIGHT = 4
-"""Requests at once to one file: enough to hide a round trip behind the others'
-transfers, few enough for any server's limit per client."""
+REQUESTS_IN_FLIGHT = 8
+"""Requests at once to one file (laspy's CopcReader takes 8 threads too): a streamed view
+waits on round trips, one node a request, so the time to a resident view falls with
+this until the server or the decoders are the limit; few enough for a server's limit
+per client (--http-requests sets it)."""
+MAX_REQUESTS_IN_FLIGHT = 64
+"""The most requests at once to one file that --http-requests takes (each is a connection
+and a thread)."""
 RETRIES = 1
 """Times a request whose connection was dropped is sent again."""
 AHEAD_BYTES = 1 << 25

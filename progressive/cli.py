@@ -220,17 +220,20 @@ def add_cloud_args(parser) -> None:
 
 
 def add_http_arg(parser) -> None:
-    from progressive.loaders.http import TIMEOUT_S
+    from progressive.loaders.http import MAX_REQUESTS_IN_FLIGHT, REQUESTS_IN_FLIGHT, TIMEOUT_S
 
     parser.add_argument("--http-timeout", type=seconds_arg, default=TIMEOUT_S, metavar="SECONDS",
                         help=f"how long a request for an http(s):// COPC file may wait for the server "
                              f"(default {TIMEOUT_S:g})")
+    parser.add_argument("--http-requests", type=bounded_int(MAX_REQUESTS_IN_FLIGHT), default=REQUESTS_IN_FLIGHT,
+                        metavar="N", help=f"range requests in flight at once to an http(s):// COPC file "
+                                          f"(default {REQUESTS_IN_FLIGHT}; fewer for a server that limits clients)")
 
 
 def http_from(args):
     from progressive.loaders.http import HttpOptions
 
-    return HttpOptions(timeout_s=args.http_timeout)
+    return HttpOptions(timeout_s=args.http_timeout, in_flight=args.http_requests)
 
 
 def add_reproject_arg(parser) -> None:

@@ -7,6 +7,7 @@ answers). It counts what it answers, for the status the reader reports. With `tl
 
 from __future__ import annotations
 
+import multiprocessing
 import re
 import socket
 import ssl
@@ -107,6 +108,45 @@ class RangeServer:
     def __exit__(self, *exc) -> None:
         self._server.shutdown()
         self._server.server_close()
+
+
+class RangeServerProcess:
+    """A RangeServer in a process of its own: `with RangeServerProcess({"name": path}) as
+    server: server.url("name")`, for a bench whose client must not share its interpreter
+    (and the GIL) with the server's threads, as a real server would not. `pause`: seconds
+    every answer waits before it starts (Faults.pause: a network's round trip)."""
+
+    def __init__(self, files: dict[str, Path], pause: float = 0.0):
+        self._pipe, child = multiprocessing.get_context("spawn").Pipe()
+        self._process = multiprocessing.get_context("spawn").Process(
+            target=_serve_apart, args=({name: str(path) for name, path in files.items()}, pause, child), daemon=True)
+        self._base = ""
+
+    def url(self, name: str) -> str:
+        return f"{self._base}/{name}"
+
+    def counts(self) -> tuple[int, int]:
+        """Requests answered and body bytes sent so far (once the answers under way are done)."""
+        self._pipe.send("counts")
+        return self._pipe.recv()
+
+    def __enter__(self) -> RangeServerProcess:
+        self._process.start()
+        self._base = self._pipe.recv()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._pipe.send("stop")
+        self._process.join(HOLD_S)
+
+
+def _serve_apart(files: dict[str, str], pause: float, pipe) -> None:
+    """RangeServerProcess's child: serve until told to stop, answering for counts."""
+    with RangeServer({name: Path(path) for name, path in files.items()}) as server:
+        server.faults.pause = pause
+        pipe.send(server.url("").rstrip("/"))
+        while (ask := pipe.recv()) != "stop":
+            pipe.send(server.counts() if ask == "counts" else None)
 
 
 class _Server(ThreadingHTTPServer):

@@ -15,6 +15,7 @@ import time
 import laspy
 import numpy as np
 import pytest
+from PIL import Image
 from range_server import Faults, RangeServer, self_signed
 from test_copc import SMALL, damaged_copc, limit_for, nodes_of, plain_copy
 
@@ -263,6 +264,29 @@ def test_info_http_timeout(files, capsys):
             assert took < 4.0
         code, _, err, _ = run_cli(["info", own.url("a.copc.laz"), "--http-timeout", "0"], capsys)
         assert_one_error(code, err, "--http-timeout")
+
+
+def test_http_requests_flag(files, tmp_path, capsys):
+    """render --http-requests n: up to n range requests at once, and that many while the
+    nodes wait for answers that come late (a server of the test's own, whose counts are
+    this render's alone); the image that of the default; a bad value refused in one line."""
+    name = "sample.copc.laz"
+    assert open_copc(files[name]).hierarchy.nodes.size > 4, "the render should need more nodes than requests"
+    images = {}
+    for n in (1, 3):
+        with RangeServer({name: files[name]}) as own:
+            own.faults.pause = 0.05
+            out = tmp_path / f"{n}.png"
+            code, _, err, _ = run_cli(["render", *SMALL, own.url(name), "--http-requests", str(n), "--out", str(out)],
+                                      capsys)
+            assert code == 0, err
+            requests, _ = own.counts()
+            assert own.most_active == n < requests
+            images[n] = np.asarray(Image.open(out))
+    np.testing.assert_array_equal(images[1], images[3])
+    for bad in ("0", "65", "many"):
+        code, _, err, _ = run_cli(["render", *SMALL, files[name].as_uri(), "--http-requests", bad], capsys)
+        assert_one_error(code, err, "--http-requests")
 
 
 def pick_at_centre(capsys, tmp_path, source, *args) -> tuple[dict, np.ndarray]:
