@@ -297,8 +297,9 @@ class Session:
         names = tuple(a.name for a in self.info.attributes) if options.switchable else \
             self._needed(self.attribute, class_filter)
         cores = available_cores()
-        # nodes are read and decoded on every core; a URL's range requests stay bounded by its file
-        threads = max(cores, options.http.in_flight)
+        # nodes are read and decoded on every core; a URL's range requests (bounded by its file) on as many
+        remote = any(source.remote is not None for source in self.loader.sources)
+        threads = max(cores, options.http.in_flight) if remote else cores
         # as the loader's Decoders.AUTO: on fewer cores the processes' start slows the first image
         processes = laz_pool.available() and cores >= laz_pool.MIN_AUTO_PROCESSES
         decoders = DecoderPool(min(threads, cores)) if processes else None

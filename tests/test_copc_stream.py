@@ -362,8 +362,9 @@ def test_nodes_are_read_on_every_core_a_urls_requests_bounded_by_its_file(sample
     """A streamed cloud's nodes are read and decoded on every core the process may use
     (on 16 cores, four at a time left three quarters of them idle while a view's nodes
     came), a file or a URL; a URL's range requests stay within HttpOptions.in_flight at
-    once (its RemoteFile's bound: a reader waiting on a decoder holds no request). The
-    plan keeps READS_QUEUED reads requested a thread: the next waits in the pool."""
+    once (its RemoteFile's bound: a reader waiting on a decoder holds no request), with a
+    thread for each where the cores are fewer. The plan keeps READS_QUEUED reads
+    requested a thread: the next waits in the pool."""
     from range_server import RangeServer
 
     from progressive import session as session_module
@@ -383,6 +384,11 @@ def test_nodes_are_read_on_every_core_a_urls_requests_bounded_by_its_file(sample
         converge(s, s.auto_camera())
         assert s.status().stream.resident_nodes > 3
         assert server.most_active == 3, server.most_active
+    monkeypatch.setattr(session_module, "available_cores", lambda: 2)
+    with streamed(sample_copc) as s:     # a file's reads are no requests: one thread a core
+        assert s.streamer.reader._pool._max_workers == 2 < HttpOptions().in_flight
+    with RangeServer({LONE_STAR: path}) as server, streamed(server.url(LONE_STAR), http=HttpOptions(in_flight=6)) as s:
+        assert s.streamer.reader._pool._max_workers == 6      # a thread for each request in flight
 
 
 def test_reads_queue_up_only_once_the_first_nodes_are_shown(monkeypatch):
