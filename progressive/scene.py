@@ -95,7 +95,8 @@ class Scene:
         if class_filter and CLASSIFICATION not in {a.name for a in info.attributes}:
             raise ProgressiveError("this cloud has no classification to filter by")
         self.store = PointStore(glc, info.points, capacity=capacity, chunk_points=chunk_points, order=order,
-                                classes=class_filter, records=records, position_encoding=position_encoding)
+                                classes=class_filter, records=records, position_encoding=position_encoding,
+                                placed=streamed)
         self.distribute = DistributePass(glc, self.store)
         self.batch_order = batch_order if self.store.batched and not streamed else batch_boxes.BatchOrder.FILE
         self.assembler = encoding.BatchAssembler(info.points, keep=_copied_rows) if self.store.words else None

@@ -264,3 +264,22 @@ def test_sorted_rows_are_the_whole_store_batches_of_a_loaded_batch():
     assert (start + lo) % BATCH_POINTS == 0 and np.array_equal(np.sort(order), np.arange(4 * BATCH_POINTS))
     np.testing.assert_array_equal(order, batches.morton_order(xyz[lo: lo + 4 * BATCH_POINTS]))
     assert batches.sorted_rows(start, xyz[: 3 * BATCH_POINTS - 10]) is None      # one whole batch only
+
+
+def test_a_placed_stores_order_starts_from_zeros(gl):
+    """A placed store (a streamed cloud's) is given the file-order index of every point
+    written to it, so its map starts from zeros, which the system hands out untouched;
+    a loaded store's map keeps the identity for the batches never reordered."""
+    from progressive.pointstore import PointStore
+
+    given = np.array([7, 3, 11], dtype=np.uint32)
+    for placed in (False, True):
+        store = PointStore(gl, 5_000, placed=placed)
+        try:
+            store.reorder(100, given)
+            expected = np.zeros(5_000, np.uint32) if placed else np.arange(5_000, dtype=np.uint32)
+            expected[100:103] = given
+            np.testing.assert_array_equal(store.file_order, expected)
+            np.testing.assert_array_equal(store.file_indices(np.arange(100, 103)), given)
+        finally:
+            store.release()
