@@ -369,8 +369,9 @@ def run(points: int, limit: int, size: tuple[int, int], frames: int, cache: Path
          f"a frame past the first node while the camera moves, {WRITE_STILL_SECONDS * 1e3:g} ms while it holds still, "
          f"or evicted) took a median {changes}, the others {others}."),
         (f"HTTP: tests/range_server.py's RangeServer on 127.0.0.1 (the file held in memory, answering in threads of "
-         f"a process of its own: RangeServerProcess, each answer {latency_s * 1e3:g} ms late), one session for each number of range requests in flight "
-         f"(HttpOptions.in_flight, `--http-requests`; 'HTTP n' where the run compares several); MB fetched and "
+         f"a process of its own: RangeServerProcess, each answer {latency_s * 1e3:g} ms late), one session for "
+         f"each number of range requests in flight (HttpOptions.in_flight, `--http-requests`; 'HTTP n' where the "
+         f"run compares several); MB fetched and "
          f"requests: the client's counts (Session.status().copc[0]) at the end of each leg, cumulative; the server "
          f"counted " + ", ".join(f"{r['server_requests']:,} requests and {r['server_bytes'] / 2**20:.1f} MiB "
                                  f"({label})" for label, r in remotes.items()) + " in all."),

@@ -1,5 +1,5 @@
-"""An HTTP server on 127.0.0.1 serving files by range requests, in a thread, for the
-COPC-over-HTTP tests: the standard library's http.server with a Range handler, and the
+"""An HTTP server on 127.0.0.1 serving files by range requests, in a thread (or, for the
+streaming bench, a process of its own: RangeServerProcess), for the COPC-over-HTTP tests: the standard library's http.server with a Range handler, and the
 faults of bad networks on demand (ranges ignored, connections dropped mid-answer, slow
 answers). It counts what it answers, for the status the reader reports. With `tls`
 (a certificate and its key, self_signed makes them) it serves HTTPS.

@@ -182,28 +182,32 @@ def test_upload_pieces_are_loader_batches_of_consecutive_tiles():
 
 def test_stream_bench_runs(tmp_path):
     """bench.stream on the sample converted to COPC (cached, so a second run reuses it):
-    after a warm-up session (its first image reported), for the file and over HTTP, the
-    overview and each leg of the path settle and converge within the limit's room, and
-    the HTTP rows count what was fetched."""
+    after a warm-up session (its first image reported), for the file and over HTTP (a
+    session for each number of requests in flight, each answer 5 ms late), the overview
+    and each leg of the path settle and converge within the limit's room, and the HTTP
+    rows count what was fetched."""
     from bench import stream
 
     args = ["--points", "110000", "--limit", "9M", "--size", "96x64", "--frames", "3", "--still-seconds", "60",
-            "--cache", str(tmp_path / "cache"), "--out", str(tmp_path)]
+            "--cache", str(tmp_path / "cache"), "--out", str(tmp_path), "--http-requests", "2", "3",
+            "--http-latency", "5"]
     assert stream.main(args) == 0
     payload = json.loads((tmp_path / "stream.json").read_text())
     assert payload["name"] == "stream" and payload["run"]["device"] and payload["columns"] == list(stream.COLUMNS)
     rows = [dict(zip(stream.COLUMNS, r)) for r in payload["rows"]]
     legs = ["overview", "zoom in", "fly along", "zoom out"]
-    assert [(r["source"], r["leg"]) for r in rows] == [(s, leg) for s in ("file", "HTTP") for leg in legs]
+    assert [(r["source"], r["leg"]) for r in rows] == [(s, leg) for s in ("file", "HTTP 2", "HTTP 3") for leg in legs]
     assert all(r["converged s"] is not None and r["1 px detail s"] <= r["settled s"] <= r["converged s"] for r in rows)
     assert all(r["moving frames"] == (0 if r["leg"] == "overview" else 3) for r in rows)
     raw = payload["raw"]
     assert raw["built"]["points"] == 110_000 and not raw["built"]["cached"]
     assert raw["warm_up"]["first_image_s"] > 0 and "programs" in raw["warm_up"]["startup"]
-    for source in ("file", "http"):
-        assert 0 < raw[source]["resident_points"] <= raw[source]["capacity_points"]
-        assert all(leg["nodes_read"] >= leg["resident_nodes"] for leg in raw[source]["legs"])
-    assert all(r["MB fetched"] > 0 and r["requests"] > 0 for r in rows if r["source"] == "HTTP")
+    assert sorted(raw["http"]) == ["2", "3"] and raw["http_latency_s"] == 0.005
+    for run in (raw["file"], *raw["http"].values()):
+        assert 0 < run["resident_points"] <= run["capacity_points"]
+        assert all(leg["nodes_read"] >= leg["resident_nodes"] for leg in run["legs"])
+    assert all(r["MB fetched"] > 0 and r["requests"] > 0 for r in rows if r["source"].startswith("HTTP"))
+    assert all(r["MB fetched"] is None for r in rows if r["source"] == "file")
     assert stream.build(110_000, tmp_path / "cache").cached
     md = (tmp_path / "stream.md").read_text()
     assert md.startswith("# ") and "N: 110,000" in md
