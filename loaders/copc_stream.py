@@ -15,7 +15,7 @@ import os
 import queue
 import threading
 import urllib.parse
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
@@ -49,10 +49,11 @@ class NodeReader:
     without waiting. Reads may finish in any order. `decoders`:
     decoder processes for the nodes, one read at a time each (their decoding then leaves
     the GIL to the frame loop; a URL's node goes to its process once fetched); the
-    reader closes them."""
+    reader closes them. `on_parsed`: what each node's Batch becomes, on its reading
+    thread (the core's work that need not wait for the frame loop)."""
 
     def __init__(self, sources: tuple[CopcSource, ...], origin: np.ndarray, names: tuple[str, ...], threads: int,
-                 decoders: DecoderPool | None = None):
+                 decoders: DecoderPool | None = None, on_parsed: Callable[[Batch], Batch] | None = None):
         if not streamable(sources):
             raise ValueError("every source must be a COPC file with a usable hierarchy")
         keep_large_blocks()
@@ -61,6 +62,7 @@ class NodeReader:
         self.sources = sources
         self.origin = np.asarray(origin, np.float64)
         self.names = names
+        self.on_parsed = on_parsed
         offsets = np.cumsum([0] + [s.info.points for s in sources])
         self._file = self.nodes.file
         self._local = np.concatenate([np.arange(x.nodes.size) for x in h])
@@ -112,6 +114,8 @@ class NodeReader:
         try:
             got: Batch | str = source.node_batch(int(self._local[row]), self.first_index(row), self.origin, self.names,
                                                  self.decoders if ready else None, self._lane)
+            if self.on_parsed is not None:
+                got = self.on_parsed(got)
         except InputError as exc:
             got = one_line(exc)
         except Exception as exc:        # any other failure is one node's too: the viewer goes on

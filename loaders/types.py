@@ -189,6 +189,14 @@ class Runs:
         """Whether these are the runs of `count` rows from cloud index `start`, by runs of `points`."""
         return (self.start, self.count, self.points) == (start, count, points)
 
+    def moved(self, start: int) -> Runs | None:
+        """The same runs for these rows moved to cloud index `start` (a streamed node's
+        rows, written at a store batch's first index), where both starts begin a run;
+        else None."""
+        if self.start % self.points or start % self.points:
+            return None
+        return Runs(self.points, start // self.points, self.least, self.most, start, self.count)
+
     def rows(self, lo: int, hi: int) -> Runs | None:
         """Those of rows lo..hi of the batch: the runs they touch, where each still holds
         the rows it held (the rows end at the batch's ends or at runs' ends); else None

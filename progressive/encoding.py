@@ -283,6 +283,17 @@ def with_runs(batch: Batch) -> Batch:
     return batch
 
 
+def node_runs(node: Batch) -> Batch:
+    """A streamed node with the least and most integers of each store batch it will
+    fill: its i-th takes its rows [i·B, (i+1)·B), so they are found as if it began at a
+    batch's start (Scene.write_store_batches moves them to where it writes the node),
+    on the node's reading thread rather than the frame loop's (frame_parts took 0.19-0.21
+    ms a node of the 20 M-point COPC on the 2-core machine, 0.135-0.139 ms with them)."""
+    if node.count == 0 or node.grid is None:
+        return node
+    return replace(node, grid=replace(node.grid, runs=cell_runs(node.grid.cells, 0, BATCH_POINTS)))
+
+
 def cell_range(grid, start: int) -> tuple[int, np.ndarray, np.ndarray]:
     """The first batch that file indices [start, start+n) of a LAS batch's Grid touch
     and the least and most (k, 3) int64 cells of the points in each batch touched

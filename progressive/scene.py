@@ -136,6 +136,8 @@ class Scene:
         at = first * BATCH_POINTS
         self.store.reorder(at, np.arange(part.start, part.start + part.count, dtype=np.uint32))
         placed = replace(part, start=at)
+        if part.grid is not None and part.grid.runs is not None:      # encoding.node_runs, found as if at 0
+            placed = replace(placed, grid=replace(part.grid, runs=part.grid.runs.moved(at)))
         if self.assembler is not None:
             hidden = self._encode_group([(at, part.count, [(placed, 0, part.count)])])
         else:

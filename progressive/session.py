@@ -303,7 +303,8 @@ class Session:
         # as the loader's Decoders.AUTO: on fewer cores the processes' start slows the first image
         processes = laz_pool.available() and cores >= laz_pool.MIN_AUTO_PROCESSES
         decoders = DecoderPool(min(threads, cores)) if processes else None
-        reader = NodeReader(self.loader.sources, self.info.origin, names, threads, decoders)
+        reader = NodeReader(self.loader.sources, self.info.origin, names, threads, decoders,
+                            on_parsed=encoding.node_runs)
         scene = None
         try:
             need = int(batch_cost(reader.nodes.points, BATCH_POINTS).sum())     # every node, in whole batches

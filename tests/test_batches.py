@@ -300,6 +300,23 @@ def test_cell_runs_of_rows_are_those_of_their_cells():
     assert runs.rows(ends[1], ends[2] + 1) is None
 
 
+def test_runs_moved_to_a_runs_start_are_those_found_there():
+    """Runs.moved: a streamed node's runs, found as if it began at 0, equal cell_runs of
+    its cells where it is written (a run's start); from or to another start, None."""
+    from progressive.loaders.types import cell_runs
+
+    rng = np.random.default_rng(8)
+    points = 1_000
+    cells = rng.integers(-2**30, 2**30, size=(2_345, 3)).astype(np.int32)
+    found = cell_runs(cells, 0, points)
+    for at in (0, 7 * points):
+        moved, expected = found.moved(at), cell_runs(cells, at, points)
+        assert moved.of(at, cells.shape[0], points) and moved.first == expected.first
+        np.testing.assert_array_equal(moved.least, expected.least)
+        np.testing.assert_array_equal(moved.most, expected.most)
+    assert found.moved(points + 1) is None and cell_runs(cells, 5, points).moved(0) is None
+
+
 def test_runs_found_by_the_parsers_frame_the_store_as_the_frame_loop_did(gl, monkeypatch):
     """A loader whose parser threads find each batch's runs (the session's on_parsed,
     encoding.with_runs) gives the word store the same frames, least integers,

@@ -418,6 +418,30 @@ def test_reads_queue_up_only_once_the_first_nodes_are_shown(monkeypatch):
         assert s.streamer.options.max_in_flight == READS_QUEUED * threads
 
 
+def test_node_frames_are_found_on_the_reading_threads(monkeypatch):
+    """The least and most integers of each store batch a node fills (its frames) are
+    found on the node's reading thread (encoding.node_runs), never the frame loop's,
+    and the still view is exact with them."""
+    import threading
+
+    from progressive import encoding
+
+    on_main = []
+    real = encoding.cell_runs
+
+    def spy(*args, **kwargs):
+        on_main.append(threading.current_thread() is threading.main_thread())
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(encoding, "cell_runs", spy)
+    path = shared_file(LONE_STAR)
+    _, xyz = las_xyz(path)
+    with still(path) as (s, camera):
+        assert s.status().stream.resident_nodes > 1
+        assert_exact(s, camera, xyz)
+    assert on_main and not any(on_main), on_main
+
+
 def test_limit_keeps_a_tree_cut_renders_it_exactly_and_picks_the_files_points():
     path = shared_file(LONE_STAR)
     las, xyz = las_xyz(path)
