@@ -42,6 +42,13 @@ def chunk_capacity(max_ssbo_bytes: int) -> int:
     return min(max_ssbo_bytes, 2**31 - 1) // RECORD_BYTES
 
 
+def most_records(max_ssbo_bytes: int) -> int:
+    """Records a store can hold at all: MAX_POINT_CHUNKS buffers of chunk_capacity, each
+    in whole blocks (the word store's)."""
+    per = chunk_capacity(max_ssbo_bytes)
+    return MAX_POINT_CHUNKS * (per - per % BLOCK_RECORDS)
+
+
 BLOCK_RECORDS = 4096
 """Records of a word store's block: its four planes in turn, 64 KiB. Planes in buffers
 of their own put a point's words gigabytes apart, each an address translation of its

@@ -30,7 +30,9 @@ from progressive.loaders.copc import CopcSource, open_copc
 from progressive.loaders.copc_residency import Status
 from progressive.loaders.copc_stream import NodeReader
 from progressive.loaders.laz_pool import DecoderPool
+from progressive.loaders.records import RECORD_BYTES
 from progressive.permutation import BATCH_POINTS
+from progressive.pointstore import BLOCK_RECORDS
 from progressive.reference import subset_reference_ids
 from progressive.session import Session, SessionOptions, Streaming, node_view
 from progressive.streaming import READS_QUEUED, StoreChange
@@ -416,6 +418,51 @@ def test_reads_queue_up_only_once_the_first_nodes_are_shown(monkeypatch):
                 break
         assert s.converged and max(later) > threads, later
         assert s.streamer.options.max_in_flight == READS_QUEUED * threads
+
+
+def test_no_memory_figure_streams_within_the_default(monkeypatch):
+    """Where no limit is configured and the driver reports no free memory (Mesa's, AMD's
+    and Intel's drivers), a streamed cloud keeps memory.STREAM_BYTES, not a store for
+    every node: a tree cut within it, rendered exactly, and a warning that says so."""
+    import dataclasses
+
+    from progressive import context, memory
+
+    real = context.read_capabilities
+    monkeypatch.setattr(context, "read_capabilities",
+                        lambda *a: dataclasses.replace(real(*a), free_memory_kib=None))
+    monkeypatch.setattr(memory, "STREAM_BYTES", limit_for(250_000))
+    path = shared_file(LONE_STAR)
+    _, xyz = las_xyz(path)
+    with still(path) as (s, camera):
+        assert s.memory.available_bytes == limit_for(250_000)
+        assert 0 < s.status().stream.resident_points <= s.status().stream.capacity_points <= 250_000 < len(xyz)
+        assert_tree_cut(s)
+        assert_exact(s, camera, xyz)
+        assert any("by default" in w and "--gpu-memory-limit" in w for w in s.warnings), s.warnings
+
+
+def test_a_streamed_store_stays_within_the_buffers_it_may_have(monkeypatch):
+    """Where every node would need more buffers than a store may have (llvmpipe's 128 MiB
+    buffers: a 100 M-point COPC streamed with no limit failed to open), a streamed cloud
+    keeps what they hold, a tree cut rendered exactly, and the warning says why."""
+    import dataclasses
+
+    from progressive import context
+    from progressive.bindings import MAX_POINT_CHUNKS
+
+    real = context.read_capabilities
+    small = 4 * BLOCK_RECORDS * RECORD_BYTES        # buffers of four blocks
+    monkeypatch.setattr(context, "read_capabilities",
+                        lambda *a: dataclasses.replace(real(*a), max_ssbo_bytes=small))
+    path = shared_file(LONE_STAR)
+    _, xyz = las_xyz(path)
+    with still(path, limit_for(len(xyz) * 2)) as (s, camera):
+        assert s.renderer.store.chunks <= MAX_POINT_CHUNKS
+        assert 0 < s.status().stream.resident_points <= MAX_POINT_CHUNKS * 4 * BLOCK_RECORDS < len(xyz)
+        assert_tree_cut(s)
+        assert_exact(s, camera, xyz)
+        assert any(f"at most {MAX_POINT_CHUNKS} buffers" in w for w in s.warnings), s.warnings
 
 
 def test_node_frames_are_found_on_the_reading_threads(monkeypatch):
