@@ -204,7 +204,8 @@ def add_cloud_args(parser) -> None:
     parser.add_argument("--partial", action="store_true", help="show what a truncated file holds, with a warning")
     parser.add_argument("--gpu-memory-limit", type=bytes_arg, help="GPU memory to use, e.g. 4G; a larger cloud shows "
                         "whole levels of its COPC files, else a uniform random subset (the free memory the driver "
-                        "reports also counts)")
+                        "reports also counts); a streamed COPC keeps the nodes each view needs within it "
+                        "(default 2G)")
     parser.add_argument("--batch-order", type=enum_arg(BatchOrder), default=BATCH_ORDER,
                         help="file (store batches of consecutive points in file order) or morton (each loaded "
                              "batch's whole store batches sorted by Morton code first: compacter batches where the "

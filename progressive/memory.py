@@ -18,12 +18,13 @@ from progressive.pointstore import BLOCK_RECORDS
 # visibility, reference, two lists, hint, words, image, winners, prepare's gathers
 PIXEL_BYTES = 8 + 8 + 2 * (4 + 16) + 4 + 4 + 4 + 16 + 4 + GATHER_BYTES
 HEADROOM = 0.9                                     # of the free memory the driver reports
-STREAM_BYTES = 1 << 30
-"""GPU memory a streamed cloud keeps where no limit is configured and the driver reports
-no free memory (only NVIDIA's does: GL_NVX_gpu_memory_info): without it the store would
-hold every node, allocated at once (a 1 B-point COPC: about 19 GiB; llvmpipe's memory is
-the host's, and 0.6 GiB took 1.4 s to allocate on the 2-core machine). --gpu-memory-limit
-sets more."""
+STREAM_BYTES = 2 << 30
+"""GPU memory a streamed cloud keeps unless a limit is configured (less where the driver
+reports less free): as a tiled-scene viewer's memory budget, for the nodes a view needs
+rather than a store for every node, allocated at once and filled before the first image
+(a 1 B-point COPC: about 19 GiB; on the H100 machine a 4 GiB store took 0.48 s of a
+1.02 s first image; llvmpipe's memory is the host's, and 0.6 GiB took 1.4 s to
+allocate on the 2-core machine). 2 GiB holds 125 M points, 60 a pixel at 1920x1080."""
 
 
 @dataclass(frozen=True)
@@ -47,18 +48,19 @@ class MemoryPlan:
 
 
 def plan(points: int, caps: Capabilities, pixels: int, limit_bytes: int | None = None,
-         extra_bytes_per_point: int = 0, unknown_bytes: int | None = None) -> MemoryPlan:
+         extra_bytes_per_point: int = 0, default_bytes: int | None = None) -> MemoryPlan:
     """extra_bytes_per_point: what a point costs beside its record (its class byte).
-    unknown_bytes: what to plan against where neither a limit nor the driver gives a
-    figure (a streamed cloud's STREAM_BYTES); None: every point."""
+    default_bytes: the limit where none is configured (a streamed cloud's STREAM_BYTES);
+    None: what the driver reports free, else every point."""
     available, source = None, "no limit known"
     if caps.free_memory_kib is not None:
         available, source = int(caps.free_memory_kib * 1024 * HEADROOM), "free GPU memory"
+    if limit_bytes is None and default_bytes is not None:
+        limit_bytes, limited = default_bytes, f"{default_bytes / 2**30:g} GiB by default; --gpu-memory-limit sets it"
+    else:
+        limited = "configured limit"
     if limit_bytes is not None and (available is None or limit_bytes < available):
-        available, source = limit_bytes, "configured limit"
-    if available is None and unknown_bytes is not None:
-        available, source = unknown_bytes, (f"{unknown_bytes / 2**30:g} GiB by default, as the driver reports no "
-                                             f"free memory; --gpu-memory-limit sets it")
+        available, source = limit_bytes, limited
     if available is None:
         return MemoryPlan(points, points, None, source)
     return MemoryPlan(points, min(points, points_within(available, pixels, extra_bytes_per_point)), available, source)

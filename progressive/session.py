@@ -311,7 +311,7 @@ class Session:
             need = int(batch_cost(reader.nodes.points, BATCH_POINTS).sum())     # every node, in whole batches
             self.memory = memory.plan(need * BATCH_SLOTS, self.glc.caps, options.width * options.height,
                                       options.gpu_memory_limit, CLASS_BYTES if class_filter else 0,
-                                      unknown_bytes=memory.STREAM_BYTES)
+                                      default_bytes=memory.STREAM_BYTES)
             most = most_records(self.glc.caps.max_ssbo_bytes) - BATCH_SLOTS
             if self.memory.capacity > most:     # a streamed store need not hold every node
                 self.memory = replace(self.memory, capacity=most, source=(

@@ -36,17 +36,18 @@ def test_plan(gl):
     assert memory.plan(10, caps, 10**6, 1000).capacity == 0
 
 
-def test_plan_without_a_figure_takes_the_default_given(gl):
-    """unknown_bytes (a streamed cloud's STREAM_BYTES) applies only where neither a limit
-    is configured nor the driver reports free memory, and says so."""
+def test_plan_takes_the_default_given_where_no_limit_is(gl):
+    """default_bytes (a streamed cloud's STREAM_BYTES) stands where no limit is
+    configured, less where the driver reports less free, and says so."""
     unknown = dataclasses.replace(gl.caps, free_memory_kib=None)
-    default = memory.plan(10**9, unknown, 160 * 120, unknown_bytes=limit_for(5000))
+    default = memory.plan(10**9, unknown, 160 * 120, default_bytes=limit_for(5000))
     assert default.capacity == 5000 and default.subset and "by default" in default.message()
-    assert memory.plan(10**9, unknown, 160 * 120, limit_for(7000), unknown_bytes=limit_for(5000)).capacity == 7000
-    nvx = dataclasses.replace(gl.caps, free_memory_kib=limit_for(2_000_000) // 1024)
-    reported = memory.plan(10**9, nvx, 160 * 120, unknown_bytes=limit_for(5000))
+    assert memory.plan(10**9, unknown, 160 * 120, limit_for(7000), default_bytes=limit_for(5000)).capacity == 7000
+    free = dataclasses.replace(gl.caps, free_memory_kib=limit_for(2_000_000) // 1024)
+    assert memory.plan(10**9, free, 160 * 120, default_bytes=limit_for(5000)).capacity == 5000
+    reported = memory.plan(10**9, free, 160 * 120, default_bytes=limit_for(4_000_000))
     assert 5000 < reported.capacity < 2_000_000 and reported.source == "free GPU memory"
-    assert memory.plan(1000, unknown, 160 * 120, unknown_bytes=limit_for(5000)).capacity == 1000
+    assert memory.plan(1000, unknown, 160 * 120, default_bytes=limit_for(5000)).capacity == 1000
 
 
 def test_subset_is_uniform_and_rendered_exactly(tmp_path, capsys):
