@@ -22,9 +22,11 @@ STREAM_BYTES = 2 << 30
 """GPU memory a streamed cloud keeps unless a limit is configured (less where the driver
 reports less free): as a tiled-scene viewer's memory budget, for the nodes a view needs
 rather than a store for every node, allocated at once and filled before the first image
-(a 1 B-point COPC: about 19 GiB; on the H100 machine a 4 GiB store took 0.48 s of a
-1.02 s first image; llvmpipe's memory is the host's, and 0.6 GiB took 1.4 s to
-allocate on the 2-core machine). 2 GiB holds 125 M points, 60 a pixel at 1920x1080."""
+(a 1 B-point COPC: about 19 GiB; on the H100 machine, with a 4 GiB limit, making the
+passes and their buffers took 0.48 s of a 1.02 s first image,
+bench/results/nvidia-h100/stream_0a0bbe1/; llvmpipe's memory is the host's, and a
+0.6 GiB store took 1.4 s to make on the 2-core machine). 2 GiB holds 125 M points, 60
+a pixel at 1920x1080."""
 
 
 @dataclass(frozen=True)
