@@ -9,11 +9,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from progressive.bindings import MAX_POINT_CHUNKS
 from progressive.context import Capabilities
 from progressive.loaders.records import RECORD_BYTES
 from progressive.loaders.types import BATCH_POINTS
 from progressive.passes.prepare import GATHER_BYTES
-from progressive.pointstore import BLOCK_RECORDS
+from progressive.permutation import BATCH_SLOTS
+from progressive.pointstore import BLOCK_RECORDS, most_records
 
 # visibility, reference, two lists, hint, words, image, winners, prepare's gathers
 PIXEL_BYTES = 8 + 8 + 2 * (4 + 16) + 4 + 4 + 4 + 16 + 4 + GATHER_BYTES
@@ -63,9 +65,12 @@ def plan(points: int, caps: Capabilities, pixels: int, limit_bytes: int | None =
         limited = "configured limit"
     if limit_bytes is not None and (available is None or limit_bytes < available):
         available, source = limit_bytes, limited
-    if available is None:
-        return MemoryPlan(points, points, None, source)
-    return MemoryPlan(points, min(points, points_within(available, pixels, extra_bytes_per_point)), available, source)
+    capacity = points if available is None else min(points, points_within(available, pixels, extra_bytes_per_point))
+    most = most_records(caps.max_ssbo_bytes) - BATCH_SLOTS      # a batch's padding spare
+    if capacity > most:
+        return MemoryPlan(points, most, most * RECORD_BYTES, f"a store holds at most {MAX_POINT_CHUNKS} buffers "
+                                                             f"of {caps.max_ssbo_bytes / 2**20:g} MiB on this driver")
+    return MemoryPlan(points, capacity, available, source)
 
 
 def points_within(available_bytes: int, pixels: int, extra_bytes_per_point: int = 0) -> int:

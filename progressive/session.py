@@ -22,7 +22,6 @@ import numpy as np
 from progressive import batches, encoding, memory
 from progressive.attributes import default_choice, find_attribute
 from progressive.batches import BATCH_ORDER, BatchOrder
-from progressive.bindings import MAX_POINT_CHUNKS
 from progressive.budget import BudgetParams
 from progressive.camera import NO_CLIP, Camera, Clip, Returns, auto_camera, view_uniforms
 from progressive.colors import DEFAULT_PALETTE, Colormap, ColorStyle, Palette
@@ -47,7 +46,7 @@ from progressive.loaders.types import AttributeInfo, AttributeKind, available_co
 from progressive.passes.distribute import Staging
 from progressive.passes.visibility import EMPTY
 from progressive.permutation import BATCH_POINTS, BATCH_SLOTS
-from progressive.pointstore import CLASS_BYTES, GPUMemoryError, most_records
+from progressive.pointstore import CLASS_BYTES, GPUMemoryError
 from progressive.renderer import Frame, Raster, Renderer, ids_for
 from progressive.reproject import Geography, open_loader, target_crs
 from progressive.scene import CLASSIFICATION, AttributeSwitch, Scene
@@ -312,11 +311,6 @@ class Session:
             self.memory = memory.plan(need * BATCH_SLOTS, self.glc.caps, options.width * options.height,
                                       options.gpu_memory_limit, CLASS_BYTES if class_filter else 0,
                                       default_bytes=memory.STREAM_BYTES)
-            most = most_records(self.glc.caps.max_ssbo_bytes) - BATCH_SLOTS
-            if self.memory.capacity > most:     # a streamed store need not hold every node
-                self.memory = replace(self.memory, capacity=most, source=(
-                    f"a store holds at most {MAX_POINT_CHUNKS} buffers of "
-                    f"{self.glc.caps.max_ssbo_bytes / 2**20:.0f} MiB on this driver"))
             state = Streamer.residency(reader, self.memory.capacity * BATCH_POINTS // BATCH_SLOTS)
             info = replace(self.info, points=state.capacity * BATCH_POINTS)
             scene = Scene(self.glc, info, self.attribute, chunk_points=options.chunk_points,

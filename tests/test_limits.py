@@ -50,6 +50,26 @@ def test_plan_takes_the_default_given_where_no_limit_is(gl):
     assert memory.plan(1000, unknown, 160 * 120, default_bytes=limit_for(5000)).capacity == 1000
 
 
+def test_a_cloud_beyond_the_drivers_buffers_shows_a_subset(tmp_path, capsys, monkeypatch):
+    """A cloud larger than the store's buffers may hold on the driver (MAX_POINT_CHUNKS
+    of its largest: llvmpipe's hold 67 M points, and a larger cloud was an error) shows
+    the uniform random subset they hold, with the warning naming why."""
+    from progressive import context
+    from progressive.bindings import MAX_POINT_CHUNKS
+    from progressive.loaders.records import RECORD_BYTES
+    from progressive.pointstore import BLOCK_RECORDS
+
+    real = context.read_capabilities
+    small = 2 * BLOCK_RECORDS * RECORD_BYTES        # buffers of two blocks: 65,536 points in all
+    monkeypatch.setattr(context, "read_capabilities", lambda *a: dataclasses.replace(real(*a), max_ssbo_bytes=small))
+    stats = tmp_path / "s.json"
+    code = main(["render", *SMALL, str(SAMPLE), "--out", str(tmp_path / "a.png"), "--stats", str(stats)])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert f"at most {MAX_POINT_CHUNKS} buffers" in err and "uniform random subset" in err
+    assert 0 < json.loads(stats.read_text())["points_on_gpu"] <= MAX_POINT_CHUNKS * 2 * BLOCK_RECORDS < 110_000
+
+
 def test_subset_is_uniform_and_rendered_exactly(tmp_path, capsys):
     ids_path, stats_path = tmp_path / "ids.npy", tmp_path / "s.json"
     # file order: the kept points are then the permutation's, computed here from file indices
