@@ -1,11 +1,15 @@
 """Where the main thread's node writes go: wall and thread CPU of each part (main thread only)."""
-import sys, threading, time
+import os
+import sys
+import threading
+import time
 from collections import defaultdict
-import progressive.scene as scene_mod
-import progressive.streaming as streaming_mod
+
 import progressive.passes.distribute as dist_mod
 import progressive.pointstore as ps_mod
+import progressive.scene as scene_mod
 import progressive.session as session_mod
+import progressive.streaming as streaming_mod
 from progressive.session import Session, SessionOptions, Streaming
 
 MAIN = threading.main_thread()
@@ -21,7 +25,10 @@ def wrap(owner, name, label=None):
         try:
             return fn(*a, **k)
         finally:
-            e = acc[label]; e[0] += 1; e[1] += time.perf_counter() - w; e[2] += time.thread_time() - c
+            e = acc[label]
+            e[0] += 1
+            e[1] += time.perf_counter() - w
+            e[2] += time.thread_time() - c
     setattr(owner, name, inner)
 
 wrap(session_mod.Session, "frame")
@@ -42,11 +49,10 @@ wrap(dist_mod.DistributePass, "_scatter")
 wrap(dist_mod.StagingRing, "acquire")
 wrap(streaming_mod.Streamer, "status")
 
-import os
 if os.environ.get("READER_THREADS"):
     _NR = session_mod.NodeReader
-    def _reader(sources, origin, names, threads, decoders):
-        return _NR(sources, origin, names, int(os.environ["READER_THREADS"]), decoders)
+    def _reader(sources, origin, names, threads, decoders, **kwargs):
+        return _NR(sources, origin, names, int(os.environ["READER_THREADS"]), decoders, **kwargs)
     session_mod.NodeReader = _reader
 path, limit_mib, seconds = sys.argv[1], float(sys.argv[2]), float(sys.argv[3])
 w, h = (int(v) for v in (sys.argv[4] if len(sys.argv) > 4 else "1920x1080").split("x"))
