@@ -14,7 +14,7 @@
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
-CHUNKS=(files-100M load-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B winners-1B records-1B accuracy attributes packing upload-100M startup-100M viewer-load-100M mainthread-100M startup-1B convert-1B copc-1B stream-1B pytest)
+CHUNKS=(files-100M load-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B winners-1B records-1B accuracy attributes packing upload-100M startup-100M viewer-load-100M mainthread-100M startup-1B convert-1B copc-1B stream-1B stream-200M pytest)
 chunk="${1:-list}"
 if [ "$chunk" = list ]; then
     printf '%s\n' "${CHUNKS[@]}"
@@ -85,6 +85,10 @@ case "$chunk" in
     # machine without the file builds it first, as copc-1B (about 300 s, then 130 s of streaming: one call)
     stream-1B)        "${PYTHON:-python3}" -m bench.stream --points 1000000000 --laz --limit 4G --size 1920x1080 --still-seconds 20 \
                           --scratch /dev/shm --out "$OUT/$(machine)" "${@:2}" ;;
+    # a quicker streaming check, one call of about 2 minutes with the COPC built in it (about 50 s): 200 M points,
+    # 1 GB limit, from the file and over HTTP with each answer 30 ms late (bench/results/nvidia-h100/stream_http_requests/)
+    stream-200M)      "${PYTHON:-python3}" -m bench.stream --points 200000000 --laz --limit 1G --size 1920x1080 --still-seconds 20 \
+                          --http-latency 30 --scratch /dev/shm --out "$OUT/$(machine)" "${@:2}" ;;
     # what the window reads against what render reads, at 100M points: the sample (point format 3) and a LAZ of
     # point format 8 tiled as LAS and LAZ, each session warm, 3 repeats (bench.load first_image_table); render's
     # session at 8 and 16 parser threads too, beside the default 4 (do more take the frame loop's core?)
