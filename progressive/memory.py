@@ -59,10 +59,9 @@ def plan(points: int, caps: Capabilities, pixels: int, limit_bytes: int | None =
     available, source = None, "no limit known"
     if caps.free_memory_kib is not None:
         available, source = int(caps.free_memory_kib * 1024 * HEADROOM), "free GPU memory"
+    limited = "configured limit"
     if limit_bytes is None and default_bytes is not None:
         limit_bytes, limited = default_bytes, f"{default_bytes / 2**30:g} GiB by default; --gpu-memory-limit sets it"
-    else:
-        limited = "configured limit"
     if limit_bytes is not None and (available is None or limit_bytes < available):
         available, source = limit_bytes, limited
     capacity = points if available is None else min(points, points_within(available, pixels, extra_bytes_per_point))

@@ -1,6 +1,7 @@
 """An HTTP server on 127.0.0.1 serving files by range requests, in a thread (or, for the
-streaming bench, a process of its own: RangeServerProcess), for the COPC-over-HTTP tests: the standard library's http.server with a Range handler, and the
-faults of bad networks on demand (ranges ignored, connections dropped mid-answer, slow
+streaming bench, a process of its own: RangeServerProcess), for the COPC-over-HTTP
+tests: the standard library's http.server with a Range handler, and the faults of bad
+networks on demand (ranges ignored, connections dropped mid-answer, slow
 answers). It counts what it answers, for the status the reader reports. With `tls`
 (a certificate and its key, self_signed makes them) it serves HTTPS.
 """
@@ -117,8 +118,9 @@ class RangeServerProcess:
     every answer waits before it starts (Faults.pause: a network's round trip)."""
 
     def __init__(self, files: dict[str, Path], pause: float = 0.0):
-        self._pipe, child = multiprocessing.get_context("spawn").Pipe()
-        self._process = multiprocessing.get_context("spawn").Process(
+        spawn = multiprocessing.get_context("spawn")
+        self._pipe, child = spawn.Pipe()
+        self._process = spawn.Process(
             target=_serve_apart, args=({name: str(path) for name, path in files.items()}, pause, child), daemon=True)
         self._base = ""
 
