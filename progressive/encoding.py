@@ -287,8 +287,9 @@ def node_runs(node: Batch) -> Batch:
     """A streamed node with the least and most integers of each store batch it will
     fill: its i-th takes its rows [i·B, (i+1)·B), so they are found as if it began at a
     batch's start (Scene.write_store_batches moves them to where it writes the node),
-    on the node's reading thread rather than the frame loop's (frame_parts took 0.19-0.21
-    ms a node of the 20 M-point COPC on the 2-core machine, 0.135-0.139 ms with them)."""
+    on the node's reading thread rather than the frame loop's (frame_parts took 0.20-0.22
+    ms a node of the 20 M-point COPC on the 2-core machine, 0.12-0.15 ms with them:
+    bench/results/llvmpipe/stream_store_probes/)."""
     if node.count == 0 or node.grid is None:
         return node
     return replace(node, grid=replace(node.grid, runs=cell_runs(node.grid.cells, 0, BATCH_POINTS)))

@@ -27,8 +27,8 @@ rather than a store for every node, allocated at once and filled before the firs
 (a 1 B-point COPC: about 19 GiB; on the H100 machine, with a 4 GiB limit, making the
 passes and their buffers took 0.48 s of a 1.02 s first image,
 bench/results/nvidia-h100/stream_0a0bbe1/; llvmpipe's memory is the host's: at 1280x720
-the passes took 0.13, 0.30 and 0.62 s with 256 MiB, 512 MiB and 1 GiB on the 2-core
-machine). 2 GiB holds 125 M points, 60 a pixel at 1920x1080."""
+the passes took 0.14-0.19, 0.30-0.32 and 0.63 s with 256 MiB, 512 MiB and 1 GiB on the
+2-core machine, bench/results/llvmpipe/stream_store_probes/). 2 GiB holds 125 M points, 60 a pixel at 1920x1080."""
 
 
 @dataclass(frozen=True)

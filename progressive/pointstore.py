@@ -298,8 +298,8 @@ class PointStore:
         if self.file_order is None:
             # Identity for the batches never reordered; a placed store's indices are all given
             # here, so it starts from zeros, pages the system hands out untouched (np.arange
-            # wrote all of them: 0.12-2.0 s for a 4 GiB store's 255 M on the 2-core machine, in
-            # the first node's write, before the first image).
+            # wrote all of them: 0.13-2.3 s for a 4 GiB store's 255 M on the 2-core machine, in
+            # the first node's write, before the first image; bench/results/llvmpipe/stream_store_probes/).
             self.file_order = np.zeros(self.count, np.uint32) if self.placed else np.arange(self.count, dtype=np.uint32)
         self.file_order[first: first + len(file_indices)] = file_indices
 
