@@ -84,3 +84,18 @@ def test_return_filters_equal_the_reference(tmp_path, raster, returns):
     assert np.mean(got == expected) >= 0.999
     everything = render_ids(tmp_path, SAMPLE, "--color-by", "elevation", "--raster", raster)
     assert not np.array_equal(got, everything) and np.count_nonzero(got != EMPTY) > 500
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.uint32, np.uint64, np.int16, np.int64])
+def test_codes_present_are_numpys_unique_codes(dtype):
+    """The category codes a panel lists: those of np.unique, over 255 clamped to 255,
+    negative ones (signed category attributes) left out."""
+    from progressive.scene import codes_present
+
+    rng = np.random.default_rng(7)
+    low = -40 if np.issubdtype(dtype, np.signedinteger) else 0
+    for values in (rng.integers(low, 400, 5_000).astype(dtype), np.zeros(0, dtype), np.full(9, 3, dtype)):
+        expected = np.zeros(256, dtype=bool)
+        codes = np.unique(np.clip(values.astype(np.int64), None, 255))
+        expected[codes[codes >= 0]] = True
+        assert np.array_equal(codes_present(values), expected)
