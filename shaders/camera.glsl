@@ -41,8 +41,8 @@ vec3 to_view(vec3 p) {
     return u_view_rotation * p + u_view_translation;
 }
 
-bool project(vec3 p, out uint pixel, out float depth) {
-    vec3 v = to_view(p);
+// A point already in view space into its pixel.
+bool project_view(vec3 v, out uint pixel, out float depth) {
     depth = -v.z;
     if (!(depth >= u_projection.z && depth <= u_projection.w)) return false;
     float w = u_perspective != 0.0 ? depth : 1.0;
@@ -53,3 +53,6 @@ bool project(vec3 p, out uint pixel, out float depth) {
     return true;
 }
 
+bool project(vec3 p, out uint pixel, out float depth) {
+    return project_view(to_view(p), pixel, depth);
+}

@@ -48,15 +48,18 @@ void mark_improved(uint slot) {
 // a uniform branch: llvmpipe runs every branch under a mask, so tests a uniform skipped
 // still cost it their time on every point.
 
-// One point into its pixel (source index i: the reprojection list's hint).
-void raster(uint i, uint slot, uvec4 record) {
+// One point into its pixel (source index i: the reprojection list's hint); record.xyz
+// goes to view space as view_m · xyz + view_t: the camera's transform of a position
+// relative to the origin (raster below), or a coarse batch's cells through its frame
+// folded into that transform (the batch walk).
+void raster_by(uint i, uint slot, uvec4 record, mat3 view_m, vec3 view_t) {
 #if FILTERING
     if (!flags_shown(point_flags(slot, record.w)) || !clip_keeps(uintBitsToFloat(record.xyz))) return;
 #endif
     uint pixel;
     float depth;
     // one test and one return: on llvmpipe an early return of its own costs every point
-    if (!(project(uintBitsToFloat(record.xyz), pixel, depth) && finite_position(record))) return;
+    if (!(project_view(view_m * uintBitsToFloat(record.xyz) + view_t, pixel, depth) && finite_position(record))) return;
 #ifdef WINNERS
     if (visibility[2u * pixel] == slot) {
 #if SOURCE == SOURCE_LIST
@@ -108,6 +111,10 @@ void raster(uint i, uint slot, uvec4 record) {
 #endif
 }
 
+void raster(uint i, uint slot, uvec4 record) {
+    raster_by(i, slot, record, u_view_rotation, u_view_translation);
+}
+
 #if BATCH_GROUPS
 // One work group per batch over a contiguous slot range (brute force or a fill
 // piece): the batch's slices are SLICE_POINTS consecutive slots every
@@ -140,6 +147,20 @@ void main() {
 #endif
 #if WORD_PLANES
     vec3 frame_base = batch_frames[2u * b].xyz, frame_step = batch_frames[2u * b + 1u].xyz;
+    mat3 view_m = u_view_rotation;
+    vec3 view_t = u_view_translation;
+#if !FILTERING
+    // Below full precision (adaptive) a point's cells, exact as floats there, go to
+    // view space in one multiply-add: the batch's frame is folded into the view
+    // transform once a group, not decoded point by point. Exact batches keep the
+    // decode the render contract's twins round alike; filters test decoded positions.
+    if (levels < 3u) {
+        view_m = u_view_rotation * mat3(frame_step.x, 0.0, 0.0, 0.0, frame_step.y, 0.0, 0.0, 0.0, frame_step.z);
+        view_t = to_view(frame_base);
+        frame_base = vec3(0.0);
+        frame_step = vec3(1.0);
+    }
+#endif
 #endif
     uint stride = u_batches * SLICE_POINTS;
     uint last = first + (count - 1u);
@@ -173,7 +194,8 @@ void main() {
                 }
             }
             for (uint m = 0u; m < 4u; ++m)
-                raster(slot + m, slot + m, uvec4(position_bits(uvec3(w0[m], w1[m], w2[m]), levels, frame_base, frame_step), at[m]));
+                raster_by(slot + m, slot + m, uvec4(position_bits(uvec3(w0[m], w1[m], w2[m]), levels, frame_base, frame_step), at[m]),
+                          view_m, view_t);
         }
         return;
     }
@@ -207,7 +229,8 @@ void main() {
         }
         for (uint j = 0u; j < PREFETCH; ++j) {
 #if WORD_PLANES
-            raster(slots[j], slots[j], uvec4(position_bits(words[j], levels, frame_base, frame_step), attributes[j]));
+            raster_by(slots[j], slots[j], uvec4(position_bits(words[j], levels, frame_base, frame_step), attributes[j]),
+                      view_m, view_t);
 #else
             raster(slots[j], slots[j], loaded[j]);
 #endif
