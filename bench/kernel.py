@@ -11,7 +11,9 @@ every atomic without the read before it, "full" the whole one-word walk. On the 
 store each stage runs at exact and adaptive precision, beside "load, no decode" (the
 words loaded, not decoded) and the full walk with 1, 2 or 8 records prefetched instead of
 ComputeTuning.prefetch's default, with the subgroup reduction, with the decode not `precise`, and with four-word loads (ComputeTuning.vector_loads;
-its load and projection stages too). 64-bit only
+its load and projection stages too; and the four-word walk with the projection's two
+divisions made one reciprocal, with its four points' pixels read together before their
+atomics, and both). A variant the driver does not compile gets a row without times. 64-bit only
 (llvmpipe lacks the atomics: the section says so and times the reads alone).
 """
 
@@ -19,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import statistics
+import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -78,6 +81,38 @@ NO_DECODE = ("    if (words.x == HIDDEN_WORD) return uvec3(EMPTY);\n",
 FUSED = ("    precise vec3 offset = vec3(point_cells(words, levels)) * step;\n    precise vec3 p = base + offset;\n",
          "    vec3 p = base + vec3(point_cells(words, levels)) * step;\n")
 """position_bits without `precise` (the compiler may fuse the decode; its twin would differ): what exactness costs."""
+RECIPROCAL = ("    float w = u_perspective != 0.0 ? depth : 1.0;\n"
+              "    float fx = (u_projection.x * v.x / w * 0.5 + 0.5) * float(u_size.x);\n"
+              "    float fy = (0.5 - u_projection.y * v.y / w * 0.5) * float(u_size.y);\n",
+              "    float r = u_perspective != 0.0 ? 1.0 / depth : 1.0;\n"
+              "    vec2 half_size = 0.5 * vec2(u_size);\n"
+              "    float fx = (v.x * r) * (u_projection.x * half_size.x) + half_size.x;\n"
+              "    float fy = half_size.y - (v.y * r) * (u_projection.y * half_size.y);\n")
+"""camera.glsl's project with one reciprocal and the viewport folded into the scales
+(rounds differently from the render contract's order of operations)."""
+QUAD_CALL = ("            for (uint m = 0u; m < 4u; ++m)\n"
+             "                raster_by(slot + m, slot + m, uvec4(position_bits(uvec3(w0[m], w1[m], w2[m]), levels, frame_base, frame_step), at[m]),\n"
+             "                          view_m, view_t);\n")
+
+
+def reads_together() -> tuple[str, str]:
+    """The four-word walk's four points projected first, then their four pixels read,
+    then the atomics: four reads in flight where raster_by waits for each in turn
+    (64-bit brute force only: no filters, hints or marks)."""
+    return (QUAD_CALL,
+            "            uint pix[4]; uint64_t keys[4], held[4];\n"
+            "            for (uint m = 0u; m < 4u; ++m) {\n"
+            "                uint pixel; float depth;\n"
+            "                uvec4 record = uvec4(position_bits(uvec3(w0[m], w1[m], w2[m]), levels, frame_base, frame_step), at[m]);\n"
+            "                bool drawn = project_view(view_m * uintBitsToFloat(record.xyz) + view_t, pixel, depth)"
+            " && finite_position(record);\n"
+            "                pix[m] = drawn ? pixel : 0u;\n"
+            "                keys[m] = drawn ? (uint64_t(floatBitsToUint(depth)) << 32) | uint64_t(slot + m) : ~uint64_t(0);\n"
+            "            }\n"
+            "            for (uint m = 0u; m < 4u; ++m) held[m] = visibility[pix[m]];\n"
+            "            for (uint m = 0u; m < 4u; ++m) if (keys[m] < held[m]) atomicMin(visibility[pix[m]], keys[m]);\n")
+
+
 ONE_WORD = ComputeTuning(vector_loads=False)
 """The stages' walk: one word a load, `prefetch` records a slice apart (the four-word
 walk, the renderer's 64-bit default, is a variant beside it)."""
@@ -91,6 +126,10 @@ VARIANTS = {
     "full, decode fused": (ONE_WORD, {"points.glsl": FUSED}),
     "load, four-word loads": (ComputeTuning(vector_loads=True), {"raster_compute.comp": STAGES["load"]}),
     "+ project, four-word loads": (ComputeTuning(vector_loads=True), {"raster_compute.comp": STAGES["+ project"]}),
+    "full, four-word loads, one reciprocal": (ComputeTuning(vector_loads=True), {"camera.glsl": RECIPROCAL}),
+    "full, four-word loads, four reads at once": (ComputeTuning(vector_loads=True), {"raster_compute.comp": reads_together()}),
+    "full, four-word loads, one reciprocal, four reads at once":
+        (ComputeTuning(vector_loads=True), {"camera.glsl": RECIPROCAL, "raster_compute.comp": reads_together()}),
 }
 """Walks beside the stages, on the word store: name -> (tuning, patches)."""
 
@@ -161,7 +200,14 @@ def stages(glc: GLContext, points: int, size: tuple[int, int], repeats: int) -> 
         precisions = (Precision.EXACT, Precision.ADAPTIVE) if scene.store.words else (Precision.EXACT,)
         for stage, patches, tuning in runs:
             r.raster.release()
-            r.raster = _raster(glc, scene.store, r.vis, patches, tuning)
+            try:
+                r.raster = _raster(glc, scene.store, r.vis, patches, tuning)
+            except Exception as error:   # a variant this driver does not compile: its row says so, the rest run
+                print(f"bench.kernel: {stage}: {error}", file=sys.stderr)
+                rows += [("raster", stage, f"{records.value}, {encoding.value}", p.value, float("nan"), float("nan"),
+                          float("nan")) for p in precisions]
+                r.raster = _raster(glc, scene.store, r.vis, {}, ONE_WORD)
+                continue
             for precision in precisions:
                 ms = statistics.median([r.render(cam, width, height, style, precision=precision).gpu_ms["raster"]
                                         for _ in range(repeats + 1)][1:])
