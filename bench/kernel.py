@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import statistics
 import sys
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
@@ -164,23 +165,62 @@ STORES = ((RecordOrder.BATCHES, Encoding.WORDS), (RecordOrder.BATCHES, Encoding.
 store's "load" stage includes decoding its words)."""
 
 
-def _raster(glc: GLContext, store, vis, patches: dict[str, tuple[str, str]], tuning: ComputeTuning) -> ComputeRaster:
-    """A 64-bit raster compiled from the shader texts with `patches` (file -> (old, new))."""
+def compiled_raster(glc: GLContext, store, vis, edit: Callable[[str, str], str], tuning: ComputeTuning,
+                    atomic64: bool = True) -> ComputeRaster:
+    """A compute raster compiled from the shader texts as edit(name, text) makes them
+    (shaderlib's text of each file, included ones too)."""
     original = shaderlib.shader_text
+    shaderlib.shader_text = lambda name: edit(name, original(name))
+    try:
+        return ComputeRaster(glc, store, vis, atomic64=atomic64, culling=CullPass(glc, store), tuning=tuning)
+    finally:
+        shaderlib.shader_text = original
 
-    def text(name):
-        source = original(name)
-        if name in patches:
-            old, new = patches[name]
+
+def patched(patches: dict[str, list[tuple[str, str]]]) -> Callable[[str, str], str]:
+    """An edit for compiled_raster: each file's (old, new) replacements, each old text
+    required to be there."""
+    def edit(name: str, source: str) -> str:
+        for old, new in patches.get(name, []):
             if old not in source:
                 raise ValueError(f"bench.kernel: the patch of {name} no longer matches its text")
             source = source.replace(old, new, 1)
         return source
-    shaderlib.shader_text = text
-    try:
-        return ComputeRaster(glc, store, vis, atomic64=True, culling=CullPass(glc, store), tuning=tuning)
-    finally:
-        shaderlib.shader_text = original
+    return edit
+
+
+def _raster(glc: GLContext, store, vis, patches: dict[str, tuple[str, str]], tuning: ComputeTuning) -> ComputeRaster:
+    """A 64-bit raster compiled from the shader texts with `patches` (file -> (old, new))."""
+    return compiled_raster(glc, store, vis, patched({name: [patch] for name, patch in patches.items()}), tuning)
+
+
+def word_store_renderer(glc: GLContext, points: int, size: tuple[int, int]):
+    """The tiled sample's `points` in a batched word store, each batch's records
+    together, and a renderer of it at `size`: (auto camera, scene, renderer, style)."""
+    cloud = tiled(str(SAMPLE), points)
+    cam = auto_camera(cloud.info.bounds_min, cloud.info.bounds_max, size[0] / size[1])
+    scene, _ = load(glc, cloud, fill=FillOrder.BATCHED, records=RecordOrder.BATCHES, position_encoding=Encoding.WORDS)
+    r = Renderer(glc, cloud.info, cloud.attribute, width=size[0], height=size[1], scene=scene)
+    return cam, scene, r, r.style()
+
+
+def alternating(r: Renderer, rasters: dict[str, ComputeRaster], cam, size: tuple[int, int], style,
+                rounds: int) -> tuple[dict, dict]:
+    """Each raster's GPU ms of the raster pass at each precision, `rounds` rounds with
+    the rasters in turn (a clock that drifts is shared by all), after a first round that
+    keeps each one's slots: ({(name, precision): [ms]}, {(name, precision): slots})."""
+    ms = {(name, p): [] for name in rasters for p in Precision}
+    slots = {}
+    for k in range(rounds + 1):
+        for name, raster in rasters.items():
+            r.raster = raster
+            for p in Precision:
+                frame = r.render(cam, *size, style, precision=p)
+                if k:
+                    ms[name, p].append(frame.gpu_ms["raster"])
+                else:
+                    slots[name, p] = frame.slots.copy()
+    return ms, slots
 
 
 def stages(glc: GLContext, points: int, size: tuple[int, int], repeats: int) -> list[tuple]:

@@ -12,26 +12,16 @@ import sys
 
 import numpy as np
 
-from bench.synthetic import SAMPLE, load, tiled
-from progressive import shaderlib
-from progressive.camera import auto_camera
+from bench.kernel import alternating, compiled_raster, patched, word_store_renderer
 from progressive.context import create_context
-from progressive.encoding import Encoding, Precision
+from progressive.encoding import Precision
 from progressive.glext import _entry, egl_proc_loader
-from progressive.passes.cull import CullPass
-from progressive.passes.raster_compute import ComputeRaster, ComputeTuning
-from progressive.permutation import FillOrder
-from progressive.pointstore import RecordOrder
-from progressive.renderer import Renderer
+from progressive.passes.raster_compute import ComputeTuning
 
 points, rounds = int(sys.argv[1]), int(sys.argv[2])
 W, H = 1280, 720
 glc = create_context()
-cloud = tiled(str(SAMPLE), points)
-cam = auto_camera(cloud.info.bounds_min, cloud.info.bounds_max, W / H)
-scene, _ = load(glc, cloud, fill=FillOrder.BATCHED, records=RecordOrder.BATCHES, position_encoding=Encoding.WORDS)
-r = Renderer(glc, cloud.info, cloud.attribute, width=W, height=H, scene=scene)
-style = r.style()
+cam, scene, r, style = word_store_renderer(glc, points, (W, H))
 r.render(cam, W, H, style)
 
 # The visibility buffer also bound as a buffer texture (r32ui) on unit 7, for the texelFetch variant.
@@ -77,42 +67,14 @@ VARIANTS = {
          (INDEX_TEST, INDEX_TEST.replace("    if (depth_bits == visibility[2u * pixel + 1u] && slot < visibility[2u * pixel]",
                                          "    uvec2 held = visibility_pairs[pixel];\n    if (depth_bits == held.y && slot < held.x"))],
 }
-original = shaderlib.shader_text
-
-
-def raster_of(patches) -> ComputeRaster:
-    def text(name):
-        source = original(name)
-        if name == "raster_compute.comp":
-            for old, new in patches:
-                assert old in source, old
-                source = source.replace(old, new, 1)
-        return source
-    shaderlib.shader_text = text
-    try:
-        return ComputeRaster(glc, scene.store, r.vis, atomic64=False, culling=CullPass(glc, scene.store),
-                             tuning=ComputeTuning(vector_loads=False))
-    finally:
-        shaderlib.shader_text = original
-
-
-rasters = {name: raster_of(patches) for name, patches in VARIANTS.items()}
+rasters = {name: compiled_raster(glc, scene.store, r.vis, patched({"raster_compute.comp": patches}),
+                                 ComputeTuning(vector_loads=False), atomic64=False) for name, patches in VARIANTS.items()}
 for raster in rasters.values():
     for program in raster._programs.values():
         if "u_vis_tex" in program:
             program["u_vis_tex"] = UNIT
 r.raster.release()
-ms = {(name, p): [] for name in rasters for p in Precision}
-slots = {}
-for k in range(rounds + 1):
-    for name, raster in rasters.items():
-        r.raster = raster
-        for p in Precision:
-            frame = r.render(cam, W, H, style, precision=p)
-            if k:
-                ms[name, p].append(frame.gpu_ms["raster"])
-            else:
-                slots[name, p] = frame.slots.copy()
+ms, slots = alternating(r, rasters, cam, (W, H), style, rounds)
 print(f"{glc.caps.renderer}; {points:,} points, {W}x{H}, {rounds} rounds alternating; ms median (min-max), pixels differing")
 for name in rasters:
     cells = [f"{p.value} {statistics.median(ms[name, p]):6.2f} ({min(ms[name, p]):.2f}-{max(ms[name, p]):.2f}) "
