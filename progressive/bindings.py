@@ -45,6 +45,7 @@ class Binding(enum.IntEnum):
     BATCH_FRAMES = 31       # word store: each batch's base and step (progressive/encoding.py)
     GATHERS = 32            # prepare: the list entries and pixels whose records come from the store
     BATCH_CELLS = 33        # word store: each LAS batch's least integers and shifts (pointstore.py cell_frames)
+    CANDIDATES = 34         # 32-bit raster: the points that lowered or met their pixel's depth in its depth pass
 
     @classmethod
     def points(cls, chunk: int) -> Binding:

@@ -2,10 +2,11 @@
 // Each pixel keeps the point of least depth, ties to the least slot, as the 64-bit
 // key (depth bits << 32 | slot): with ATOMIC64 one atomicMin per point, otherwise
 // DEPTH_PASS (atomicMin of depth bits) then the index pass (least slot among points
-// at exactly that depth). Positive float bits sort like the floats. WINNERS: the
-// frame's last pass over the same points, after the visibility is final: the point
-// its pixel kept writes its record there (winners.glsl), read while its batch is in
-// cache, so prepare need not gather it from the store.
+// at exactly that depth; with CANDIDATES, raster_candidates.comp over the depth pass's
+// candidates instead, this one only where they overflowed). Positive float bits sort
+// like the floats. WINNERS: the frame's last pass over the same points, after the
+// visibility is final: the point its pixel kept writes its record there (winners.glsl),
+// read while its batch is in cache, so prepare need not gather it from the store.
 layout(local_size_x = 256) in;
 #include "common.glsl"
 #include "points.glsl"
@@ -30,17 +31,31 @@ layout(local_size_x = 256) in;
 #endif
 
 #ifdef IMPROVED
-// Batches with a point that improved a pixel this frame: the winners pass walks only
-// those, so a batch that no longer changes the image costs it one read. u_mark: 0 for
-// brute force, which has no winners pass. Read before written, as the atomics are:
-// the points of a batch's work group mostly find their batch marked already.
-layout(std430, binding = BINDING_IMPROVED) buffer Improved { uint improved[]; };
-uniform uint u_mark;
+#include "improved.glsl"
+#endif
 
-void mark_improved(uint slot) {
-    uint b = slot_batch_of(slot);
-    if (u_mark != 0u && improved[b] == 0u) improved[b] = 1u;
+#ifdef CANDIDATES
+// The 32-bit path's depth pass lists its candidates (candidates.glsl), so that the index
+// pass reads those instead of every point again; the index pass over the points runs
+// only for a frame whose candidates overflowed.
+#if DEPTH_PASS
+#define CANDIDATES_ACCESS
+#else
+#define CANDIDATES_ACCESS readonly
+#endif
+#include "candidates.glsl"
+
+#if DEPTH_PASS
+void add_candidate(uint i, uint slot, uint pixel, uint depth_bits) {
+    uint k = atomicAdd(candidate_meta[CANDIDATE_COUNT], 1u);
+#if SOURCE == SOURCE_LIST
+    uint listed = i;
+#else
+    uint listed = EMPTY;
+#endif
+    if (k < u_candidate_capacity) candidates[k] = uvec4(pixel, depth_bits, slot, listed);
 }
+#endif
 #endif
 
 // FILTERING: a hidden category, a return filter, a clip box or a section may leave a
@@ -96,7 +111,13 @@ void raster_by(uint i, uint slot, uvec4 record, mat3 view_m, vec3 view_t) {
 #endif
     }
 #elif DEPTH_PASS
+#ifdef CANDIDATES
+    uint held = visibility[2u * pixel + 1u];
+    if (depth_bits < held) held = atomicMin(visibility[2u * pixel + 1u], depth_bits);
+    if (depth_bits <= held) add_candidate(i, slot, pixel, depth_bits);
+#else
     if (depth_bits < visibility[2u * pixel + 1u]) atomicMin(visibility[2u * pixel + 1u], depth_bits);
+#endif
 #else
     if (depth_bits == visibility[2u * pixel + 1u] && slot < visibility[2u * pixel]
         && slot < atomicMin(visibility[2u * pixel], slot)) {
@@ -130,6 +151,9 @@ void main() {
     uint g = gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x;
     uint first = source_first(), count = source_count();
     if (count == 0u) return;
+#if defined(CANDIDATES) && !DEPTH_PASS
+    if (candidates_held()) return;
+#endif
     // Group g takes the g-th batch whose slices meet the range: slice indices
     // first/SLICE_POINTS, ... belong to consecutive batches modulo u_batches (the
     // dispatch has one group for each, at most u_batches; budget.comp counts them).
@@ -241,6 +265,9 @@ void main() {
 void main() {
     uint i;
     if (!range_index(source_count(), i)) return;
+#if defined(CANDIDATES) && !DEPTH_PASS
+    if (candidates_held()) return;
+#endif
     uint slot = source_slot(i);
 #if CULL
     if (!slot_in_view(slot)) return;

@@ -160,9 +160,11 @@ def test_stats_report_batches_culled(tmp_path, sample):
 
 TUNINGS = [ComputeTuning(vector_loads=False, prefetch=k) for k in (1, 3)] + [
     ComputeTuning(batch_groups=g, vector_loads=v, subgroup_reduction=s)
-    for g, v in ((True, True), (True, False), (False, False)) for s in (True, False)]
+    for g, v in ((True, True), (True, False), (False, False)) for s in (True, False)] + [
+    ComputeTuning(batch_groups=False, vector_loads=False, candidates=False)]
 """Every way the compute raster walks the store; the last (one invocation a slot, an
-atomic a point) is the plain reference the others must equal."""
+atomic a point, the 32-bit index pass over every point) is the plain reference the
+others must equal."""
 
 
 def slots_of_range(gl, r: Renderer, cam: Camera, first: int, count: int) -> np.ndarray:
@@ -221,6 +223,48 @@ def test_every_tuning_keeps_the_ids(gl, sample, atomic64, name, shape, records):
         for tuning, slots in seen.items():
             for span, got, want in zip(ranges, slots, reference):
                 assert np.array_equal(got, want), f"{tuning} over slots {span}"
+        assert gl.ctx.error == "GL_NO_ERROR"
+    finally:
+        r.release()
+        scene.release()
+
+
+@pytest.mark.parametrize("room", ["enough", "too little", "none"])
+@pytest.mark.parametrize("name", ["overview", "zoomed corner"])
+def test_the_32_bit_index_pass_over_candidates_keeps_the_ids(gl, sample, monkeypatch, room, name):
+    """The 32-bit index pass over the depth pass's candidates gives the ids of the index
+    pass over every point; a frame with more candidates than room runs that pass instead,
+    with the same ids. The count says the list was used, and that it is shorter than the
+    points drawn."""
+    info, parts, _, _ = sample
+    scene = Scene(gl, info, find_attribute(info, "elevation"))
+    r = Renderer(gl, info, scene.attribute, width=W, height=H, scene=scene)
+    cam = cameras(info)[name]
+    ranges = [(0, scene.store.capacity), (5, 4000)]
+    try:
+        for b in parts:
+            scene.add_batch(b)
+        seen = {}
+        for tuning in (ComputeTuning(candidates=False), ComputeTuning()):
+            with monkeypatch.context() as m:
+                if room != "enough":
+                    m.setattr(ComputeRaster, "candidate_capacity", lambda self, pixels: {"too little": 50, "none": 0}[room])
+                r.raster.release()
+                r.raster = ComputeRaster(gl, scene.store, r.vis, atomic64=False, culling=CullPass(gl, scene.store),
+                                         tuning=tuning)
+                assert r.raster.candidates == tuning.candidates
+                seen[tuning] = []
+                for span in ranges:
+                    seen[tuning].append(slots_of_range(gl, r, cam, *span))
+                    if tuning.candidates:
+                        count = r.raster.candidates_found()
+                        capacity = r.raster.candidate_capacity(r.vis.pixels)
+                        assert 0 < count < span[1]
+                        assert (count <= capacity) == (room == "enough")
+        want, got = seen.values()
+        assert (want[0] != EMPTY).any()
+        for span, a, b in zip(ranges, got, want):
+            assert np.array_equal(a, b), f"{room}: slots {span}"
         assert gl.ctx.error == "GL_NO_ERROR"
     finally:
         r.release()

@@ -379,7 +379,8 @@ def test_file_fill_order_stores_file_order_and_converges(gl, cloud):
 def test_fill_pieces_walk_batches_frame_for_frame(gl, cloud, brute, view):
     """Fill pieces walked by one work group a batch (culled batches skipped whole), with
     one word a load or four, and records from the winners pass or gathered after hints,
-    give every frame the ids of one invocation a slot, and converge to brute force."""
+    give every frame the ids of one invocation a slot (and, on the 32-bit path, an index
+    pass over every point, not over the depth pass's candidates), and converge to brute force."""
     from progressive.batches import in_view as batches_in_view
     from progressive.camera import view_uniforms
 
@@ -390,7 +391,7 @@ def test_fill_pieces_walk_batches_frame_for_frame(gl, cloud, brute, view):
         target=tuple(lo + (hi - lo) * [0.15, 0.15, 0.0]), up=(0, 1, 0), near=1.0, far=1e4)
     runs = {}
     for tuning in (ComputeTuning(vector_loads=True), ComputeTuning(vector_loads=False), ComputeTuning(winners=False),
-                   ComputeTuning(batch_groups=False)):
+                   ComputeTuning(batch_groups=False, candidates=False)):
         pr = ProgressiveRenderer(gl, info, default_attribute(info), ProgressiveOptions(
             W, H, budget=BudgetParams(fixed=B), batches_per_frame=100, tuning=tuning))
         for b in batches:
@@ -407,7 +408,7 @@ def test_fill_pieces_walk_batches_frame_for_frame(gl, cloud, brute, view):
         assert shown.any() and (shown.all() == (view == "overview"))
         gl.check()
         pr.release()
-    reference = runs.pop(ComputeTuning(batch_groups=False))
+    reference = runs.pop(ComputeTuning(batch_groups=False, candidates=False))
     for frames in runs.values():
         assert all(np.array_equal(a, b) for a, b in zip(frames, reference))
     assert not np.array_equal(reference[0], reference[-1])

@@ -1,8 +1,10 @@
 """Compute rasterization into the visibility buffer: one 64-bit atomicMin per point
-where GL_NV_shader_atomic_int64 exists, else a depth pass and an index pass."""
+where GL_NV_shader_atomic_int64 exists, else a depth pass and an index pass (over the
+depth pass's candidates, shaders/raster_candidates.comp)."""
 
 from __future__ import annotations
 
+import enum
 from dataclasses import dataclass
 
 from progressive import shaderlib
@@ -10,7 +12,7 @@ from progressive.bindings import Binding
 from progressive.camera import ViewUniforms
 from progressive.context import GLContext
 from progressive.encoding import Precision
-from progressive.gpu import fill_uvec4s, grid, set_view
+from progressive.gpu import dispatch_defines, fill_uvec4s, grid, set_view
 from progressive.loaders.records import RECORD_BYTES
 from progressive.passes.handles import EMPTY, Culling, FillPieces, Meta, Reprojection, Source, StateWord, Visibility, Winners
 from progressive.permutation import SLICE_POINTS
@@ -47,6 +49,9 @@ class ComputeTuning:
     the 64-bit path only; the 32-bit two-pass path measured slower with it on the H200
     (bench/results/nvidia-h200/raster_100000000.md), where the 64-bit walk gained.
     prefetch: records each invocation of a one-word walk loads before it draws them.
+    candidates: the 32-bit path's depth pass lists the points that lowered or met their
+    pixel's depth, and the index pass reads that list (16 bytes a candidate, in order)
+    instead of loading, decoding and projecting every point again.
     winners: a progressive frame ends with the winners pass over its points, which
     leaves each pixel's record for prepare (Winners), instead of prepare gathering each
     new winner from the store at random. None: for a store of WINNERS_MIN_BYTES or more."""
@@ -56,6 +61,7 @@ class ComputeTuning:
     vector_loads: bool | None = None
     prefetch: int = PREFETCH
     winners: bool | None = None
+    candidates: bool = True
 
 
 DEFAULT_TUNING = ComputeTuning()
@@ -66,9 +72,30 @@ random 16-byte lookups take 0.10 ms within 256 MiB but 6.4 ms over 2 GiB
 pass costs (bench/results/llvmpipe/winners/progressive_1000000.md)."""
 
 
+class CandidateMeta(enum.IntEnum):
+    """Words before the candidates (shaders/candidates.glsl)."""
+
+    COUNT = 0
+    DISPATCH = 1        # 3 words: the candidates pass's dispatch arguments
+    META = 4            # the words before the first candidate (one uvec4)
+
+    @classmethod
+    def defines(cls) -> dict[str, int]:
+        return {f"CANDIDATE_{m.name}": int(m) for m in cls}
+
+
+CANDIDATE_BYTES = 16
+CANDIDATES_PER_PIXEL = 4
+"""Room for the candidates of a frame: a pixel reached by k points in random order
+lowers its depth about ln k + 0.58 times (2.9 for k = 10, 7.5 for k = 1,000), and a
+frame never has more candidates than points. A frame with more runs the index pass over
+every point instead (candidates.glsl)."""
+
+
 class ComputeRaster:
     """`passes` is 1 (64-bit) or 2 (depth, then index): a frame runs pass 0 over all
-    its sources before pass 1, so the index pass sees the final depths. A progressive
+    its sources before pass 1, so the index pass sees the final depths, and end_pass
+    after each pass over all of them (the index pass over the candidates). A progressive
     frame runs `frame_passes`: those and, with ComputeTuning.winners, the winners pass
     last, over the same sources."""
 
@@ -103,10 +130,50 @@ class ComputeRaster:
             self._improved = glc.ctx.buffer(reserve=-(-store.permutation.batches // 4) * 16)
             self._improved.label = "improved batches"
             self._clear_improved()
+        self._candidates = None
+        self._candidate_programs: dict[str, object] = {}
+        if tuning.candidates and not atomic64:
+            self._candidate_programs = {
+                name: shaderlib.compute(glc.ctx, "raster_candidates.comp", defines, label=f"raster32 candidates {name}")
+                for name, defines in self._candidate_defines().items()}
         self._programs: dict[tuple[Source, int, bool], object] = {}
         for source in Source:
             for pass_index in range(self.frame_passes):
                 self.program(source, pass_index)
+
+    def _candidate_defines(self) -> dict[str, dict]:
+        common = dict(self.store.defines, **CandidateMeta.defines(), **dispatch_defines())
+        index = dict(common, IMPROVED=1) if self._improved is not None else common
+        return {"args": dict(common, ARGS=1), "index": index, "index with hints": dict(index, HINTS=1)}
+
+    @property
+    def candidates(self) -> bool:
+        """Whether the index pass reads the depth pass's candidates (ComputeTuning.candidates)."""
+        return bool(self._candidate_programs)
+
+    def candidate_capacity(self, pixels: int) -> int:
+        """Candidates a frame at `pixels` finds room for: as many as its points (the store,
+        and a reprojection list of a point a pixel), at most CANDIDATES_PER_PIXEL a pixel."""
+        return min(self.store.capacity + pixels, CANDIDATES_PER_PIXEL * pixels)
+
+    def candidates_found(self) -> int:
+        """The last frame's candidates, room or not (a readback, for tests and the bench)."""
+        return int.from_bytes(self._candidates.read(4, offset=CandidateMeta.COUNT * 4), "little")
+
+    def _reset_candidates(self) -> None:
+        """An empty list, with room for this frame's pixels."""
+        capacity = self.candidate_capacity(self.vis.pixels)
+        size = CandidateMeta.META * 4 + capacity * CANDIDATE_BYTES
+        if self._candidates is None or self._candidates.size != size:
+            if self._candidates is not None:
+                self._candidates.release()
+            self._candidates = self.glc.ctx.buffer(reserve=size)
+            self._candidates.label = "raster candidates"
+        self._candidates.write(bytes(CandidateMeta.META * 4))
+
+    def _bind_candidates(self, program) -> None:
+        program["u_candidate_capacity"] = self.candidate_capacity(self.vis.pixels)
+        self._candidates.bind_to_storage_buffer(Binding.CANDIDATES)
 
     @property
     def winners(self) -> Winners | None:
@@ -153,6 +220,8 @@ class ComputeRaster:
                 label = f"raster64 {source.name.lower()}"
             else:
                 defines.update(ATOMIC64=0, DEPTH_PASS=int(pass_index == 0))
+                if self.candidates:
+                    defines.update(CandidateMeta.defines(), CANDIDATES=1)
                 ext = ()
                 label = f"raster32 {('depth', 'index')[pass_index]} {source.name.lower()}"
             if self.vector_loads and self._walks_batches(source):
@@ -168,7 +237,7 @@ class ComputeRaster:
     @property
     def built(self) -> tuple[str, ...]:
         """The labels of the programs compiled so far."""
-        return tuple(str(p.label) for p in self._programs.values())
+        return tuple(str(p.label) for p in (*self._candidate_programs.values(), *self._programs.values()))
 
     def begin_frame(self, view: ViewUniforms) -> None:
         """Flag the batches in view (the frame loop clears the visibility buffer) and
@@ -179,6 +248,33 @@ class ComputeRaster:
             self._clear_winners()
         if self._improved is not None:
             self._clear_improved()
+        if self.candidates:
+            self._reset_candidates()
+
+    def end_pass(self, view: ViewUniforms, pass_index: int, reprojection: Reprojection | None) -> None:
+        """After pass `pass_index` over all of a frame's sources: the candidates' index
+        pass once the depth pass is done (reprojection: the frame's list, whose points
+        leave hints, or None)."""
+        if self.candidates and pass_index == 0:
+            self._index_candidates(reprojection, mark=True)
+
+    def _index_candidates(self, reprojection: Reprojection | None, mark: bool) -> None:
+        """mark: flag improved batches for the winners pass (not in brute force)."""
+        args = self._candidate_programs["args"]
+        self._bind_candidates(args)
+        args.run(1, 1, 1)
+        self.glc.ctx.memory_barrier()
+        program = self._candidate_programs["index" if reprojection is None else "index with hints"]
+        self._bind_candidates(program)
+        if reprojection is not None:
+            reprojection.hint.bind_to_storage_buffer(Binding.HINT)
+        if self._improved is not None:
+            program["u_mark"] = int(mark)
+            self._improved.bind_to_storage_buffer(Binding.IMPROVED)
+            self.store.bind()
+        self.vis.bind()
+        program.run_indirect(self._candidates, offset=CandidateMeta.DISPATCH * 4)
+        self.glc.ctx.memory_barrier()
 
     def end_frame(self, view: ViewUniforms) -> None:
         """Nothing to gather: atomics wrote the visibility buffer directly."""
@@ -205,6 +301,8 @@ class ComputeRaster:
             program["u_batches"] = self.store.permutation.batches
         if self._culls(source):
             self.culling.batch_flags.bind()
+        if self.candidates and pass_index < self.passes:
+            self._bind_candidates(program)
         if pass_index == self.passes:
             program["u_winner_pixels"] = self.vis.pixels
             self.winners.bind()
@@ -232,6 +330,8 @@ class ComputeRaster:
             else:
                 program.run(*grid(count))
             self.glc.ctx.memory_barrier()
+            if self.candidates and pass_index == 0:
+                self._index_candidates(None, mark=False)
 
     @property
     def draws_batches(self) -> bool:
@@ -266,16 +366,17 @@ class ComputeRaster:
         self.glc.ctx.memory_barrier()
 
     def release(self) -> None:
-        for p in self._programs.values():
+        for p in (*self._programs.values(), *self._candidate_programs.values()):
             p.release()
         self._programs = {}
+        self._candidate_programs = {}
         if self._winners is not None:
             self._winners.buffer.release()
             self._winners = None
-        for obj in (self._clear, self._improved):
+        for obj in (self._clear, self._improved, self._candidates):
             if obj is not None:
                 obj.release()
-        self._clear = self._improved = None
+        self._clear = self._improved = self._candidates = None
         if self.culling is not None:
             self.culling.release()
             self.culling = None

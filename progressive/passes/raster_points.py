@@ -77,6 +77,9 @@ class PointsRaster:
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.depth_func = "<"
 
+    def end_pass(self, view: ViewUniforms, pass_index: int, reprojection: Reprojection | None) -> None:
+        """Nothing between passes: the one pass's depth test decides."""
+
     def end_frame(self, view: ViewUniforms) -> None:
         """Gather the attachments into the visibility buffer (overwriting it)."""
         ctx = self.glc.ctx

@@ -1,0 +1,43 @@
+// The 32-bit raster's index pass over the depth pass's candidates (candidates.glsl):
+// each pixel keeps the least slot among its candidates at its final depth, as the index
+// pass over the points would, reading 16 bytes a candidate in order instead of every
+// point's words, decoded and projected again. ARGS: one invocation writes this pass's
+// dispatch arguments from the count.
+layout(local_size_x = 256) in;
+#include "common.glsl"
+#define CANDIDATES_ACCESS
+#include "candidates.glsl"
+
+#ifdef ARGS
+void main() {
+    uvec3 groups = dispatch_grid(min(candidate_meta[CANDIDATE_COUNT], u_candidate_capacity));
+    for (uint k = 0u; k < 3u; ++k) candidate_meta[CANDIDATE_DISPATCH + k] = groups[k];
+}
+#else
+#define VISIBILITY_ACCESS
+#include "visibility.glsl"
+#ifdef IMPROVED
+#include "records.glsl"
+#include "improved.glsl"
+#endif
+#ifdef HINTS
+layout(std430, binding = BINDING_HINT) writeonly buffer Hint { uint hint[]; };
+#endif
+
+void main() {
+    uint k;
+    if (!range_index(min(candidate_meta[CANDIDATE_COUNT], u_candidate_capacity), k)) return;
+    uvec4 c = candidates[k];
+    uint pixel = c.x, slot = c.z;
+    if (c.y == visibility[2u * pixel + 1u] && slot < visibility[2u * pixel] && slot < atomicMin(visibility[2u * pixel], slot)) {
+        // A reprojected point leaves its list index (as sources.glsl's WRITE_HINT); a
+        // slot of the store marks its batch.
+#ifdef HINTS
+        if (c.w != EMPTY) hint[pixel] = c.w;
+#endif
+#ifdef IMPROVED
+        if (c.w == EMPTY) mark_improved(slot);
+#endif
+    }
+}
+#endif
