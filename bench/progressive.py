@@ -145,7 +145,8 @@ def run_case(glc: GLContext, scene: Scene, cloud: TiledCloud, size: tuple[int, i
     summary.update(budget=budget.label, target_ms=budget.target_ms, path=path.value, motion_frames=motion,
                    cpu_frame_ms_median=float(np.median(cpu_ms)), pacing_waits=r.pacing_waits,
                    batch_groups=r.raster.batch_groups if hasattr(r.raster, "batch_groups") else False,
-                   winners=r.raster.winners is not None, prepare=PREPARE_LABELS[r.prepare.ballot])
+                   winners=r.raster.winners is not None, prepare=PREPARE_LABELS[r.prepare.ballot],
+                   index_pass=INDEX_PASS_LABELS[r.raster.candidates] if r.raster.passes > 1 else "")
     r.release()
     return summary, [s.as_dict() for s in stats]
 
@@ -194,21 +195,25 @@ RECORDS_LABELS = {True: "winners pass", False: "gathered"}
 """The records column: where prepare takes new winners' records (ComputeTuning.winners)."""
 PREPARE_LABELS = {True: "ballot", False: "barriers"}
 """The prepare column: how its pixels take list entries (ProgressiveOptions.prepare_ballot)."""
+INDEX_PASS_LABELS = {True: "candidates", False: "every point"}
+"""The index pass column: what the 32-bit path's index pass walks (ComputeTuning.candidates)."""
 
 
 def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], targets_ms: list[float],
         paths: list[CameraPath], motion: int, max_frames: int, compare_walk: bool = False,
         encodings: tuple[Encoding, ...] = (Encoding.WORDS,), winners: tuple[bool | None, ...] = (None,),
         record_orders: tuple[RecordOrder, ...] = (RECORD_ORDER,),
-        prepare: tuple[bool | None, ...] = (None,)) -> Table:
+        prepare: tuple[bool | None, ...] = (None,), index_pass: tuple[bool, ...] = (True,)) -> Table:
     """compare_walk: also run every case with fill pieces walked one invocation a slot
     (ComputeTuning.batch_groups off), side by side with the renderer's batch walk;
     encodings and record_orders: the stores to run every case on, one after the other
     in this run; winners: with and/or without the winners pass, each case side by side
     (None: the renderer's choice for the store); prepare: prepare's list entries by
-    ballot and/or after barriers, side by side (None: the renderer's choice)."""
+    ballot and/or after barriers, side by side (None: the renderer's choice); index_pass:
+    the 32-bit path's index pass over the depth pass's candidates and/or over every
+    point, side by side (ComputeTuning.candidates)."""
     walks = (True, False) if compare_walk else (True,)
-    tunings = [ComputeTuning(batch_groups=g, winners=w) for g in walks for w in winners]
+    tunings = [ComputeTuning(batch_groups=g, winners=w, candidates=c) for g in walks for w in winners for c in index_pass]
     cloud = tiled(str(SAMPLE), points)
     rows, frames, brute = [], {}, {}
     for position_encoding, records in ((e, o) for e in encodings for o in record_orders):
@@ -226,12 +231,13 @@ def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], ta
                     rows.append(summary)
                     walk = "" if tuning.batch_groups else ", one invocation a slot"
                     entries = "" if prepare == (None,) else f", prepare by {summary['prepare']}"
+                    index = "" if index_pass == (True,) else f", index pass over {summary['index_pass']}"
                     frames[f"{store}, {budget.label}, {path.value}{walk}, {RECORDS_LABELS[summary['winners']]}"
-                           f"{entries}"] = stats
+                           f"{entries}{index}"] = stats
         scene.release()
     table = Table(f"progressive_{points}", f"Progressive frames, {size[0]}x{size[1]}",
                   f"{SAMPLE.name} tiled on a grid", f"{points:,}", (
-                      "store", "budget", "camera", "fill work group", "records", "prepare entries", "frame ms median", "p95",
+                      "store", "budget", "camera", "fill work group", "records", "prepare entries", "index pass", "frame ms median", "p95",
                       "max", "target ms",
                       "frames over target", "reproject", "fill", "prepare", "resolve", "fill share", "points/frame",
                       "gathered/frame", "frames to converge", "ms to converge", "cold frame ms", "cold frame points",
@@ -239,7 +245,7 @@ def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], ta
     for r in rows:
         p = r["pass_ms_median"]
         table.rows.append((r["store"], r["budget"], r["path"], "batch" if r["batch_groups"] else "256 slots",
-                           RECORDS_LABELS[r["winners"]], r["prepare"], r["frame_ms_median"], r["frame_ms_p95"],
+                           RECORDS_LABELS[r["winners"]], r["prepare"], r["index_pass"], r["frame_ms_median"], r["frame_ms_p95"],
                            r["frame_ms_max"],
                            r["target_ms"], f"{r['over_target']:.0%}" if r["over_target"] is not None else None,
                            p["reproject"], p["fill"], p["prepare"], p["resolve"], f"{r['fill_share_median']:.0%}",
@@ -268,7 +274,8 @@ def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], ta
          f"is in the fill column), gathered = from the last list where a hint finds it, else from the store at "
          f"random; gathered/frame = median records a frame read from the store that way. Prepare entries: how "
          f"prepare's pixels take their places in the list, a subgroup at a time by ballot (GL_ARB_shader_ballot) or "
-         f"a work group at a time after a barrier. Cold frame: the "
+         f"a work group at a time after a barrier. Index pass (the 32-bit path): over the points that lowered or met "
+         f"their pixel's depth in the depth pass (candidates, the renderer's) or over every point again. Cold frame: the "
          f"case's first frame, which knows no fill rate yet and so adds the growth stages (budget.grow); its "
          f"parts: the first pass's first fill / adaptive part / grow 1 / grow 2, + the later passes over the "
          f"same points (the 32-bit path's index pass, the winners pass).")]
@@ -291,6 +298,8 @@ def main(argv=None) -> int:
                     help="run every case with prepare's records from each source in turn (default: the renderer's choice)")
     ap.add_argument("--prepare", nargs="+", choices=list(PREPARE_LABELS.values()),
                     help="run every case with prepare's list entries taken each way in turn (default: the renderer's)")
+    ap.add_argument("--index-pass", nargs="+", choices=list(INDEX_PASS_LABELS.values()), default=["candidates"],
+                    help="run every case with the 32-bit index pass over each in turn")
     ap.add_argument("--record-orders", nargs="+", choices=[o.value for o in RecordOrder], default=[RECORD_ORDER.value],
                     help="run every case with the store's records in each order in turn")
     ap.add_argument("--out", default="bench/results/local")
@@ -302,7 +311,8 @@ def main(argv=None) -> int:
                 tuple(e for e, label in STORE_LABELS.items() if label in args.stores),
                 tuple(w for w, label in RECORDS_LABELS.items() if label in args.records) if args.records else (None,),
                 tuple(RecordOrder(o) for o in args.record_orders),
-                tuple(b for b, label in PREPARE_LABELS.items() if label in args.prepare) if args.prepare else (None,))
+                tuple(b for b, label in PREPARE_LABELS.items() if label in args.prepare) if args.prepare else (None,),
+                tuple(c for c, label in INDEX_PASS_LABELS.items() if label in args.index_pass))
     info = RunInfo.from_caps(glc.caps, "progressive only")
     table.write(Path(args.out), info)
     print(table.markdown(info))

@@ -102,7 +102,8 @@ def variants(glc: GLContext, batched: bool, words: bool) -> list[tuple[Raster, C
     """Each rasterizer; the compute ones on the batched layout also one invocation a slot
     (against one work group a batch) and, where the GPU has it, with the subgroup
     reduction, and on the word store a batch walk with four-word loads and with adaptive
-    precision, so each choice is measured side by side."""
+    precision, and the 32-bit path's index pass over every point (against over the depth
+    pass's candidates), so each choice is measured side by side."""
     reduce = subgroup_reduction_available(glc)
     tunings = [ComputeTuning(batch_groups=g, subgroup_reduction=s, vector_loads=False)
                for g in ((False, True) if batched else (False,)) for s in ((False, True) if reduce else (False,))]
@@ -114,6 +115,8 @@ def variants(glc: GLContext, batched: bool, words: bool) -> list[tuple[Raster, C
         out += [(r, t, Precision.EXACT) for t in tunings]
         one, four = ComputeTuning(vector_loads=False), ComputeTuning(vector_loads=True)
         out += [(r, four, Precision.EXACT), (r, one, Precision.ADAPTIVE), (r, four, Precision.ADAPTIVE)] if words else []
+        if r is Raster.COMPUTE32:
+            out.append((r, ComputeTuning(vector_loads=False, candidates=False), Precision.EXACT))
     return out
 
 
@@ -181,17 +184,19 @@ def measure(glc: GLContext, cloud: TiledCloud, layouts, sizes, repeats: int) -> 
                     for k, (r, (_, _, precision)) in enumerate(zip(renderers, variant)):
                         times[k].append(r.render(cam, width, height, styles[k], precision=precision).gpu_ms["raster"])
                 exact = None
-                for r, style, t, (_, _, precision) in zip(renderers, styles, times, variant):
+                for r, style, t, (_, tuning, precision) in zip(renderers, styles, times, variant):
                     frame = r.render(cam, width, height, style, precision=precision)
                     wall = wall_ms(glc, r, uniforms, repeats)
                     exact = frame.slots if exact is None else exact
                     ms = statistics.median(t[1:])
-                    read = bytes_read(scene.store, uniforms, precision) * r.raster.passes
+                    candidates = getattr(r.raster, "candidates", False)
+                    read = bytes_read(scene.store, uniforms, precision) * (1 if candidates else r.raster.passes)
                     rows.append({"points": cloud.points, "width": width, "height": height, "layout": layout.label,
                                  "view": view, "raster": r.raster_path, "ms": ms, "ms_all": t[1:],
                                  "subgroup_reduction": getattr(r.raster, "partitioned", False),
                                  "batch_groups": getattr(r.raster, "batch_groups", False),
                                  "vector_loads": getattr(r.raster, "vector_loads", False),
+                                 "candidates": tuning.candidates,
                                  "precision": precision.value, "wall_ms": wall,
                                  "passes": r.raster.passes, "points_per_s": cloud.points / (ms / 1e3),
                                  "bytes_per_point": read / cloud.points, "bytes_per_s": read / (ms / 1e3),
@@ -204,6 +209,14 @@ def measure(glc: GLContext, cloud: TiledCloud, layouts, sizes, repeats: int) -> 
     return rows
 
 
+def index_pass(row: dict) -> str:
+    """What the 32-bit path's index pass walks (ComputeTuning.candidates); nothing for the
+    one-pass rasterizers."""
+    if row["passes"] < 2:
+        return ""
+    return "candidates" if row["candidates"] else "every point"
+
+
 def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats: int,
         copy_bytes: int, layouts=LAYOUTS) -> Table:
     copies, read_rate = copy_bandwidth(glc, copy_bytes, repeats)
@@ -214,7 +227,7 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
     table = Table(f"raster_{max(points)}", "Brute-force rasterization of every point", f"{SAMPLE.name} tiled on a grid",
                   ", ".join(f"{n:,}" for n in points), (
                       "points", "size", "store order", "view", "rasterizer", "work group", "subgroup reduction",
-                      "precision", "ms (median)", "wall ms", "Mpoints/s", "B/point read", "GB/s read",
+                      "index pass", "precision", "ms (median)", "wall ms", "Mpoints/s", "B/point read", "GB/s read",
                       "share of copy bandwidth", "share of read bandwidth", "× GL_POINTS", "batches culled", "× overview", "covered pixels",
                       "pixels ≠ first row"))
     def twin(r: dict, **keys) -> float:
@@ -225,14 +238,15 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
     for r in rows:
         base = twin(r, view="overview", raster="GL_POINTS")
         overview = twin(r, view="overview", raster=r["raster"], subgroup_reduction=r["subgroup_reduction"],
-                        batch_groups=r["batch_groups"], vector_loads=r["vector_loads"], precision=r["precision"])
+                        batch_groups=r["batch_groups"], vector_loads=r["vector_loads"], precision=r["precision"],
+                        candidates=r["candidates"])
         r["vs_points"] = base / r["ms"] if r["view"] == "overview" else None
         r["vs_overview"] = overview / r["ms"]
         r["share_of_copy"] = r["bytes_per_s"] / copy
         r["share_of_read"] = r["bytes_per_s"] / read_rate
         table.rows.append((r["points"], f"{r['width']}x{r['height']}", r["layout"], r["view"], r["raster"],
                            ("batch, 4-word loads" if r["vector_loads"] else "batch") if r["batch_groups"] else "256 slots", "yes" if r["subgroup_reduction"] else "no",
-                           r["precision"], r["ms"], r["wall_ms"], r["points_per_s"] / 1e6, r["bytes_per_point"], r["bytes_per_s"] / 1e9,
+                           index_pass(r), r["precision"], r["ms"], r["wall_ms"], r["points_per_s"] / 1e6, r["bytes_per_point"], r["bytes_per_s"] / 1e9,
                            r["share_of_copy"], r["share_of_read"], r["vs_points"], r["batches_culled"], r["vs_overview"], r["covered_pixels"],
                            r["pixels_differing"]))
     missing = [] if glc.caps.atomic_int64 else [
@@ -243,7 +257,8 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
         f"one warm-up; wall ms = a visibility clear and the raster pass {repeats} times between two glFinish, "
         f"by the CPU's clock, a check on the timestamps. B/point read = bytes of the store a raster reads (from the cull pass's twins: "
         f"{RECORD_BYTES} B a float record, 4 B a position word, for the points of batches in view; × passes, "
-        f"the 32-bit path reads twice) / the cloud's points; GB/s read = those bytes / time. Precision: exact reads "
+        f"the 32-bit path reads twice where its index pass walks every point, once where it walks the depth "
+        f"pass's candidates, whose 16 bytes each are not counted) / the cloud's points; GB/s read = those bytes / time. Precision: exact reads "
         f"all three 10-bit words of a position (30 bits), adaptive the fewest that keep each point within "
         f"{encoding.ADAPTIVE_ERROR_PX} px of its exact projection; pixels ≠ first row = pixels whose slot differs "
         f"from the first rasterizer's of the same layout, size and view (exact, so the adaptive rows count what "
@@ -262,7 +277,10 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
         "whole cloud; close-up = one corner tile from above at 45° (GL_POINTS not run); batches culled = share of "
         "the store's batches the culling test leaves out (batched layouts only); × overview = overview ms / this "
         "ms, same rasterizer. Work group: batch = one work group walks one batch's slices (ComputeTuning.batch_groups), "
-        "256 slots = one invocation a slot. Mpoints/s and GB/s count every point of the cloud, culled ones included.")]
+        "256 slots = one invocation a slot. Index pass (32-bit path): candidates = over the points that lowered or met their "
+        "pixel's depth in its depth pass (ComputeTuning.candidates, the default), every point = loading, "
+        "decoding and projecting them all again. Mpoints/s and GB/s count every point of the cloud, culled ones "
+        "included.")]
     table.raw = {"copy_bytes": copy_bytes, "copy_bytes_per_s": copy, "copy_methods": copies,
                  "read_bytes_per_s": read_rate, "rows": rows}
     return table

@@ -16,7 +16,7 @@ from progressive.frame_loop import COLD_TIMES, ProgressiveOptions, ProgressiveRe
 from progressive.passes.raster_compute import DEFAULT_TUNING, ComputeTuning
 from progressive.permutation import LAYOUT, Permutation
 from progressive.reference import EMPTY
-from progressive.renderer import Renderer
+from progressive.renderer import Raster, Renderer
 
 W, H = 200, 150
 B = 12_000
@@ -373,6 +373,44 @@ def test_file_fill_order_stores_file_order_and_converges(gl, cloud):
     assert frames_until_equal(gl, pr, cam, scene.style(), expected, math.ceil(info.points / B) + 1) is not None
     for obj in (pr, r, scene):
         obj.release()
+
+
+@RECORDS
+@pytest.mark.parametrize("room", ["enough", "too little"])
+def test_the_32_bit_index_pass_over_candidates_keeps_every_frames_ids(gl, cloud, brute, monkeypatch, winners, room):
+    """Frames drawn with the 32-bit index pass over the depth pass's candidates (batches
+    arriving, the reprojection list's hints, fill pieces, improved batches for the
+    winners pass, motion) have the ids of frames drawn with the index pass over every
+    point; with too little room a frame that may have more candidates walks its points
+    too, with the same ids; both converge to brute force."""
+    from progressive.passes.raster_compute import ComputeRaster
+
+    info, batches = cloud
+    cam = auto_camera(info.bounds_min, info.bounds_max, W / H)
+    path = [cam] * 3 + [orbit(cam, 2.0 * k) for k in range(1, 4)] + [orbit(cam, 6.0)] * (math.ceil(info.points / B) + 1)
+    runs = {}
+    for candidates in (False, True):
+        with monkeypatch.context() as m:
+            if room == "too little":
+                m.setattr(ComputeRaster, "candidate_capacity", lambda self, pixels: 50)
+            pr = ProgressiveRenderer(gl, info, default_attribute(info), ProgressiveOptions(
+                W, H, raster=Raster.COMPUTE32, budget=BudgetParams(fixed=B), batches_per_frame=2,
+                tuning=ComputeTuning(winners=winners, candidates=candidates)))
+            assert pr.raster.candidates == candidates
+            style = pr.scene.style()
+            pending = list(batches)
+            runs[candidates] = []
+            for camera in path:
+                for _ in range(2):
+                    if pending:
+                        pr.add_batch(pending.pop(0))
+                pr.frame(camera, style)
+                runs[candidates].append(pr.read_ids())
+            gl.check()
+            pr.release()
+    assert not pending
+    assert all(np.array_equal(a, b) for a, b in zip(runs[True], runs[False]))
+    assert np.array_equal(runs[True][-1], brute(orbit(cam, 6.0)))
 
 
 @pytest.mark.parametrize("view", ["overview", "corner"])

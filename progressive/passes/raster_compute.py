@@ -15,7 +15,7 @@ from progressive.encoding import Precision
 from progressive.gpu import dispatch_defines, fill_uvec4s, grid, set_view
 from progressive.loaders.records import RECORD_BYTES
 from progressive.passes.handles import EMPTY, Culling, FillPieces, Meta, Reprojection, Source, StateWord, Visibility, Winners
-from progressive.permutation import SLICE_POINTS
+from progressive.permutation import BATCH_SLOTS, SLICE_POINTS
 from progressive.pointstore import PointStore
 
 SUBGROUP_EXTENSIONS = ("GL_KHR_shader_subgroup", "GL_NV_shader_subgroup_partitioned")     # as the driver names them
@@ -90,6 +90,11 @@ CANDIDATES_PER_PIXEL = 4
 lowers its depth about ln k + 0.58 times (2.9 for k = 10, 7.5 for k = 1,000), and a
 frame never has more candidates than points. A frame with more runs the index pass over
 every point instead (candidates.glsl)."""
+CANDIDATES_MIN_BYTES = 64 << 20
+"""Room for at least this much (or for every point a frame can draw, if less): a store
+of up to about 3 M points then never needs the index pass over its points, whose
+dispatches, though they find the candidates held and return, cost llvmpipe about
+0.1 ms each (a progressive frame has about ten)."""
 
 
 class ComputeRaster:
@@ -131,6 +136,7 @@ class ComputeRaster:
             self._improved.label = "improved batches"
             self._clear_improved()
         self._candidates = None
+        self._frame_points, self._pieces_counted = 0, False
         self._candidate_programs: dict[str, object] = {}
         if tuning.candidates and not atomic64:
             self._candidate_programs = {
@@ -152,9 +158,21 @@ class ComputeRaster:
         return bool(self._candidate_programs)
 
     def candidate_capacity(self, pixels: int) -> int:
-        """Candidates a frame at `pixels` finds room for: as many as its points (the store,
-        and a reprojection list of a point a pixel), at most CANDIDATES_PER_PIXEL a pixel."""
-        return min(self.store.capacity + pixels, CANDIDATES_PER_PIXEL * pixels)
+        """Candidates a frame at `pixels` finds room for: as many as its points can be (the
+        store, and a reprojection list of a point a pixel), at most CANDIDATES_PER_PIXEL a
+        pixel or CANDIDATES_MIN_BYTES, whichever is more."""
+        return min(self.store.capacity + pixels, max(CANDIDATES_PER_PIXEL * pixels, CANDIDATES_MIN_BYTES // CANDIDATE_BYTES))
+
+    def _walks_points(self, points: int, pass_index: int) -> bool:
+        """Whether pass `pass_index` runs over a source that draws at most `points`: every
+        pass but the index pass over the points, which runs only where the frame's points
+        so far (pass 0 counts them) may have had more candidates than room."""
+        if not self.candidates or pass_index >= self.passes:
+            return True
+        if pass_index == 0:
+            self._frame_points += points
+            return True
+        return self._frame_points > self.candidate_capacity(self.vis.pixels)
 
     def candidates_found(self) -> int:
         """The last frame's candidates, room or not (a readback, for tests and the bench)."""
@@ -250,6 +268,8 @@ class ComputeRaster:
             self._clear_improved()
         if self.candidates:
             self._reset_candidates()
+        self._frame_points = 0
+        self._pieces_counted = False
 
     def end_pass(self, view: ViewUniforms, pass_index: int, reprojection: Reprojection | None) -> None:
         """After pass `pass_index` over all of a frame's sources: the candidates' index
@@ -320,6 +340,8 @@ class ComputeRaster:
             return
         self.begin_frame(view)
         for pass_index in range(self.passes):
+            if not self._walks_points(count, pass_index):
+                continue
             program = self._prepare(Source.RANGE, pass_index, view)
             program["u_first"] = first
             program["u_count"] = count
@@ -342,6 +364,8 @@ class ComputeRaster:
         """Pass `pass_index` over every slot of batches first.. first+count-1 (batches
         written since the last frame): the batch walk from batch `first`'s first slice
         to the store's last slot, one group for each of the `count` batches."""
+        if not self._walks_points(count * BATCH_SLOTS, pass_index):
+            return
         program = self._prepare(Source.RANGE, pass_index, view)
         start = first * SLICE_POINTS
         program["u_first"] = start
@@ -350,6 +374,10 @@ class ComputeRaster:
         self.glc.ctx.memory_barrier()
 
     def draw_piece(self, view: ViewUniforms, pieces: FillPieces, piece: int, pass_index: int) -> None:
+        """A frame's pieces hold at most the store's points together (budget.comp)."""
+        if not self._walks_points(0 if self._pieces_counted else self.store.capacity, pass_index):
+            return
+        self._pieces_counted = True
         program = self._prepare(Source.PIECE, pass_index, view)
         program["u_piece"] = piece
         pieces.bind()
@@ -359,6 +387,8 @@ class ComputeRaster:
 
     def draw_list(self, view: ViewUniforms, reprojection: Reprojection, pass_index: int) -> None:
         """Reproject the record copies of the points visible last frame."""
+        if not self._walks_points(reprojection.capacity, pass_index):
+            return
         program = self._prepare(Source.LIST, pass_index, view)
         program["u_capacity"] = reprojection.capacity
         reprojection.bind(hint=pass_index < self.passes)
