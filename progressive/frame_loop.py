@@ -334,7 +334,7 @@ class ProgressiveRenderer:
                 raster.draw_piece(view, pieces, 3 + 2 * stage, p)
             for first, end in fresh:
                 raster.draw_batches(view, first, end - first, p)
-            raster.end_pass(view, p, reprojection if self._has_visible else None)
+            raster.end_pass(view, p, pieces, reprojection if self._has_visible else None)
             if p == 0:
                 b.stamp(Stamp.PASS_END)
         raster.end_frame(view)

@@ -14,11 +14,13 @@ from progressive.context import Capabilities
 from progressive.loaders.records import RECORD_BYTES
 from progressive.loaders.types import BATCH_POINTS
 from progressive.passes.prepare import GATHER_BYTES
+from progressive.passes.raster_compute import CANDIDATE_BYTES, CANDIDATES_PER_PIXEL
 from progressive.permutation import BATCH_SLOTS
 from progressive.pointstore import BLOCK_RECORDS, most_records
 
-# visibility, reference, two lists, hint, words, image, winners, prepare's gathers
-PIXEL_BYTES = 8 + 8 + 2 * (4 + 16) + 4 + 4 + 4 + 16 + 4 + GATHER_BYTES
+# visibility, reference, two lists, hint, words, image, winners, prepare's gathers, the
+# 32-bit raster's candidates (counted on every path: the loader plans before the context)
+PIXEL_BYTES = 8 + 8 + 2 * (4 + 16) + 4 + 4 + 4 + 16 + 4 + GATHER_BYTES + CANDIDATES_PER_PIXEL * CANDIDATE_BYTES
 HEADROOM = 0.9                                     # of the free memory the driver reports
 STREAM_BYTES = 2 << 30
 """GPU memory a streamed cloud keeps unless a limit is configured (less where the driver

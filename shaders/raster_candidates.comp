@@ -2,16 +2,37 @@
 // each pixel keeps the least slot among its candidates at its final depth, as the index
 // pass over the points would, reading 16 bytes a candidate in order instead of every
 // point's words, decoded and projected again. ARGS: one invocation writes this pass's
-// dispatch arguments from the count.
+// dispatch arguments from the count, and those of the index pass over the points of the
+// frame's fill pieces (FALLBACK_PIECES: their walk's or one invocation a slot's, from
+// u_piece_args in the budget pass's) and its list (FALLBACK_LIST): theirs where the
+// candidates overflowed, else no work group.
 layout(local_size_x = 256) in;
 #include "common.glsl"
 #define CANDIDATES_ACCESS
 #include "candidates.glsl"
 
 #ifdef ARGS
+#ifdef FALLBACK_PIECES
+layout(std430, binding = BINDING_FILL_ARGS) readonly buffer FillArgs { uint fill_args[]; };
+uniform uint u_piece_args;
+#endif
+#ifdef FALLBACK_LIST
+layout(std430, binding = BINDING_SLOT_LIST) readonly buffer SlotList { uint list_meta[META_WORDS]; };
+#endif
+
 void main() {
+    bool held = candidates_held();
     uvec3 groups = dispatch_grid(min(candidate_meta[CANDIDATE_COUNT], u_candidate_capacity));
-    for (uint k = 0u; k < 3u; ++k) candidate_meta[CANDIDATE_DISPATCH + k] = groups[k];
+    for (uint k = 0u; k < 3u; ++k) {
+        candidate_meta[CANDIDATE_DISPATCH + k] = groups[k];
+#ifdef FALLBACK_PIECES
+        for (uint piece = 0u; piece < FILL_PIECES; ++piece)
+            candidate_meta[CANDIDATE_FALLBACK + 3u * piece + k] = held ? 0u : fill_args[u_piece_args + 3u * piece + k];
+#endif
+#ifdef FALLBACK_LIST
+        candidate_meta[CANDIDATE_FALLBACK + 3u * FILL_PIECES + k] = held ? 0u : list_meta[META_DISPATCH + k];
+#endif
+    }
 }
 #else
 #define VISIBILITY_ACCESS

@@ -135,6 +135,10 @@ class FillPieces:
         """What a raster program of Source.PIECE reads (shaders/sources.glsl)."""
         self.state.bind_to_storage_buffer(Binding.FILL_STATE)
 
+    def bind_args(self) -> None:
+        """The pieces' arguments as a storage buffer (the 32-bit raster copies them)."""
+        self.args.bind_to_storage_buffer(Binding.FILL_ARGS)
+
     @staticmethod
     def dispatch_offset(piece: int) -> int:
         return piece * ARGS_BYTES

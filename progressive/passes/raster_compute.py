@@ -14,8 +14,20 @@ from progressive.context import GLContext
 from progressive.encoding import Precision
 from progressive.gpu import dispatch_defines, fill_uvec4s, grid, set_view
 from progressive.loaders.records import RECORD_BYTES
-from progressive.passes.handles import EMPTY, Culling, FillPieces, Meta, Reprojection, Source, StateWord, Visibility, Winners
-from progressive.permutation import BATCH_SLOTS, SLICE_POINTS
+from progressive.passes.handles import (
+    EMPTY,
+    FILL_PIECES,
+    WALK_ARGS_WORD,
+    Culling,
+    FillPieces,
+    Meta,
+    Reprojection,
+    Source,
+    StateWord,
+    Visibility,
+    Winners,
+)
+from progressive.permutation import SLICE_POINTS
 from progressive.pointstore import PointStore
 
 SUBGROUP_EXTENSIONS = ("GL_KHR_shader_subgroup", "GL_NV_shader_subgroup_partitioned")     # as the driver names them
@@ -77,7 +89,8 @@ class CandidateMeta(enum.IntEnum):
 
     COUNT = 0
     DISPATCH = 1        # 3 words: the candidates pass's dispatch arguments
-    META = 4            # the words before the first candidate (one uvec4)
+    FALLBACK = 4        # 3 words a fill piece, then 3 for the list: the index pass over their points
+    META = -(-(4 + 3 * (FILL_PIECES + 1)) // 4) * 4     # the words before the first candidate (whole uvec4s)
 
     @classmethod
     def defines(cls) -> dict[str, int]:
@@ -85,16 +98,12 @@ class CandidateMeta(enum.IntEnum):
 
 
 CANDIDATE_BYTES = 16
-CANDIDATES_PER_PIXEL = 4
-"""Room for the candidates of a frame: a pixel reached by k points in random order
-lowers its depth about ln k + 0.58 times (2.9 for k = 10, 7.5 for k = 1,000), and a
-frame never has more candidates than points. A frame with more runs the index pass over
-every point instead (candidates.glsl)."""
-CANDIDATES_MIN_BYTES = 64 << 20
-"""Room for at least this much (or for every point a frame can draw, if less): a store
-of up to about 3 M points then never needs the index pass over its points, whose
-dispatches, though they find the candidates held and return, cost llvmpipe about
-0.1 ms each (a progressive frame has about ten)."""
+CANDIDATES_PER_PIXEL = 2
+"""Room for the candidates of a frame (progressive/memory.py counts it a pixel): a pixel
+reached by k points in random order lowers its depth about ln k + 0.58 times (2.9 for
+k = 10), and a frame never has more candidates than points; on llvmpipe 1 M points of
+the tiled sample at 1280x720 had 251,026, 4 M 432,484. A frame with more runs the index
+pass over every point instead (candidates.glsl)."""
 
 
 class ComputeRaster:
@@ -136,7 +145,6 @@ class ComputeRaster:
             self._improved.label = "improved batches"
             self._clear_improved()
         self._candidates = None
-        self._frame_points, self._pieces_counted = 0, False
         self._candidate_programs: dict[str, object] = {}
         if tuning.candidates and not atomic64:
             self._candidate_programs = {
@@ -148,9 +156,14 @@ class ComputeRaster:
                 self.program(source, pass_index)
 
     def _candidate_defines(self) -> dict[str, dict]:
-        common = dict(self.store.defines, **CandidateMeta.defines(), **dispatch_defines())
+        """The arguments' program for brute force, for a frame's fill pieces and for them
+        and its list; the index pass over the candidates, with the list's hints or without."""
+        common = dict(self.store.defines, **CandidateMeta.defines(), **dispatch_defines(), FILL_PIECES=FILL_PIECES)
+        args = dict(common, ARGS=1)
+        pieces = dict(args, FALLBACK_PIECES=1)
         index = dict(common, IMPROVED=1) if self._improved is not None else common
-        return {"args": dict(common, ARGS=1), "index": index, "index with hints": dict(index, HINTS=1)}
+        return {"args": args, "args pieces": pieces, "args pieces list": dict(pieces, **Meta.defines(), FALLBACK_LIST=1),
+                "index": index, "index with hints": dict(index, HINTS=1)}
 
     @property
     def candidates(self) -> bool:
@@ -158,21 +171,10 @@ class ComputeRaster:
         return bool(self._candidate_programs)
 
     def candidate_capacity(self, pixels: int) -> int:
-        """Candidates a frame at `pixels` finds room for: as many as its points can be (the
-        store, and a reprojection list of a point a pixel), at most CANDIDATES_PER_PIXEL a
-        pixel or CANDIDATES_MIN_BYTES, whichever is more."""
-        return min(self.store.capacity + pixels, max(CANDIDATES_PER_PIXEL * pixels, CANDIDATES_MIN_BYTES // CANDIDATE_BYTES))
-
-    def _walks_points(self, points: int, pass_index: int) -> bool:
-        """Whether pass `pass_index` runs over a source that draws at most `points`: every
-        pass but the index pass over the points, which runs only where the frame's points
-        so far (pass 0 counts them) may have had more candidates than room."""
-        if not self.candidates or pass_index >= self.passes:
-            return True
-        if pass_index == 0:
-            self._frame_points += points
-            return True
-        return self._frame_points > self.candidate_capacity(self.vis.pixels)
+        """Candidates a frame at `pixels` finds room for: CANDIDATES_PER_PIXEL a pixel, or
+        as many as its points can be (the store, and a reprojection list of a point a
+        pixel) where that is less."""
+        return min(self.store.capacity + pixels, CANDIDATES_PER_PIXEL * pixels)
 
     def candidates_found(self) -> int:
         """The last frame's candidates, room or not (a readback, for tests and the bench)."""
@@ -268,20 +270,29 @@ class ComputeRaster:
             self._clear_improved()
         if self.candidates:
             self._reset_candidates()
-        self._frame_points = 0
-        self._pieces_counted = False
 
-    def end_pass(self, view: ViewUniforms, pass_index: int, reprojection: Reprojection | None) -> None:
+    def end_pass(self, view: ViewUniforms, pass_index: int, pieces: FillPieces,
+                 reprojection: Reprojection | None) -> None:
         """After pass `pass_index` over all of a frame's sources: the candidates' index
         pass once the depth pass is done (reprojection: the frame's list, whose points
         leave hints, or None)."""
         if self.candidates and pass_index == 0:
-            self._index_candidates(reprojection, mark=True)
+            self._index_candidates(pieces, reprojection, mark=True)
 
-    def _index_candidates(self, reprojection: Reprojection | None, mark: bool) -> None:
-        """mark: flag improved batches for the winners pass (not in brute force)."""
-        args = self._candidate_programs["args"]
+    def _index_candidates(self, pieces: FillPieces | None, reprojection: Reprojection | None, mark: bool) -> None:
+        """The index pass over the candidates, after their count has set its dispatch
+        arguments and those of the index pass over the pieces' and the list's points: a
+        copy of theirs where the candidates overflowed, else no work group, so a frame
+        whose candidates were held dispatches that pass for nothing. mark: flag improved
+        batches for the winners pass (not in brute force)."""
+        args = self._candidate_programs["args" if pieces is None else
+                                        "args pieces" if reprojection is None else "args pieces list"]
         self._bind_candidates(args)
+        if pieces is not None:
+            args["u_piece_args"] = WALK_ARGS_WORD if self.batch_groups else 0
+            pieces.bind_args()
+        if reprojection is not None:
+            reprojection.meta.bind_to_storage_buffer(Binding.SLOT_LIST)
         args.run(1, 1, 1)
         self.glc.ctx.memory_barrier()
         program = self._candidate_programs["index" if reprojection is None else "index with hints"]
@@ -340,8 +351,8 @@ class ComputeRaster:
             return
         self.begin_frame(view)
         for pass_index in range(self.passes):
-            if not self._walks_points(count, pass_index):
-                continue
+            if self.candidates and pass_index == 1 and count <= self.candidate_capacity(self.vis.pixels):
+                continue        # every point's candidate was held
             program = self._prepare(Source.RANGE, pass_index, view)
             program["u_first"] = first
             program["u_count"] = count
@@ -353,7 +364,7 @@ class ComputeRaster:
                 program.run(*grid(count))
             self.glc.ctx.memory_barrier()
             if self.candidates and pass_index == 0:
-                self._index_candidates(None, mark=False)
+                self._index_candidates(None, None, mark=False)
 
     @property
     def draws_batches(self) -> bool:
@@ -364,8 +375,6 @@ class ComputeRaster:
         """Pass `pass_index` over every slot of batches first.. first+count-1 (batches
         written since the last frame): the batch walk from batch `first`'s first slice
         to the store's last slot, one group for each of the `count` batches."""
-        if not self._walks_points(count * BATCH_SLOTS, pass_index):
-            return
         program = self._prepare(Source.RANGE, pass_index, view)
         start = first * SLICE_POINTS
         program["u_first"] = start
@@ -374,25 +383,30 @@ class ComputeRaster:
         self.glc.ctx.memory_barrier()
 
     def draw_piece(self, view: ViewUniforms, pieces: FillPieces, piece: int, pass_index: int) -> None:
-        """A frame's pieces hold at most the store's points together (budget.comp)."""
-        if not self._walks_points(0 if self._pieces_counted else self.store.capacity, pass_index):
-            return
-        self._pieces_counted = True
         program = self._prepare(Source.PIECE, pass_index, view)
         program["u_piece"] = piece
         pieces.bind()
-        offset = pieces.walk_offset(piece) if self.batch_groups else pieces.dispatch_offset(piece)
-        program.run_indirect(pieces.args, offset=offset)
+        if self._falls_back(pass_index):
+            program.run_indirect(self._candidates, offset=(CandidateMeta.FALLBACK + 3 * piece) * 4)
+        else:
+            offset = pieces.walk_offset(piece) if self.batch_groups else pieces.dispatch_offset(piece)
+            program.run_indirect(pieces.args, offset=offset)
         self.glc.ctx.memory_barrier()
+
+    def _falls_back(self, pass_index: int) -> bool:
+        """Whether this pass is the index pass over the points, run only where the frame's
+        candidates overflowed (its dispatch arguments set by the candidates' count)."""
+        return self.candidates and pass_index == 1
 
     def draw_list(self, view: ViewUniforms, reprojection: Reprojection, pass_index: int) -> None:
         """Reproject the record copies of the points visible last frame."""
-        if not self._walks_points(reprojection.capacity, pass_index):
-            return
         program = self._prepare(Source.LIST, pass_index, view)
         program["u_capacity"] = reprojection.capacity
         reprojection.bind(hint=pass_index < self.passes)
-        program.run_indirect(reprojection.meta, offset=reprojection.dispatch_offset)
+        if self._falls_back(pass_index):
+            program.run_indirect(self._candidates, offset=(CandidateMeta.FALLBACK + 3 * FILL_PIECES) * 4)
+        else:
+            program.run_indirect(reprojection.meta, offset=reprojection.dispatch_offset)
         self.glc.ctx.memory_barrier()
 
     def release(self) -> None:

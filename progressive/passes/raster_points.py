@@ -77,7 +77,8 @@ class PointsRaster:
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.depth_func = "<"
 
-    def end_pass(self, view: ViewUniforms, pass_index: int, reprojection: Reprojection | None) -> None:
+    def end_pass(self, view: ViewUniforms, pass_index: int, pieces: FillPieces,
+                 reprojection: Reprojection | None) -> None:
         """Nothing between passes: the one pass's depth test decides."""
 
     def end_frame(self, view: ViewUniforms) -> None:
