@@ -194,7 +194,7 @@ def effects_from(args):
 def add_cloud_args(parser) -> None:
     """Options shared by render and view: the files, the frame size, loading, colouring."""
     from progressive.batches import BATCH_ORDER, BatchOrder
-    from progressive.memory import STREAM_BYTES
+    from progressive.memory import SOFTWARE_STREAM_BYTES, STREAM_BYTES
 
     parser.add_argument("files", nargs="*", type=path_arg, help="LAS/LAZ/fast-format files, one cloud (default: the bundled sample)")
     parser.add_argument("--width", type=size_arg, default=1280)
@@ -206,7 +206,8 @@ def add_cloud_args(parser) -> None:
     parser.add_argument("--gpu-memory-limit", type=bytes_arg, help="GPU memory to use, e.g. 4G; a larger cloud shows "
                         "whole levels of its COPC files, else a uniform random subset (the free memory the driver "
                         "reports also counts); a streamed COPC keeps the nodes each view needs within it "
-                        f"(default {STREAM_BYTES / 2**30:g}G)")
+                        f"(default {STREAM_BYTES / 2**30:g}G, {SOFTWARE_STREAM_BYTES >> 20}M on a software "
+                        "renderer such as llvmpipe)")
     parser.add_argument("--batch-order", type=enum_arg(BatchOrder), default=BATCH_ORDER,
                         help="file (store batches of consecutive points in file order) or morton (each loaded "
                              "batch's whole store batches sorted by Morton code first: compacter batches where the "

@@ -30,6 +30,10 @@ class Backend(enum.Enum):
     WINDOW = "glfw"
 
 
+SOFTWARE_RENDERERS = ("llvmpipe", "softpipe", "swiftshader", "swrast")
+"""Renderer names (lower case) of rasterizers that run on the CPU."""
+
+
 @dataclass(frozen=True)
 class Capabilities:
     vendor: str
@@ -50,6 +54,11 @@ class Capabilities:
     @property
     def description(self) -> str:
         return f"{self.renderer} ({self.version})"
+
+    @property
+    def software(self) -> bool:
+        """A rasterizer running on the CPU (Mesa's llvmpipe or softpipe, SwiftShader)."""
+        return any(name in self.renderer.lower() for name in SOFTWARE_RENDERERS)
 
     def as_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}

@@ -31,6 +31,16 @@ passes and their buffers took 0.48 s of a 1.02 s first image,
 bench/results/nvidia-h100/stream_0a0bbe1/; llvmpipe's memory is the host's: at 1280x720
 the passes took 0.14-0.19, 0.30-0.32 and 0.63 s with 256 MiB, 512 MiB and 1 GiB on the
 2-core machine, bench/results/llvmpipe/stream_store_probes/). 2 GiB holds 125 M points, 60 a pixel at 1920x1080."""
+SOFTWARE_STREAM_BYTES = 256 << 20
+"""The same default for a software rasterizer (llvmpipe), whose buffers are host memory
+it zeroes when they are made (128 MiB took 75 ms on the 2-core machine): 2 GiB would
+spend over a second of the open on them, for more points than it draws in a frame
+(256 MiB holds 10.7 M points at 1280x720; llvmpipe draws about 60 M points/s)."""
+
+
+def stream_bytes(caps: Capabilities) -> int:
+    """The memory a streamed cloud keeps where no limit is configured."""
+    return SOFTWARE_STREAM_BYTES if caps.software else STREAM_BYTES
 
 
 @dataclass(frozen=True)

@@ -310,7 +310,7 @@ class Session:
             need = int(batch_cost(reader.nodes.points, BATCH_POINTS).sum())     # every node, in whole batches
             self.memory = memory.plan(need * BATCH_SLOTS, self.glc.caps, options.width * options.height,
                                       options.gpu_memory_limit, CLASS_BYTES if class_filter else 0,
-                                      default_bytes=memory.STREAM_BYTES)
+                                      default_bytes=memory.stream_bytes(self.glc.caps))
             state = Streamer.residency(reader, self.memory.capacity * BATCH_POINTS // BATCH_SLOTS)
             info = replace(self.info, points=state.capacity * BATCH_POINTS)
             scene = Scene(self.glc, info, self.attribute, chunk_points=options.chunk_points,

@@ -1,8 +1,8 @@
-// Batches with a point that improved a pixel this frame (the raster's index pass, or
-// its candidates pass): the winners pass walks only
-// those, so a batch that no longer changes the image costs it one read. u_mark: 0 for
-// brute force, which has no winners pass. Read before written, as the atomics are:
-// the points of a batch's work group mostly find their batch marked already.
+// Batches with a point that improved a pixel this frame (the raster's deciding pass,
+// or the index pass over its candidates): the winners pass walks only those, so a batch
+// that no longer changes the image costs it one read. u_mark: 0 for brute force, which
+// has no winners pass. Read before written, as the atomics are: the points of a batch's
+// work group mostly find their batch marked already.
 layout(std430, binding = BINDING_IMPROVED) buffer Improved { uint improved[]; };
 uniform uint u_mark;
 

@@ -421,12 +421,13 @@ def test_reads_queue_up_only_once_the_first_nodes_are_shown(monkeypatch):
 
 
 def test_no_limit_streams_within_the_default(monkeypatch):
-    """Where no limit is configured, a streamed cloud keeps memory.STREAM_BYTES, not a
-    store for every node: a tree cut within it, rendered exactly, and a warning that
-    says so."""
+    """Where no limit is configured, a streamed cloud keeps memory.STREAM_BYTES
+    (SOFTWARE_STREAM_BYTES on llvmpipe), not a store for every node: a tree cut within
+    it, rendered exactly, and a warning that says so."""
     from progressive import memory
 
     monkeypatch.setattr(memory, "STREAM_BYTES", limit_for(250_000))
+    monkeypatch.setattr(memory, "SOFTWARE_STREAM_BYTES", limit_for(250_000))
     path = shared_file(LONE_STAR)
     _, xyz = las_xyz(path)
     with still(path) as (s, camera):

@@ -50,6 +50,17 @@ def test_plan_takes_the_default_given_where_no_limit_is(gl):
     assert memory.plan(1000, unknown, 160 * 120, default_bytes=limit_for(5000)).capacity == 1000
 
 
+def test_a_software_renderer_streams_within_less_by_default(gl):
+    """A streamed cloud's default memory: SOFTWARE_STREAM_BYTES on a rasterizer that runs
+    on the CPU (its buffers are host memory zeroed when made), STREAM_BYTES on a GPU."""
+    named = {name: dataclasses.replace(gl.caps, renderer=name)
+             for name in ("llvmpipe (LLVM 15.0.6, 256 bits)", "softpipe", "NVIDIA H200/PCIe/SSE2", "AMD Radeon RX 7900 XTX")}
+    assert [c.software for c in named.values()] == [True, True, False, False]
+    assert [memory.stream_bytes(c) for c in named.values()] == [memory.SOFTWARE_STREAM_BYTES] * 2 + [memory.STREAM_BYTES] * 2
+    assert memory.SOFTWARE_STREAM_BYTES < memory.STREAM_BYTES
+    assert gl.caps.software == ("llvmpipe" in gl.caps.renderer)
+
+
 def test_a_cloud_beyond_the_drivers_buffers_shows_a_subset(tmp_path, capsys, monkeypatch):
     """A cloud larger than the store's buffers may hold on the driver (MAX_POINT_CHUNKS
     of its largest: llvmpipe's hold 67 M points, and a larger cloud was an error) shows
