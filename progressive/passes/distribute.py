@@ -255,9 +255,7 @@ class DistributePass:
             program.run(*grid(hi - lo))
             if slot is not None:
                 ring.read(slot)
-        # One barrier for all the pieces: they write disjoint slots, so the driver may run
-        # one piece's small dispatch beside the next instead of draining the GPU between them.
-        self.glc.ctx.memory_barrier()
+            self.glc.ctx.memory_barrier()
         self.points_distributed += n
         return total
 
