@@ -48,14 +48,14 @@ def raster_lines(raster: dict) -> list[str]:
     walks = any(r.get("batch_groups") for r in rows)     # runs before ComputeTuning had no such rows
 
     def row(layout: str, raster_path: str, view: str = "overview", reduced: bool = False,
-            groups: bool | None = None, precision: str = "exact", candidates: bool = True) -> dict | None:
+            groups: bool | None = None, precision: str = "exact", own_index: bool = True) -> dict | None:
         """The row of the renderer's own tuning (one work group a batch where measured,
-        no subgroup reduction, exact precision, the 32-bit index pass over candidates)
-        unless `reduced`, `groups`, `precision` or `candidates` asks for another."""
+        no subgroup reduction, exact precision, the 32-bit index pass it chooses) unless
+        `reduced`, `groups`, `precision` or `own_index` asks for another."""
         groups = walks and layout.startswith("batched") if groups is None else groups
         return next((r for r in rows if r["layout"] == layout and r["raster"] == raster_path
                      and r.get("view", "overview") == view and r.get("subgroup_reduction", False) == reduced
-                     and r.get("precision", "exact") == precision and r.get("candidates", True) == candidates
+                     and r.get("precision", "exact") == precision and r.get("default_index_pass", True) == own_index
                      and (raster_path == "GL_POINTS" or r.get("batch_groups", False) == groups)), None)
 
     points = row(layout, "GL_POINTS")
@@ -112,11 +112,13 @@ def raster_lines(raster: dict) -> list[str]:
             out.append(f"- Brute force, {where}, {r['raster']}, {layout} store: with the subgroup reduction "
                        f"{reduced['ms']:.2f} ms against {r['ms']:.2f} ms without: **{_x(r['ms'] / reduced['ms'])}** "
                        f"(`{raster['_file']}`).")
-        every = row(layout, r["raster"], candidates=False) if r.get("passes", 1) > 1 else None
-        if every:
-            out.append(f"- Brute force, {where}, {r['raster']}, {layout} store: the index pass over the depth pass's "
-                       f"candidates {r['ms']:.2f} ms against over every point {every['ms']:.2f} ms: "
-                       f"**{_x(every['ms'] / r['ms'])}** (`{raster['_file']}`).")
+        other = row(layout, r["raster"], own_index=False) if r.get("passes", 1) > 1 else None
+        if other:
+            walks = {True: "the depth pass's candidates", False: "every point"}
+            out.append(f"- Brute force, {where}, {r['raster']}, {layout} store: the index pass over "
+                       f"{walks[r['candidates']]} (the renderer's choice here) {r['ms']:.2f} ms against over "
+                       f"{walks[other['candidates']]} {other['ms']:.2f} ms: **{_x(other['ms'] / r['ms'])}** "
+                       f"(`{raster['_file']}`).")
         close = row(layout, r["raster"], "close-up")
         if close:
             out.append(f"- Brute force, {where}, {r['raster']}, a close-up of one tile ({close['batches_culled']:.0%} "
@@ -163,14 +165,14 @@ def first_image_lines(first: dict) -> list[str]:
 def progressive_lines(prog: dict) -> list[str]:
     """The still rows of the renderer's own choices: batch walks, the word store, the
     winners pass where the table has it (a small store's runs have only gathers), the
-    32-bit index pass over candidates."""
+    32-bit index pass it chooses."""
     out = []
     brute = prog["raw"]["brute_ms"]
     winners = any(r.get("winners", True) for r in prog["raw"]["rows"])
     for r in prog["raw"]["rows"]:
         store = r.get("store", "words")
         if (r["target_ms"] and r["path"] == "still" and r.get("batch_groups", True) and store == "words"
-                and r.get("winners", True) == winners and r.get("index_pass", "") != "every point"):
+                and r.get("winners", True) == winners and r.get("default_index_pass", True)):
             conv = (f"exact after {r['frames_to_converge']} frames ({r['ms_to_converge']:.1f} ms of GPU time)"
                     if r["frames_to_converge"] else "not converged within the run")
             brute_ms = brute[store] if isinstance(brute, dict) else brute

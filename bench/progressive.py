@@ -146,7 +146,8 @@ def run_case(glc: GLContext, scene: Scene, cloud: TiledCloud, size: tuple[int, i
                    cpu_frame_ms_median=float(np.median(cpu_ms)), pacing_waits=r.pacing_waits,
                    batch_groups=r.raster.batch_groups if hasattr(r.raster, "batch_groups") else False,
                    winners=r.raster.winners is not None, prepare=PREPARE_LABELS[r.prepare.ballot],
-                   index_pass=INDEX_PASS_LABELS[r.raster.candidates] if r.raster.passes > 1 else "")
+                   index_pass=INDEX_PASS_LABELS[r.raster.candidates] if r.raster.passes > 1 else "",
+                   default_index_pass=tuning.candidates is None)
     r.release()
     return summary, [s.as_dict() for s in stats]
 
@@ -203,7 +204,7 @@ def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], ta
         paths: list[CameraPath], motion: int, max_frames: int, compare_walk: bool = False,
         encodings: tuple[Encoding, ...] = (Encoding.WORDS,), winners: tuple[bool | None, ...] = (None,),
         record_orders: tuple[RecordOrder, ...] = (RECORD_ORDER,),
-        prepare: tuple[bool | None, ...] = (None,), index_pass: tuple[bool, ...] = (True,)) -> Table:
+        prepare: tuple[bool | None, ...] = (None,), index_pass: tuple[bool | None, ...] = (None,)) -> Table:
     """compare_walk: also run every case with fill pieces walked one invocation a slot
     (ComputeTuning.batch_groups off), side by side with the renderer's batch walk;
     encodings and record_orders: the stores to run every case on, one after the other
@@ -211,7 +212,7 @@ def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], ta
     (None: the renderer's choice for the store); prepare: prepare's list entries by
     ballot and/or after barriers, side by side (None: the renderer's choice); index_pass:
     the 32-bit path's index pass over the depth pass's candidates and/or over every
-    point, side by side (ComputeTuning.candidates)."""
+    point, side by side (ComputeTuning.candidates; None: the renderer's choice)."""
     walks = (True, False) if compare_walk else (True,)
     tunings = [ComputeTuning(batch_groups=g, winners=w, candidates=c) for g in walks for w in winners for c in index_pass]
     cloud = tiled(str(SAMPLE), points)
@@ -231,7 +232,7 @@ def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], ta
                     rows.append(summary)
                     walk = "" if tuning.batch_groups else ", one invocation a slot"
                     entries = "" if prepare == (None,) else f", prepare by {summary['prepare']}"
-                    index = "" if index_pass == (True,) else f", index pass over {summary['index_pass']}"
+                    index = "" if index_pass == (None,) else f", index pass over {summary['index_pass']}"
                     frames[f"{store}, {budget.label}, {path.value}{walk}, {RECORDS_LABELS[summary['winners']]}"
                            f"{entries}{index}"] = stats
         scene.release()
@@ -275,10 +276,11 @@ def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], ta
          f"random; gathered/frame = median records a frame read from the store that way. Prepare entries: how "
          f"prepare's pixels take their places in the list, a subgroup at a time by ballot (GL_ARB_shader_ballot) or "
          f"a work group at a time after a barrier. Index pass (the 32-bit path): over the points that lowered or met "
-         f"their pixel's depth in the depth pass (candidates, the renderer's) or over every point again. Cold frame: the "
+         f"their pixel's depth in the depth pass (candidates, the renderer's on a software renderer; it runs inside "
+         f"the first pass) or over every point again. Cold frame: the "
          f"case's first frame, which knows no fill rate yet and so adds the growth stages (budget.grow); its "
          f"parts: the first pass's first fill / adaptive part / grow 1 / grow 2, + the later passes over the "
-         f"same points (the 32-bit path's index pass, the winners pass).")]
+         f"same points (the 32-bit path's index pass over every point, the winners pass).")]
     table.raw = {"brute_ms": brute, "rows": rows, "frames": frames}
     return table
 
@@ -298,8 +300,8 @@ def main(argv=None) -> int:
                     help="run every case with prepare's records from each source in turn (default: the renderer's choice)")
     ap.add_argument("--prepare", nargs="+", choices=list(PREPARE_LABELS.values()),
                     help="run every case with prepare's list entries taken each way in turn (default: the renderer's)")
-    ap.add_argument("--index-pass", nargs="+", choices=list(INDEX_PASS_LABELS.values()), default=["candidates"],
-                    help="run every case with the 32-bit index pass over each in turn")
+    ap.add_argument("--index-pass", nargs="+", choices=list(INDEX_PASS_LABELS.values()),
+                    help="run every case with the 32-bit index pass over each in turn (default: the renderer's choice)")
     ap.add_argument("--record-orders", nargs="+", choices=[o.value for o in RecordOrder], default=[RECORD_ORDER.value],
                     help="run every case with the store's records in each order in turn")
     ap.add_argument("--out", default="bench/results/local")
@@ -312,7 +314,7 @@ def main(argv=None) -> int:
                 tuple(w for w, label in RECORDS_LABELS.items() if label in args.records) if args.records else (None,),
                 tuple(RecordOrder(o) for o in args.record_orders),
                 tuple(b for b, label in PREPARE_LABELS.items() if label in args.prepare) if args.prepare else (None,),
-                tuple(c for c, label in INDEX_PASS_LABELS.items() if label in args.index_pass))
+                tuple(c for c, label in INDEX_PASS_LABELS.items() if label in args.index_pass) if args.index_pass else (None,))
     info = RunInfo.from_caps(glc.caps, "progressive only")
     table.write(Path(args.out), info)
     print(table.markdown(info))

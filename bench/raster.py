@@ -102,8 +102,9 @@ def variants(glc: GLContext, batched: bool, words: bool) -> list[tuple[Raster, C
     """Each rasterizer; the compute ones on the batched layout also one invocation a slot
     (against one work group a batch) and, where the GPU has it, with the subgroup
     reduction, and on the word store a batch walk with four-word loads and with adaptive
-    precision, and the 32-bit path's index pass over every point (against over the depth
-    pass's candidates), so each choice is measured side by side."""
+    precision, and the 32-bit path's index pass the other way (over every point or over
+    the depth pass's candidates, ComputeTuning.candidates), so each choice is measured
+    side by side."""
     reduce = subgroup_reduction_available(glc)
     tunings = [ComputeTuning(batch_groups=g, subgroup_reduction=s, vector_loads=False)
                for g in ((False, True) if batched else (False,)) for s in ((False, True) if reduce else (False,))]
@@ -115,8 +116,8 @@ def variants(glc: GLContext, batched: bool, words: bool) -> list[tuple[Raster, C
         out += [(r, t, Precision.EXACT) for t in tunings]
         one, four = ComputeTuning(vector_loads=False), ComputeTuning(vector_loads=True)
         out += [(r, four, Precision.EXACT), (r, one, Precision.ADAPTIVE), (r, four, Precision.ADAPTIVE)] if words else []
-        if r is Raster.COMPUTE32:
-            out.append((r, ComputeTuning(vector_loads=False, candidates=False), Precision.EXACT))
+        if r is Raster.COMPUTE32:       # the index pass the renderer does not choose here, too
+            out.append((r, ComputeTuning(vector_loads=False, candidates=not glc.caps.software), Precision.EXACT))
     return out
 
 
@@ -196,7 +197,7 @@ def measure(glc: GLContext, cloud: TiledCloud, layouts, sizes, repeats: int) -> 
                                  "subgroup_reduction": getattr(r.raster, "partitioned", False),
                                  "batch_groups": getattr(r.raster, "batch_groups", False),
                                  "vector_loads": getattr(r.raster, "vector_loads", False),
-                                 "candidates": tuning.candidates,
+                                 "candidates": candidates, "default_index_pass": tuning.candidates is None,
                                  "precision": precision.value, "wall_ms": wall,
                                  "passes": r.raster.passes, "points_per_s": cloud.points / (ms / 1e3),
                                  "bytes_per_point": read / cloud.points, "bytes_per_s": read / (ms / 1e3),
@@ -239,7 +240,7 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
         base = twin(r, view="overview", raster="GL_POINTS")
         overview = twin(r, view="overview", raster=r["raster"], subgroup_reduction=r["subgroup_reduction"],
                         batch_groups=r["batch_groups"], vector_loads=r["vector_loads"], precision=r["precision"],
-                        candidates=r["candidates"])
+                        default_index_pass=r["default_index_pass"])
         r["vs_points"] = base / r["ms"] if r["view"] == "overview" else None
         r["vs_overview"] = overview / r["ms"]
         r["share_of_copy"] = r["bytes_per_s"] / copy
@@ -278,7 +279,7 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
         "the store's batches the culling test leaves out (batched layouts only); × overview = overview ms / this "
         "ms, same rasterizer. Work group: batch = one work group walks one batch's slices (ComputeTuning.batch_groups), "
         "256 slots = one invocation a slot. Index pass (32-bit path): candidates = over the points that lowered or met their "
-        "pixel's depth in its depth pass (ComputeTuning.candidates, the default), every point = loading, "
+        "pixel's depth in its depth pass (ComputeTuning.candidates; the default on a software renderer), every point = loading, "
         "decoding and projecting them all again. Mpoints/s and GB/s count every point of the cloud, culled ones "
         "included.")]
     table.raw = {"copy_bytes": copy_bytes, "copy_bytes_per_s": copy, "copy_methods": copies,

@@ -115,7 +115,8 @@ class ReferenceCheck:
     def __init__(self, glc: GLContext, store: PointStore, vis: VisibilityBuffer):
         self.store, self.vis = store, vis
         self.reference = VisibilityBuffer(glc, vis.width, vis.height, label="reference visibility")
-        self.raster = make_raster(glc, store, self.reference, Raster.COMPUTE)
+        # the index pass over every point: a reference independent of the candidates it checks
+        self.raster = make_raster(glc, store, self.reference, Raster.COMPUTE, ComputeTuning(candidates=False))
         self.compare = ComparePass(glc, vis)
 
     @property

@@ -35,7 +35,7 @@ SOFTWARE_STREAM_BYTES = 256 << 20
 """The same default for a software rasterizer (llvmpipe), whose buffers are host memory
 it zeroes when they are made (128 MiB took 75 ms on the 2-core machine): 2 GiB would
 spend over a second of the open on them, for more points than it draws in a frame
-(256 MiB holds 10.7 M points at 1280x720; llvmpipe draws about 60 M points/s)."""
+(256 MiB holds 8.9 M points at 1280x720; llvmpipe draws about 60 M points/s)."""
 
 
 def stream_bytes(caps: Capabilities) -> int:
@@ -66,7 +66,7 @@ class MemoryPlan:
 def plan(points: int, caps: Capabilities, pixels: int, limit_bytes: int | None = None,
          extra_bytes_per_point: int = 0, default_bytes: int | None = None) -> MemoryPlan:
     """extra_bytes_per_point: what a point costs beside its record (its class byte).
-    default_bytes: the limit where none is configured (a streamed cloud's STREAM_BYTES);
+    default_bytes: the limit where none is configured (a streamed cloud's stream_bytes);
     None: what the driver reports free, else every point."""
     available, source = None, "no limit known"
     if caps.free_memory_kib is not None:

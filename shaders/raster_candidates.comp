@@ -49,16 +49,18 @@ void main() {
     uint k;
     if (!range_index(min(candidate_meta[CANDIDATE_COUNT], u_candidate_capacity), k)) return;
     uvec4 c = candidates[k];
-    uint pixel = c.x, slot = c.z;
-    if (c.y == visibility[2u * pixel + 1u] && slot < visibility[2u * pixel] && slot < atomicMin(visibility[2u * pixel], slot)) {
-        // A reprojected point leaves its list index (as sources.glsl's WRITE_HINT); a
-        // slot of the store marks its batch.
+    uint pixel = c.x, slot = c.z, held = visibility[2u * pixel];
+    if (c.y != visibility[2u * pixel + 1u] || slot > held) return;
+    uint old = slot < held ? atomicMin(visibility[2u * pixel], slot) : held;
+    // A reprojected point that holds the pixel leaves its list index (as sources.glsl's
+    // WRITE_HINT), also where the same slot's copy from a fill piece, drawn in the same
+    // frame, came first (the index pass over the points drew the list first); a slot of
+    // the store that improved the pixel marks its batch.
 #ifdef HINTS
-        if (c.w != EMPTY) hint[pixel] = c.w;
+    if (c.w != EMPTY && slot <= old) hint[pixel] = c.w;
 #endif
 #ifdef IMPROVED
-        if (c.w == EMPTY) mark_improved(slot);
+    if (c.w == EMPTY && slot < old) mark_improved(slot);
 #endif
-    }
 }
 #endif

@@ -245,7 +245,7 @@ def test_the_32_bit_index_pass_over_candidates_keeps_the_ids(gl, sample, monkeyp
         for b in parts:
             scene.add_batch(b)
         seen = {}
-        for tuning in (ComputeTuning(candidates=False), ComputeTuning()):
+        for tuning in (ComputeTuning(candidates=False), ComputeTuning(candidates=True)):
             with monkeypatch.context() as m:
                 if room != "enough":
                     m.setattr(ComputeRaster, "candidate_capacity", lambda self, pixels: {"too little": 50, "none": 0}[room])

@@ -89,7 +89,8 @@ class Stamp(enum.IntEnum):
     END = 5
     GROW_1 = 6          # a cold frame's ends of its adaptive part and of its first growth stage
     GROW_2 = 7
-    PASS_END = 8        # the end of the frame's first pass over its points (the fill's later passes follow)
+    PASS_END = 8        # the end of the frame's first pass over its points (the fill's later passes follow;
+                        # the 32-bit index pass over the candidates comes before it)
 
 
 GROW_STAMPS = (Stamp.GROW_1, Stamp.GROW_2)

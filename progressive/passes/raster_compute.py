@@ -63,7 +63,10 @@ class ComputeTuning:
     prefetch: records each invocation of a one-word walk loads before it draws them.
     candidates: the 32-bit path's depth pass lists the points that lowered or met their
     pixel's depth, and the index pass reads that list (16 bytes a candidate, in order)
-    instead of loading, decoding and projecting every point again.
+    instead of loading, decoding and projecting every point again. None: on a software
+    renderer, where it measured 1.2-1.4x faster in an overview
+    (bench/results/llvmpipe/index_candidates/); not yet on a GPU, where every candidate
+    takes one atomic on a single counter and a dense view overflows the room.
     winners: a progressive frame ends with the winners pass over its points, which
     leaves each pixel's record for prepare (Winners), instead of prepare gathering each
     new winner from the store at random. None: for a store of WINNERS_MIN_BYTES or more."""
@@ -73,7 +76,7 @@ class ComputeTuning:
     vector_loads: bool | None = None
     prefetch: int = PREFETCH
     winners: bool | None = None
-    candidates: bool = True
+    candidates: bool | None = None
 
 
 DEFAULT_TUNING = ComputeTuning()
@@ -146,7 +149,7 @@ class ComputeRaster:
             self._clear_improved()
         self._candidates = None
         self._candidate_programs: dict[str, object] = {}
-        if tuning.candidates and not atomic64:
+        if (glc.caps.software if tuning.candidates is None else tuning.candidates) and not atomic64:
             self._candidate_programs = {
                 name: shaderlib.compute(glc.ctx, "raster_candidates.comp", defines, label=f"raster32 candidates {name}")
                 for name, defines in self._candidate_defines().items()}
@@ -171,10 +174,12 @@ class ComputeRaster:
         return bool(self._candidate_programs)
 
     def candidate_capacity(self, pixels: int) -> int:
-        """Candidates a frame at `pixels` finds room for: CANDIDATES_PER_PIXEL a pixel, or
-        as many as its points can be (the store, and a reprojection list of a point a
-        pixel) where that is less."""
-        return min(self.store.capacity + pixels, CANDIDATES_PER_PIXEL * pixels)
+        """Candidates a frame at `pixels` finds room for: CANDIDATES_PER_PIXEL a pixel, no
+        more than the store's points and a reprojection list of a point a pixel (a frame
+        that draws new batches beside its pieces may draw more: the count decides), nor
+        than a storage buffer may hold."""
+        most = (self.glc.caps.max_ssbo_bytes - CandidateMeta.META * 4) // CANDIDATE_BYTES
+        return min(self.store.capacity + pixels, CANDIDATES_PER_PIXEL * pixels, most)
 
     def candidates_found(self) -> int:
         """The last frame's candidates, room or not (a readback, for tests and the bench)."""
@@ -189,7 +194,7 @@ class ComputeRaster:
                 self._candidates.release()
             self._candidates = self.glc.ctx.buffer(reserve=size)
             self._candidates.label = "raster candidates"
-        self._candidates.write(bytes(CandidateMeta.META * 4))
+        self.glc.gl.clear_u32(self._candidates.glo, 0, size=CandidateMeta.META * 4, total=size)
 
     def _bind_candidates(self, program) -> None:
         program["u_candidate_capacity"] = self.candidate_capacity(self.vis.pixels)
