@@ -175,6 +175,13 @@ def slots_of_range(gl, r: Renderer, cam: Camera, first: int, count: int) -> np.n
     return r.vis.read()[:, :, 0].copy()
 
 
+def assert_same_slots(ranges: list[tuple[int, int]], got: list[np.ndarray], want: list[np.ndarray], label: str) -> None:
+    """Each range's slots equal the reference's, which shows points."""
+    assert (want[0] != EMPTY).any()
+    for span, a, b in zip(ranges, got, want, strict=True):
+        assert np.array_equal(a, b), f"{label}: slots {span}"
+
+
 def store_shape(info, shape: str) -> dict:
     """Scene arguments: the whole cloud in one buffer; two buffers, split inside a batch
     (the word store's blocks round the split up to whole blocks, so a batch's records
@@ -219,10 +226,9 @@ def test_every_tuning_keeps_the_ids(gl, sample, atomic64, name, shape, records):
             assert r.raster.vector_loads == bool(tuning.vector_loads and tuning.batch_groups and scene.store.words)
             seen[tuning] = [slots_of_range(gl, r, cam, *span) for span in ranges]
         reference = seen.pop(TUNINGS[-1])
-        assert len(seen) >= 1 and (reference[0] != EMPTY).any()
+        assert len(seen) >= 1
         for tuning, slots in seen.items():
-            for span, got, want in zip(ranges, slots, reference):
-                assert np.array_equal(got, want), f"{tuning} over slots {span}"
+            assert_same_slots(ranges, slots, reference, str(tuning))
         assert gl.ctx.error == "GL_NO_ERROR"
     finally:
         r.release()
@@ -262,9 +268,7 @@ def test_the_32_bit_index_pass_over_candidates_keeps_the_ids(gl, sample, monkeyp
                         assert 0 < count < span[1]
                         assert (count <= capacity) == (room == "enough")
         want, got = seen.values()
-        assert (want[0] != EMPTY).any()
-        for span, a, b in zip(ranges, got, want):
-            assert np.array_equal(a, b), f"{room}: slots {span}"
+        assert_same_slots(ranges, got, want, room)
         assert gl.ctx.error == "GL_NO_ERROR"
     finally:
         r.release()
