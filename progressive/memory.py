@@ -33,9 +33,11 @@ the passes took 0.14-0.19, 0.30-0.32 and 0.63 s with 256 MiB, 512 MiB and 1 GiB 
 2-core machine, bench/results/llvmpipe/stream_store_probes/). 2 GiB holds 125 M points, 60 a pixel at 1920x1080."""
 SOFTWARE_STREAM_BYTES = 256 << 20
 """The same default for a software rasterizer (llvmpipe), whose buffers are host memory
-it zeroes when they are made (128 MiB took 75 ms on the 2-core machine): 2 GiB would
-spend over a second of the open on them, for more points than it draws in a frame
-(256 MiB holds 8.9 M points at 1280x720; llvmpipe draws about 60 M points/s)."""
+it zeroes when they are made: a 100 M-point COPC opened with its 1 GiB spent 0.72-1.27 s
+of the open making them, with 256 MiB 0.11-0.18 s (the 2-core machine,
+bench/results/llvmpipe/stream_store_probes/default_open.txt), and 256 MiB already holds
+more points than it draws in a frame (8.9 M at 1280x720; llvmpipe draws about 60 M
+points/s)."""
 
 
 def stream_bytes(caps: Capabilities) -> int:
