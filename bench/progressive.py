@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.report import RunInfo, Table
+from bench.report import INDEX_PASS_LABELS, RunInfo, Table
 from bench.synthetic import SAMPLE, TiledCloud, load, tiled
 from progressive.budget import BudgetParams
 from progressive.camera import Camera, auto_camera
@@ -196,8 +196,6 @@ RECORDS_LABELS = {True: "winners pass", False: "gathered"}
 """The records column: where prepare takes new winners' records (ComputeTuning.winners)."""
 PREPARE_LABELS = {True: "ballot", False: "barriers"}
 """The prepare column: how its pixels take list entries (ProgressiveOptions.prepare_ballot)."""
-INDEX_PASS_LABELS = {True: "candidates", False: "every point"}
-"""The index pass column: what the 32-bit path's index pass walks (ComputeTuning.candidates)."""
 
 
 def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], targets_ms: list[float],

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.report import RunInfo, Table
+from bench.report import INDEX_PASS_LABELS, RunInfo, Table
 from bench.synthetic import SAMPLE, Order, TiledCloud, load, tiled
 from progressive import batches, encoding, shaderlib
 from progressive.batches import BatchOrder
@@ -213,9 +213,7 @@ def measure(glc: GLContext, cloud: TiledCloud, layouts, sizes, repeats: int) -> 
 def index_pass(row: dict) -> str:
     """What the 32-bit path's index pass walks (ComputeTuning.candidates); nothing for the
     one-pass rasterizers."""
-    if row["passes"] < 2:
-        return ""
-    return "candidates" if row["candidates"] else "every point"
+    return INDEX_PASS_LABELS[row["candidates"]] if row["passes"] > 1 else ""
 
 
 def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats: int,

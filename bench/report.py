@@ -14,6 +14,10 @@ from pathlib import Path
 
 from progressive.context import Capabilities
 
+INDEX_PASS_LABELS = {True: "candidates", False: "every point"}
+"""What the 32-bit path's index pass walks (ComputeTuning.candidates), as the raster and
+progressive tables name it."""
+
 
 def machine_name(caps: Capabilities) -> str:
     """A folder name from the GL renderer: `llvmpipe`, `nvidia-h100`, `nvidia-h200`, ..."""
