@@ -729,7 +729,7 @@ def build_parser() -> Parser:
 
     render = sub.add_parser("render", help="render a cloud headless to PNG")
     add_cloud_args(render)
-    render.add_argument("--out", type=path_arg, help="PNG to write")
+    render.add_argument("-o", "--out", type=path_arg, help="PNG to write")
     render.add_argument("--camera", default="auto", help="auto, a camera JSON file, or JSON text")
     render.add_argument("--save-camera", type=path_arg, help="write the camera used as JSON")
     render.add_argument("--colormap", type=enum_arg(Colormap), default=Colormap.VIRIDIS)
@@ -761,7 +761,7 @@ def build_parser() -> Parser:
     add_cloud_args(view)
     view.add_argument("--no-ui", action="store_true", help="no panel (keys still work)")
     add_look_args(view, chosen=True)
-    view.add_argument("--out", type=path_arg, default="progressive-view.png", help="PNG written when there is no display")
+    view.add_argument("-o", "--out", type=path_arg, default="progressive-view.png", help="PNG written when there is no display")
     view.set_defaults(func=cmd_view)
 
     convert = sub.add_parser("convert", help=f"write the fast GPU-layout format, or COPC where OUT ends in {COPC_SUFFIX}")

@@ -38,10 +38,11 @@ def test_render_writes_png_ids_stats_and_camera(tmp_path, capsys):
     assert s["points"] == 110_000 and s["points_loaded"] == 110_000
     assert {"device", "load_seconds", "load_points_per_second", "gpu_ms"} <= set(s)
     assert {"raster", "resolve"} <= set(s["gpu_ms"])
-    ids_b = tmp_path / "b.npy"
-    code, _, err = run(capsys, "render", *SMALL, "--camera", cam, "--ids", ids_b)
+    ids_b, png_b = tmp_path / "b.npy", tmp_path / "b.png"
+    code, _, err = run(capsys, "render", *SMALL, "--camera", cam, "--ids", ids_b, "-o", png_b)
     assert code == 0, err
     assert np.array_equal(np.load(ids_b), ids_a)
+    assert np.array_equal(np.asarray(Image.open(png_b)), image)
 
 
 def test_camera_as_json_text_and_raster_choices(tmp_path, capsys):
