@@ -1,12 +1,11 @@
 // The 32-bit raster's index pass over the depth pass's candidates (candidates.glsl):
 // each pixel keeps the least slot among its candidates at its final depth, as the index
 // pass over the points would, reading 16 bytes a candidate in order instead of every
-// point's words, decoded and projected again; a layer of work groups a list. ARGS: one
-// invocation writes this pass's dispatch arguments from the lists' counts, whether
-// every list held its candidates, and the arguments of the index pass over the points
-// of the frame's fill pieces (FALLBACK_PIECES: their walk's or one invocation a slot's,
-// from u_piece_args in the budget pass's) and its list (FALLBACK_LIST): theirs where
-// the candidates overflowed, else no work group.
+// point's words, decoded and projected again. ARGS: one invocation writes this pass's
+// dispatch arguments from the count, and those of the index pass over the points of the
+// frame's fill pieces (FALLBACK_PIECES: their walk's or one invocation a slot's, from
+// u_piece_args in the budget pass's) and its list (FALLBACK_LIST): theirs where the
+// candidates overflowed, else no work group.
 layout(local_size_x = 256) in;
 #include "common.glsl"
 #define CANDIDATES_ACCESS
@@ -22,17 +21,8 @@ layout(std430, binding = BINDING_SLOT_LIST) readonly buffer SlotList { uint list
 #endif
 
 void main() {
-    bool held = true;
-    uint most = 0u;
-    for (uint list = 0u; list < u_candidate_lists; ++list) {
-        uint count = candidate_meta[CANDIDATE_COUNTS + list];
-        held = held && count <= u_list_capacity;
-        most = max(most, min(count, u_list_capacity));
-    }
-    candidate_meta[CANDIDATE_HELD] = held ? 1u : 0u;
-    // a layer of work groups a list (gl_WorkGroupID.z), each as long as the longest
-    uvec3 groups = dispatch_grid(most);
-    groups.z = most == 0u ? 0u : u_candidate_lists;
+    bool held = candidates_held();
+    uvec3 groups = dispatch_grid(min(candidate_meta[CANDIDATE_COUNT], u_candidate_capacity));
     for (uint k = 0u; k < 3u; ++k) {
         candidate_meta[CANDIDATE_DISPATCH + k] = groups[k];
 #ifdef FALLBACK_PIECES
@@ -56,9 +46,9 @@ layout(std430, binding = BINDING_HINT) writeonly buffer Hint { uint hint[]; };
 #endif
 
 void main() {
-    uint list = gl_WorkGroupID.z, k;
-    if (!range_index(min(candidate_meta[CANDIDATE_COUNTS + list], u_list_capacity), k)) return;
-    uvec4 c = candidates[list * u_list_capacity + k];
+    uint k;
+    if (!range_index(min(candidate_meta[CANDIDATE_COUNT], u_candidate_capacity), k)) return;
+    uvec4 c = candidates[k];
     uint pixel = c.x, slot = c.z, held = visibility[2u * pixel];
     if (c.y != visibility[2u * pixel + 1u] || slot > held) return;
     uint old = slot < held ? atomicMin(visibility[2u * pixel], slot) : held;

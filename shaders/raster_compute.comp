@@ -47,14 +47,13 @@ layout(local_size_x = 256) in;
 
 #if DEPTH_PASS
 void add_candidate(uint i, uint slot, uint pixel, uint depth_bits) {
-    uint list = (gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x) % u_candidate_lists;
-    uint k = atomicAdd(candidate_meta[CANDIDATE_COUNTS + list], 1u);
+    uint k = atomicAdd(candidate_meta[CANDIDATE_COUNT], 1u);
 #if SOURCE == SOURCE_LIST
     uint listed = i;
 #else
     uint listed = EMPTY;
 #endif
-    if (k < u_list_capacity) candidates[list * u_list_capacity + k] = uvec4(pixel, depth_bits, slot, listed);
+    if (k < u_candidate_capacity) candidates[k] = uvec4(pixel, depth_bits, slot, listed);
 }
 #endif
 #endif

@@ -235,21 +235,13 @@ def test_every_tuning_keeps_the_ids(gl, sample, atomic64, name, shape, records):
         scene.release()
 
 
-def candidate_raster(gl, scene, r, tuning: ComputeTuning) -> ComputeRaster:
-    r.raster.release()
-    r.raster = ComputeRaster(gl, scene.store, r.vis, atomic64=False, culling=CullPass(gl, scene.store), tuning=tuning)
-    assert r.raster.candidates == bool(tuning.candidates)
-    return r.raster
-
-
-@pytest.mark.parametrize("room", ["enough", "three lists", "a list too little", "too little", "none"])
+@pytest.mark.parametrize("room", ["enough", "too little", "none"])
 @pytest.mark.parametrize("name", ["overview", "zoomed corner"])
 def test_the_32_bit_index_pass_over_candidates_keeps_the_ids(gl, sample, monkeypatch, room, name):
     """The 32-bit index pass over the depth pass's candidates gives the ids of the index
-    pass over every point, in one list or several; a frame with more candidates than a
-    list has room for (though the others have room to spare) or than the room of all
-    runs that pass instead, with the same ids. The counts say the lists were used, and
-    that they hold fewer candidates than the points drawn."""
+    pass over every point; a frame with more candidates than room runs that pass instead,
+    with the same ids. The count says the list was used, and that it is shorter than the
+    points drawn."""
     info, parts, _, _ = sample
     scene = Scene(gl, info, find_attribute(info, "elevation"))
     r = Renderer(gl, info, scene.attribute, width=W, height=H, scene=scene)
@@ -258,32 +250,24 @@ def test_the_32_bit_index_pass_over_candidates_keeps_the_ids(gl, sample, monkeyp
     try:
         for b in parts:
             scene.add_batch(b)
-        want = [slots_of_range(gl, r, cam, *span) for span in ranges
-                if candidate_raster(gl, scene, r, ComputeTuning(candidates=False))]
-        lists = {"enough": None, "three lists": (3, 10_000), "too little": (1, 50), "none": (1, 0)}.get(room)
-        if room == "a list too little":
-            # the room of three lists just short of the longest one's count
+        seen = {}
+        for tuning in (ComputeTuning(candidates=False), ComputeTuning(candidates=True)):
             with monkeypatch.context() as m:
-                m.setattr(ComputeRaster, "candidate_lists", lambda self, pixels: (3, 10_000))
-                candidate_raster(gl, scene, r, ComputeTuning(candidates=True))
-                slots_of_range(gl, r, cam, *ranges[0])
-                counts = r.raster.candidate_counts()
-            lists = (3, int(counts.max()) - 1)
-            assert counts.sum() <= 3 * lists[1]
-        with monkeypatch.context() as m:
-            if lists is not None:
-                m.setattr(ComputeRaster, "candidate_lists", lambda self, pixels: lists)
-            candidate_raster(gl, scene, r, ComputeTuning(candidates=True))
-            got = []
-            for span in ranges:
-                got.append(slots_of_range(gl, r, cam, *span))
-                counts = r.raster.candidate_counts()
-                lists_now, room_now = r.raster.candidate_lists(r.vis.pixels)
-                assert len(counts) == lists_now and 0 < counts.sum() < span[1]
-                short = room in ("too little", "none") or (room == "a list too little" and span == ranges[0])
-                assert (counts <= room_now).all() != short
-        if room == "three lists":
-            assert (counts > 0).all()
+                if room != "enough":
+                    m.setattr(ComputeRaster, "candidate_capacity", lambda self, pixels: {"too little": 50, "none": 0}[room])
+                r.raster.release()
+                r.raster = ComputeRaster(gl, scene.store, r.vis, atomic64=False, culling=CullPass(gl, scene.store),
+                                         tuning=tuning)
+                assert r.raster.candidates == tuning.candidates
+                seen[tuning] = []
+                for span in ranges:
+                    seen[tuning].append(slots_of_range(gl, r, cam, *span))
+                    if tuning.candidates:
+                        count = r.raster.candidates_found()
+                        capacity = r.raster.candidate_capacity(r.vis.pixels)
+                        assert 0 < count < span[1]
+                        assert (count <= capacity) == (room == "enough")
+        want, got = seen.values()
         assert_same_slots(ranges, got, want, room)
         assert gl.ctx.error == "GL_NO_ERROR"
     finally:

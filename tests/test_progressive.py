@@ -376,14 +376,13 @@ def test_file_fill_order_stores_file_order_and_converges(gl, cloud):
 
 
 @RECORDS
-@pytest.mark.parametrize("room", ["enough", "five lists", "too little"])
+@pytest.mark.parametrize("room", ["enough", "too little"])
 def test_the_32_bit_index_pass_over_candidates_keeps_every_frames_ids(gl, cloud, brute, monkeypatch, winners, room):
     """Frames drawn with the 32-bit index pass over the depth pass's candidates (batches
     arriving, the reprojection list's hints, fill pieces, improved batches for the
     winners pass, motion) have the ids of frames drawn with the index pass over every
-    point, in the lists of their size (two) or in five; with too little room a frame
-    that may have more candidates walks its points too, with the same ids; both converge
-    to brute force."""
+    point; with too little room a frame that may have more candidates walks its points
+    too, with the same ids; both converge to brute force."""
     from progressive.passes.raster_compute import ComputeRaster
 
     info, batches = cloud
@@ -394,8 +393,6 @@ def test_the_32_bit_index_pass_over_candidates_keeps_every_frames_ids(gl, cloud,
         with monkeypatch.context() as m:
             if room == "too little":
                 m.setattr(ComputeRaster, "candidate_capacity", lambda self, pixels: 50)
-            if room == "five lists":
-                m.setattr(ComputeRaster, "candidate_lists", lambda self, pixels: (5, 12_000))
             pr = ProgressiveRenderer(gl, info, default_attribute(info), ProgressiveOptions(
                 W, H, raster=Raster.COMPUTE32, budget=BudgetParams(fixed=B), batches_per_frame=2,
                 tuning=ComputeTuning(winners=winners, candidates=candidates)))

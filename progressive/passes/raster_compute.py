@@ -7,14 +7,12 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass
 
-import numpy as np
-
 from progressive import shaderlib
 from progressive.bindings import Binding
 from progressive.camera import ViewUniforms
 from progressive.context import GLContext
 from progressive.encoding import Precision
-from progressive.gpu import RANGE_GROUP, dispatch_defines, fill_uvec4s, grid, set_view
+from progressive.gpu import dispatch_defines, fill_uvec4s, grid, set_view
 from progressive.loaders.records import RECORD_BYTES
 from progressive.passes.handles import (
     EMPTY,
@@ -29,7 +27,7 @@ from progressive.passes.handles import (
     Visibility,
     Winners,
 )
-from progressive.permutation import BATCH_SLOTS, SLICE_POINTS
+from progressive.permutation import SLICE_POINTS
 from progressive.pointstore import PointStore
 
 SUBGROUP_EXTENSIONS = ("GL_KHR_shader_subgroup", "GL_NV_shader_subgroup_partitioned")     # as the driver names them
@@ -89,21 +87,13 @@ random 16-byte lookups take 0.10 ms within 256 MiB but 6.4 ms over 2 GiB
 pass costs (bench/results/llvmpipe/winners/progressive_1000000.md)."""
 
 
-CANDIDATE_LISTS = 64
-"""The most lists the candidates lie in (shaders/candidates.glsl): a work group appends
-to the list its index picks, so groups drawn at once share no counter. On llvmpipe one
-list took 15.78 ms of brute force at 1 M points and 1280x720, 64 lists 12.62
-(bench/results/llvmpipe/raster_stage_probes/depth_pass_store.txt)."""
-
-
 class CandidateMeta(enum.IntEnum):
     """Words before the candidates (shaders/candidates.glsl)."""
 
-    DISPATCH = 0        # 3 words: the candidates pass's dispatch arguments
-    FALLBACK = 3        # 3 words a fill piece, then 3 for the list: the index pass over their points
-    HELD = 3 + 3 * (FILL_PIECES + 1)    # 1 where every list held its candidates
-    COUNTS = HELD + 1                   # a word a list
-    META = -(-(COUNTS + CANDIDATE_LISTS) // 4) * 4     # the words before the first candidate (whole uvec4s)
+    COUNT = 0
+    DISPATCH = 1        # 3 words: the candidates pass's dispatch arguments
+    FALLBACK = 4        # 3 words a fill piece, then 3 for the list: the index pass over their points
+    META = -(-(4 + 3 * (FILL_PIECES + 1)) // 4) * 4     # the words before the first candidate (whole uvec4s)
 
     @classmethod
     def defines(cls) -> dict[str, int]:
@@ -186,33 +176,19 @@ class ComputeRaster:
     def candidate_capacity(self, pixels: int) -> int:
         """Candidates a frame at `pixels` finds room for: CANDIDATES_PER_PIXEL a pixel, no
         more than the store's points and a reprojection list of a point a pixel (a frame
-        that draws new batches beside its pieces may draw more: the counts decide), nor
+        that draws new batches beside its pieces may draw more: the count decides), nor
         than a storage buffer may hold."""
         most = (self.glc.caps.max_ssbo_bytes - CandidateMeta.META * 4) // CANDIDATE_BYTES
         return min(self.store.capacity + pixels, CANDIDATES_PER_PIXEL * pixels, most)
 
-    def candidate_lists(self, pixels: int) -> tuple[int, int]:
-        """The lists the candidates lie in and each one's room: up to CANDIDATE_LISTS,
-        each with room for two batches' points (a group of the batch walk appends at
-        most one batch's)."""
-        capacity = self.candidate_capacity(pixels)
-        lists = max(1, min(CANDIDATE_LISTS, capacity // (2 * BATCH_SLOTS)))
-        return lists, capacity // lists
-
-    def candidate_counts(self) -> np.ndarray:
-        """Each list's candidates of the last frame, room or not (a readback, for tests
-        and the bench)."""
-        lists, _ = self.candidate_lists(self.vis.pixels)
-        return np.frombuffer(self._candidates.read(4 * lists, offset=CandidateMeta.COUNTS * 4), np.uint32)
-
     def candidates_found(self) -> int:
-        """The last frame's candidates, room or not."""
-        return int(self.candidate_counts().sum())
+        """The last frame's candidates, room or not (a readback, for tests and the bench)."""
+        return int.from_bytes(self._candidates.read(4, offset=CandidateMeta.COUNT * 4), "little")
 
     def _reset_candidates(self) -> None:
-        """Empty lists, with room for this frame's pixels."""
-        lists, room = self.candidate_lists(self.vis.pixels)
-        size = CandidateMeta.META * 4 + lists * room * CANDIDATE_BYTES
+        """An empty list, with room for this frame's pixels."""
+        capacity = self.candidate_capacity(self.vis.pixels)
+        size = CandidateMeta.META * 4 + capacity * CANDIDATE_BYTES
         if self._candidates is None or self._candidates.size != size:
             if self._candidates is not None:
                 self._candidates.release()
@@ -221,11 +197,7 @@ class ComputeRaster:
         self.glc.gl.clear_u32(self._candidates.glo, 0, size=CandidateMeta.META * 4, total=size)
 
     def _bind_candidates(self, program) -> None:
-        """The lists, for a program that appends or reads them (the index pass over the
-        points reads only whether they held)."""
-        for name, value in zip(("u_candidate_lists", "u_list_capacity"), self.candidate_lists(self.vis.pixels), strict=True):
-            if name in program:
-                program[name] = value
+        program["u_candidate_capacity"] = self.candidate_capacity(self.vis.pixels)
         self._candidates.bind_to_storage_buffer(Binding.CANDIDATES)
 
     @property
@@ -383,29 +355,21 @@ class ComputeRaster:
         if count <= 0:
             return
         self.begin_frame(view)
-        groups = grid(self.store.permutation.batches, local_size=1) if self.batch_groups else grid(count)
         for pass_index in range(self.passes):
-            if self.candidates and pass_index == 1 and self._lists_hold(groups, count):
+            if self.candidates and pass_index == 1 and count <= self.candidate_capacity(self.vis.pixels):
                 continue        # every point's candidate was held
             program = self._prepare(Source.RANGE, pass_index, view)
             program["u_first"] = first
             program["u_count"] = count
             if self._marks(Source.RANGE) and pass_index == self.passes - 1:
                 program["u_mark"] = 0       # no winners pass follows
-            program.run(*groups)
+            if self.batch_groups:
+                program.run(*grid(self.store.permutation.batches, local_size=1))
+            else:
+                program.run(*grid(count))
             self.glc.ctx.memory_barrier()
             if self.candidates and pass_index == 0:
                 self._index_candidates(None, None, mark=False)
-
-    def _lists_hold(self, groups: tuple[int, int, int], count: int) -> bool:
-        """Whether the candidates of a brute-force dispatch of `groups` over `count` points
-        fit their lists whatever they are: a list takes the groups its index picks, each
-        of which appends at most its points (a batch's, or a group's invocations). Else
-        the index pass over the points runs, and its groups return at once where they
-        did fit."""
-        lists, room = self.candidate_lists(self.vis.pixels)
-        each = min(count, BATCH_SLOTS if self.batch_groups else RANGE_GROUP)
-        return -(-groups[0] * groups[1] // lists) * each <= room
 
     @property
     def draws_batches(self) -> bool:
