@@ -49,9 +49,6 @@ SETS = {
         "a 64-bit word and a word": [("void add_candidate(", WORDS64),
                                      (STORE, f"    if (k < u_candidate_capacity) {{ {KEY64}); candidates[k].z = pixel; }}")],
         "a 64-bit word": [("void add_candidate(", WORDS64), (STORE, f"    if (k < u_candidate_capacity) {{ {KEY64} ^ pixel); }}")],
-        "a region a work group (shared counter)": [("void add_candidate(", "shared uint s_appended;\nvoid add_candidate("),
-            ("    uint k = atomicAdd(candidate_meta[CANDIDATE_COUNT], 1u);",
-             "    uint k = (gl_WorkGroupID.x * 16384u + (atomicAdd(s_appended, 1u) & 16383u)) % u_candidate_capacity;")],
         "a chunk of 4 an invocation": [("void add_candidate(", "uint g_base = 0u, g_used = 4u;\nvoid add_candidate("),
             ("    uint k = atomicAdd(candidate_meta[CANDIDATE_COUNT], 1u);",
              "    if (g_used == 4u) { g_base = atomicAdd(candidate_meta[CANDIDATE_COUNT], 4u); g_used = 0u; }\n    uint k = g_base + g_used++;")],
@@ -61,14 +58,6 @@ SETS = {
         "a chunk of 16 an invocation": [("void add_candidate(", "uint g_base = 0u, g_used = 16u;\nvoid add_candidate("),
             ("    uint k = atomicAdd(candidate_meta[CANDIDATE_COUNT], 1u);",
              "    if (g_used == 16u) { g_base = atomicAdd(candidate_meta[CANDIDATE_COUNT], 16u); g_used = 0u; }\n    uint k = g_base + g_used++;")],
-        "16 lists, a work group's by its index": [
-            ("    uint k = atomicAdd(candidate_meta[CANDIDATE_COUNT], 1u);",
-             "    uint list = (gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x) % 16u;\n"
-             "    uint k = list * (u_candidate_capacity / 16u) + atomicAdd(candidate_meta[CANDIDATE_COUNT + 8u + list], 1u) % (u_candidate_capacity / 16u);")],
-        "64 lists, a work group's by its index": [
-            ("    uint k = atomicAdd(candidate_meta[CANDIDATE_COUNT], 1u);",
-             "    uint list = (gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x) % 64u;\n"
-             "    uint k = list * (u_candidate_capacity / 64u) + atomicAdd(candidate_meta[CANDIDATE_COUNT + 8u + list], 1u) % (u_candidate_capacity / 64u);")],
         "skipped where no lane of a group appends": [(APPEND, "    if (anyInvocationARB(depth_bits <= held)) "
                                                                "{ if (depth_bits <= held) add_candidate(i, slot, pixel, depth_bits); }")],
     },
