@@ -37,6 +37,8 @@ SETS = {
                                                           "pixel == u_zero_probe + 7u) visibility[0] = 0u;\n    return;\n#endif\n")],
         "no atomicMin (read only)": [(HEAD, ZERO), (ATOMIC, ATOMIC.replace("depth_bits < held)", "depth_bits < held && u_zero_probe == 1u)"))],
         "no candidate appended": [(HEAD, ZERO), (APPEND, APPEND.replace("depth_bits <= held)", "depth_bits <= held && u_zero_probe == 1u)"))],
+        "atomicMin without the read before it": [("    uint held = visibility[2u * pixel + 1u];\n" + ATOMIC,
+                                                   "    uint held = atomicMin(visibility[2u * pixel + 1u], depth_bits);")],
         "loads doubled": [(HEAD, ZERO), (LOADS, LOADS.replace("point_words(index, levels)", "(point_words(index, levels) | "
                                                               "(point_words(index ^ 1u, levels) & uvec3(u_zero_probe)))"))],
         "loads from a hot 4096": [(LOADS, LOADS.replace("point_words(index, levels)", "point_words(records + (index & 4095u), levels)"))],
