@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -92,3 +94,24 @@ def file_xyz(path) -> np.ndarray:
 
     las = laspy.read(path)
     return np.stack([las.x, las.y, las.z], axis=1)
+
+
+def bounded(call, seconds: float):
+    """call() run on a thread that must end within `seconds`: its result (or exception)
+    and the time it took."""
+    outcome: dict = {}
+
+    def run():
+        try:
+            outcome["value"] = call()
+        except BaseException as exc:        # handed to the test
+            outcome["error"] = exc
+
+    began = time.monotonic()
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    thread.join(seconds)
+    assert not thread.is_alive(), f"did not end within {seconds} s"
+    if "error" in outcome:
+        raise outcome["error"]
+    return outcome["value"], time.monotonic() - began

@@ -19,7 +19,7 @@ from PIL import Image
 from range_server import Faults, RangeServer, self_signed
 from test_copc import SMALL, damaged_copc, limit_for, nodes_of, plain_copy
 
-from conftest import SAMPLE, SHARED_DATA, shared_file
+from conftest import SAMPLE, SHARED_DATA, bounded, shared_file
 from progressive.cli import main
 from progressive.errors import InputError
 from progressive.loaders import CloudLoader
@@ -31,27 +31,6 @@ BOUND_S = 30.0
 """Longest any one load, render or failure here may take on a slow machine (llvmpipe, 2
 cores); a hang fails the test instead of stalling the suite."""
 SHORT_TIMEOUT = HttpOptions(timeout_s=0.5)
-
-
-def bounded(call, seconds: float = BOUND_S):
-    """call() run on a thread that must end within `seconds`: its result (or exception)
-    and the time it took."""
-    outcome: dict = {}
-
-    def run():
-        try:
-            outcome["value"] = call()
-        except BaseException as exc:        # handed to the test
-            outcome["error"] = exc
-
-    began = time.monotonic()
-    thread = threading.Thread(target=run, daemon=True)
-    thread.start()
-    thread.join(seconds)
-    assert not thread.is_alive(), f"did not end within {seconds} s"
-    if "error" in outcome:
-        raise outcome["error"]
-    return outcome["value"], time.monotonic() - began
 
 
 @pytest.fixture(scope="module")
@@ -126,7 +105,7 @@ def test_url_source_equals_the_local_file(name, server, files):
     np.testing.assert_array_equal(remote.hierarchy.first, local.hierarchy.first)
     levels = local.hierarchy.per_level()
     for budget in (None, sum(p for _, p in levels[:-1])):
-        (info, mine, _), _ = bounded(lambda b=budget: batches_of(url, point_budget=b))
+        (info, mine, _), _ = bounded(lambda b=budget: batches_of(url, point_budget=b), BOUND_S)
         theirs_info, theirs, _ = batches_of(files[name], point_budget=budget)
         assert info.points == theirs_info.points and info.files[0].runs == theirs_info.files[0].runs
         assert [b.start for b in mine] == [b.start for b in theirs]
@@ -225,7 +204,7 @@ def test_connections_are_kept_alive(files):
     for close_idle in (False, True):
         with RangeServer({name: files[name]}) as own:
             own.faults.close_idle = close_idle
-            (info, batches, warnings), _ = bounded(lambda: batches_of(own.url(name), http=options))
+            (info, batches, warnings), _ = bounded(lambda: batches_of(own.url(name), http=options), BOUND_S)
             status = info.files[0].status()
             assert sum(b.count for b in batches) == info.points and not warnings and status.nodes_skipped == 0
             assert (status.requests, status.bytes_fetched) == own.counts()
@@ -368,7 +347,7 @@ def test_pick_fetches_its_node_once_and_counts_it(server, files):
     from progressive.loaders.lookup import read_point, read_record
 
     name = "lone-star.copc.laz" if "lone-star.copc.laz" in files else "sample.copc.laz"
-    info, _ = bounded(lambda: open_cloud([server.url(name)]))
+    info, _ = bounded(lambda: open_cloud([server.url(name)]), BOUND_S)
     nodes = open_copc(files[name]).hierarchy
     k = nodes.nodes.size // 2
     index = int(nodes.first[k]) + 3
@@ -604,7 +583,7 @@ def test_streaming_a_url_draws_while_nodes_are_on_their_way():
                 assert_exact(s, camera, xyz)
                 return while_loading, resident(s)[0].size
 
-        (frames, kept), _ = bounded(run)
+        (frames, kept), _ = bounded(run, BOUND_S)
         fetched = [r for r in server.ranges if r[0] in server.faults.delays]
     assert frames >= 5
     assert len(fetched) == len(set(fetched)) >= kept - 1     # the first node may come within the first bytes read

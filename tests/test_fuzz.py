@@ -11,7 +11,6 @@ import math
 import struct
 import subprocess
 import sys
-import threading
 from pathlib import Path
 
 import laspy
@@ -20,7 +19,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from conftest import SAMPLE, shared_file
+from conftest import SAMPLE, bounded, shared_file
 from progressive.errors import InputError
 from progressive.loaders import CloudLoader, describe, open_cloud, write_fast
 
@@ -104,34 +103,22 @@ warning raised as an error here): such an InputError fails the example too."""
 
 
 def check_loads_or_fails_cleanly(path: Path, partial: bool = False) -> str | None:
-    """Open, iterate and describe in a thread: success (None) or one InputError line
-    naming the file (returned); anything else (or a hang) fails."""
-    outcome: dict[str, object] = {}
-
+    """Open, iterate and describe, within TIMEOUT_S: success (None) or one InputError
+    line naming the file (returned); anything else (or a hang) fails."""
     def work():
-        try:
-            with CloudLoader([path], batch_points=700, parser_threads=2, partial=partial) as loader:
-                batches = sorted(loader, key=lambda b: b.start)
-            starts = np.cumsum([0] + [b.count for b in batches])
-            assert [b.start for b in batches] == starts[:-1].tolist()
-            assert starts[-1] == loader.loaded <= loader.total
-            assert loader.loaded == loader.total or (partial and loader.warnings)
-            assert 0 <= loader.nonfinite_positions <= loader.loaded
-            describe([path], partial=partial)
-            outcome["loaded"] = loader.loaded
-        except InputError as exc:
-            outcome["error"] = exc
-        except BaseException as exc:                    # noqa: BLE001 - re-raised below
-            outcome["bug"] = exc
+        with CloudLoader([path], batch_points=700, parser_threads=2, partial=partial) as loader:
+            batches = sorted(loader, key=lambda b: b.start)
+        starts = np.cumsum([0] + [b.count for b in batches])
+        assert [b.start for b in batches] == starts[:-1].tolist()
+        assert starts[-1] == loader.loaded <= loader.total
+        assert loader.loaded == loader.total or (partial and loader.warnings)
+        assert 0 <= loader.nonfinite_positions <= loader.loaded
+        describe([path], partial=partial)
 
-    thread = threading.Thread(target=work, daemon=True)
-    thread.start()
-    thread.join(TIMEOUT_S)
-    assert not thread.is_alive(), f"loading {path} hung for {TIMEOUT_S} s"
-    if "bug" in outcome:
-        raise outcome["bug"]
-    if "error" in outcome:
-        message = str(outcome["error"])
+    try:
+        bounded(work, TIMEOUT_S)
+    except InputError as exc:
+        message = str(exc)
         assert "\n" not in message and str(path) in message and UNFORESEEN not in message, message
         return message
     return None
