@@ -114,23 +114,26 @@ def reads_together() -> tuple[str, str]:
             "            for (uint m = 0u; m < 4u; ++m) if (keys[m] < held[m]) atomicMin(visibility[pix[m]], keys[m]);\n")
 
 
-ONE_WORD = ComputeTuning(vector_loads=False)
+ONE_WORD = ComputeTuning(vector_loads=False, winners=False)
 """The stages' walk: one word a load, `prefetch` records a slice apart (the four-word
-walk, the renderer's 64-bit default, is a variant beside it)."""
+walk, the renderer's 64-bit default, is a variant beside it). No winners pass (on by
+default from WINNERS_MIN_BYTES): it is not timed here, and its program would take the
+raster's patches, which do not fit it."""
+FOUR_WORDS = replace(ONE_WORD, vector_loads=True)
 VARIANTS = {
     "load, no decode": (ONE_WORD, {"raster_compute.comp": STAGES["load"], "points.glsl": NO_DECODE}),
     "full, prefetch 1": (replace(ONE_WORD, prefetch=1), {}),
     "full, prefetch 2": (replace(ONE_WORD, prefetch=2), {}),
     "full, prefetch 8": (replace(ONE_WORD, prefetch=8), {}),
     "full, subgroup reduction": (replace(ONE_WORD, subgroup_reduction=True), {}),
-    "full, four-word loads": (ComputeTuning(vector_loads=True), {}),
+    "full, four-word loads": (FOUR_WORDS, {}),
     "full, decode fused": (ONE_WORD, {"points.glsl": FUSED}),
-    "load, four-word loads": (ComputeTuning(vector_loads=True), {"raster_compute.comp": STAGES["load"]}),
-    "+ project, four-word loads": (ComputeTuning(vector_loads=True), {"raster_compute.comp": STAGES["+ project"]}),
-    "full, four-word loads, one reciprocal": (ComputeTuning(vector_loads=True), {"camera.glsl": RECIPROCAL}),
-    "full, four-word loads, four reads at once": (ComputeTuning(vector_loads=True), {"raster_compute.comp": reads_together()}),
+    "load, four-word loads": (FOUR_WORDS, {"raster_compute.comp": STAGES["load"]}),
+    "+ project, four-word loads": (FOUR_WORDS, {"raster_compute.comp": STAGES["+ project"]}),
+    "full, four-word loads, one reciprocal": (FOUR_WORDS, {"camera.glsl": RECIPROCAL}),
+    "full, four-word loads, four reads at once": (FOUR_WORDS, {"raster_compute.comp": reads_together()}),
     "full, four-word loads, one reciprocal, four reads at once":
-        (ComputeTuning(vector_loads=True), {"camera.glsl": RECIPROCAL, "raster_compute.comp": reads_together()}),
+        (FOUR_WORDS, {"camera.glsl": RECIPROCAL, "raster_compute.comp": reads_together()}),
 }
 """Walks beside the stages, on the word store: name -> (tuning, patches)."""
 
