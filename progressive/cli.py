@@ -22,6 +22,8 @@ MAX_FRAMES = 16384
 """Frames of --frames, --max-frames and cameras of --camera-path."""
 MAX_HEADLESS_FRAMES = 1000
 SHOWN_CHARS = 40
+STDOUT = "-"
+"""The output name that prints instead (`render --stats -`), for pipelines that read it."""
 
 
 class UsageError(ProgressiveError):
@@ -436,7 +438,10 @@ def cmd_render(args) -> int:
 
     paths = input_paths(args.files)
     camera_file = None if args.camera == "auto" or args.camera.lstrip().startswith("{") else args.camera
-    check_outputs((args.out, args.ids, args.stats, args.save_camera),
+    stats_out = args.stats == STDOUT
+    if stats_out and args.pick:
+        raise UsageError("--stats - and --pick both print to standard output: give --stats a file")
+    check_outputs((args.out, args.ids, None if stats_out else args.stats, args.save_camera),
                   [*paths, *(p for p in (camera_file, args.camera_path) if p)])
     cameras = load_camera_path(args.camera_path) if args.camera_path else None
     camera = None if args.camera == "auto" or cameras else load_camera(args.camera)
@@ -465,10 +470,13 @@ def cmd_render(args) -> int:
             outputs.write(args.save_camera, json_writer(cameras[-1].to_dict()))
         if args.stats:
             stats["covered_pixels"] = int((ids != 0xFFFFFFFF).sum())
-            outputs.write(args.stats, json_writer(stats))
+            if not stats_out:
+                outputs.write(args.stats, json_writer(stats))
         if args.pick:
             picked = session.pick(*args.pick)
             commit_saying(outputs, json.dumps({"found": picked is not None, **(picked or {})}))
+        elif stats_out:
+            commit_saying(outputs, json.dumps(stats, indent=2))
         else:
             outputs.commit()
     if args.converge and converged_at is None:
@@ -742,7 +750,7 @@ def build_parser() -> Parser:
                              "where it projects)")
     add_look_args(render)
     render.add_argument("--ids", type=path_arg, help="write the (H, W) uint32 file-order index of each pixel (.npy)")
-    render.add_argument("--stats", type=path_arg, help="write timings and counts (.json)")
+    render.add_argument("--stats", type=path_arg, help="write timings and counts (.json; - prints them)")
     render.add_argument("--pick", type=floats_arg(2, "X,Y"), metavar="X,Y",
                         help="print the point shown nearest to image pixel X,Y (row 0 at the top) as one JSON "
                              "object: file, index, x, y, z in file coordinates, every attribute")

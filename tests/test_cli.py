@@ -325,3 +325,20 @@ def test_headless_view_draws_what_render_draws(tmp_path, capsys, monkeypatch):
         assert run(capsys, "view", *SMALL, *flags, "--out", seen)[0] == 0
         assert run(capsys, "render", *SMALL, *flags, "--out", drawn)[0] == 0
         np.testing.assert_array_equal(np.asarray(Image.open(seen)), np.asarray(Image.open(drawn)))
+
+
+def test_stats_to_standard_output(tmp_path, capsys):
+    """`--stats -` prints the JSON a file would hold (no file named "-"), and --pick,
+    which prints too, cannot share standard output with it."""
+    stats = tmp_path / "a.json"
+    code, _, err = run(capsys, "render", *SMALL, "--stats", stats)
+    assert code == 0, err
+    code, out, err = run(capsys, "render", *SMALL, "--stats", "-")
+    assert code == 0, err
+    printed, written = json.loads(out), json.loads(stats.read_text())
+    assert printed["points"] == written["points"] == 110_000
+    assert printed["covered_pixels"] == written["covered_pixels"] > 0
+    assert set(printed) == set(written)
+    code, out, err = run(capsys, "render", *SMALL, "--stats", "-", "--pick", "80,60")
+    assert code == 2 and out == ""
+    assert err.count("\n") == 1 and err.startswith("progressive: error: --stats - and --pick")
