@@ -327,9 +327,10 @@ def test_headless_view_draws_what_render_draws(tmp_path, capsys, monkeypatch):
         np.testing.assert_array_equal(np.asarray(Image.open(seen)), np.asarray(Image.open(drawn)))
 
 
-def test_stats_to_standard_output(tmp_path, capsys):
+def test_stats_to_standard_output(tmp_path, capsys, monkeypatch):
     """`--stats -` prints the JSON a file would hold (no file named "-"), and --pick,
     which prints too, cannot share standard output with it."""
+    monkeypatch.chdir(tmp_path)
     stats = tmp_path / "a.json"
     code, _, err = run(capsys, "render", *SMALL, "--stats", stats)
     assert code == 0, err
@@ -339,6 +340,7 @@ def test_stats_to_standard_output(tmp_path, capsys):
     assert printed["points"] == written["points"] == 110_000
     assert printed["covered_pixels"] == written["covered_pixels"] > 0
     assert set(printed) == set(written)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.json"]
     code, out, err = run(capsys, "render", *SMALL, "--stats", "-", "--pick", "80,60")
     assert code == 2 and out == ""
     assert err.count("\n") == 1 and err.startswith("progressive: error: --stats - and --pick")
