@@ -356,7 +356,7 @@ class ComputeRaster:
             return
         self.begin_frame(view)
         for pass_index in range(self.passes):
-            if self.candidates and pass_index == 1 and count <= self.candidate_capacity(self.vis.pixels):
+            if self._falls_back(pass_index) and count <= self.candidate_capacity(self.vis.pixels):
                 continue        # every point's candidate was held
             program = self._prepare(Source.RANGE, pass_index, view)
             program["u_first"] = first
@@ -392,7 +392,7 @@ class ComputeRaster:
         program["u_piece"] = piece
         pieces.bind()
         if self._falls_back(pass_index):
-            program.run_indirect(self._candidates, offset=(CandidateMeta.FALLBACK + 3 * piece) * 4)
+            program.run_indirect(self._candidates, offset=self._fallback_offset(piece))
         else:
             offset = pieces.walk_offset(piece) if self.batch_groups else pieces.dispatch_offset(piece)
             program.run_indirect(pieces.args, offset=offset)
@@ -403,13 +403,19 @@ class ComputeRaster:
         candidates overflowed (its dispatch arguments set by the candidates' count)."""
         return self.candidates and pass_index == 1
 
+    @staticmethod
+    def _fallback_offset(source: int) -> int:
+        """Where that pass's dispatch arguments lie: fill piece `source`'s, or the list's
+        (source FILL_PIECES), as the candidates' arguments program writes them."""
+        return (CandidateMeta.FALLBACK + 3 * source) * 4
+
     def draw_list(self, view: ViewUniforms, reprojection: Reprojection, pass_index: int) -> None:
         """Reproject the record copies of the points visible last frame."""
         program = self._prepare(Source.LIST, pass_index, view)
         program["u_capacity"] = reprojection.capacity
         reprojection.bind(hint=pass_index < self.passes)
         if self._falls_back(pass_index):
-            program.run_indirect(self._candidates, offset=(CandidateMeta.FALLBACK + 3 * FILL_PIECES) * 4)
+            program.run_indirect(self._candidates, offset=self._fallback_offset(FILL_PIECES))
         else:
             program.run_indirect(reprojection.meta, offset=reprojection.dispatch_offset)
         self.glc.ctx.memory_barrier()
