@@ -433,7 +433,7 @@ def cmd_render(args) -> int:
     from dataclasses import replace
 
     from progressive.encoding import Precision
-    from progressive.output import Outputs, check_outputs, json_writer, npy_writer, png_writer
+    from progressive.output import Outputs, check_outputs, json_text, json_writer, npy_writer, png_writer
     from progressive.session import Method, Session
 
     paths = input_paths(args.files)
@@ -476,7 +476,7 @@ def cmd_render(args) -> int:
             picked = session.pick(*args.pick)
             commit_saying(outputs, json.dumps({"found": picked is not None, **(picked or {})}))
         elif stats_out:
-            commit_saying(outputs, json.dumps(stats, indent=2))
+            commit_saying(outputs, json_text(stats))
         else:
             outputs.commit()
     if args.converge and converged_at is None:

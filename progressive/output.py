@@ -184,8 +184,13 @@ def npy_writer(array: np.ndarray) -> Callable[[IO[bytes]], None]:
     return lambda fh: np.save(fh, array)
 
 
+def json_text(data: object) -> str:
+    """The JSON the outputs write (a file, or standard output for `--stats -`)."""
+    return json.dumps(data, indent=2)
+
+
 def json_writer(data: object) -> Callable[[IO[bytes]], None]:
-    text = (json.dumps(data, indent=2) + "\n").encode()
+    text = (json_text(data) + "\n").encode()
     return lambda fh: fh.write(text)
 
 
