@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.report import INDEX_PASS_LABELS, RunInfo, Table
+from bench.report import INDEX_PASS_LABELS, RunInfo, Table, index_pass_label
 from bench.synthetic import SAMPLE, TiledCloud, load, tiled
 from progressive.budget import BudgetParams
 from progressive.camera import Camera, auto_camera
@@ -146,7 +146,7 @@ def run_case(glc: GLContext, scene: Scene, cloud: TiledCloud, size: tuple[int, i
                    cpu_frame_ms_median=float(np.median(cpu_ms)), pacing_waits=r.pacing_waits,
                    batch_groups=r.raster.batch_groups if hasattr(r.raster, "batch_groups") else False,
                    winners=r.raster.winners is not None, prepare=PREPARE_LABELS[r.prepare.ballot],
-                   index_pass=INDEX_PASS_LABELS[r.raster.candidates] if r.raster.passes > 1 else "",
+                   index_pass=index_pass_label(r.raster.candidates, r.raster.passes),
                    default_index_pass=tuning.candidates is None)
     r.release()
     return summary, [s.as_dict() for s in stats]

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.report import INDEX_PASS_LABELS, RunInfo, Table
+from bench.report import RunInfo, Table, index_pass_label
 from bench.synthetic import SAMPLE, Order, TiledCloud, load, tiled
 from progressive import batches, encoding, shaderlib
 from progressive.batches import BatchOrder
@@ -210,12 +210,6 @@ def measure(glc: GLContext, cloud: TiledCloud, layouts, sizes, repeats: int) -> 
     return rows
 
 
-def index_pass(row: dict) -> str:
-    """What the 32-bit path's index pass walks (ComputeTuning.candidates); nothing for the
-    one-pass rasterizers."""
-    return INDEX_PASS_LABELS[row["candidates"]] if row["passes"] > 1 else ""
-
-
 def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats: int,
         copy_bytes: int, layouts=LAYOUTS) -> Table:
     copies, read_rate = copy_bandwidth(glc, copy_bytes, repeats)
@@ -245,7 +239,7 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
         r["share_of_read"] = r["bytes_per_s"] / read_rate
         table.rows.append((r["points"], f"{r['width']}x{r['height']}", r["layout"], r["view"], r["raster"],
                            ("batch, 4-word loads" if r["vector_loads"] else "batch") if r["batch_groups"] else "256 slots", "yes" if r["subgroup_reduction"] else "no",
-                           index_pass(r), r["precision"], r["ms"], r["wall_ms"], r["points_per_s"] / 1e6, r["bytes_per_point"], r["bytes_per_s"] / 1e9,
+                           index_pass_label(r["candidates"], r["passes"]), r["precision"], r["ms"], r["wall_ms"], r["points_per_s"] / 1e6, r["bytes_per_point"], r["bytes_per_s"] / 1e9,
                            r["share_of_copy"], r["share_of_read"], r["vs_points"], r["batches_culled"], r["vs_overview"], r["covered_pixels"],
                            r["pixels_differing"]))
     missing = [] if glc.caps.atomic_int64 else [

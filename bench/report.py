@@ -19,6 +19,11 @@ INDEX_PASS_LABELS = {True: "candidates", False: "every point"}
 progressive tables name it."""
 
 
+def index_pass_label(candidates: bool, passes: int) -> str:
+    """A row's index pass (INDEX_PASS_LABELS); nothing for the one-pass rasterizers."""
+    return INDEX_PASS_LABELS[candidates] if passes > 1 else ""
+
+
 def machine_name(caps: Capabilities) -> str:
     """A folder name from the GL renderer: `llvmpipe`, `nvidia-h100`, `nvidia-h200`, ..."""
     renderer = caps.renderer.lower()
