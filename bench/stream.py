@@ -31,14 +31,14 @@ from bench.startup import frame_until_first_image
 from bench.synthetic import SAMPLE
 from progressive import memory
 from progressive.camera import Camera
-from progressive.cli import bytes_arg
+from progressive.cli import bytes_arg, detail_arg
 from progressive.loaders.copc_residency import Status
 from progressive.loaders.copc_write import write_copc
 from progressive.loaders.http import REQUESTS_IN_FLIGHT, HttpOptions
 from progressive.loaders.records import RECORD_BYTES
 from progressive.loaders.types import BATCH_POINTS
 from progressive.session import Session, SessionOptions, Streaming
-from progressive.streaming import WRITE_SECONDS, WRITE_STILL_SECONDS
+from progressive.streaming import FINEST_PX, WRITE_SECONDS, WRITE_STILL_SECONDS
 
 RESULTS = Path(__file__).resolve().parent / "results"
 TESTS = Path(__file__).resolve().parents[1] / "tests"
@@ -309,11 +309,13 @@ def rows(label: str, run: dict) -> list[tuple]:
 
 def run(points: int, limit: int, size: tuple[int, int], frames: int, cache: Path = CACHE,
         limit_s: float = STILL_SECONDS, compress: bool = False, scratch: Path | None = None,
-        requests: tuple[int, ...] = (REQUESTS_IN_FLIGHT,), latency_s: float = 0.0) -> tuple[Table, RunInfo]:
+        requests: tuple[int, ...] = (REQUESTS_IN_FLIGHT,), latency_s: float = 0.0,
+        detail_px: float = FINEST_PX) -> tuple[Table, RunInfo]:
     load_before = os.getloadavg()[0]
     built = build(points, cache, compress, scratch)
     width, height = size
-    options = SessionOptions(width=width, height=height, stream=Streaming.ON, gpu_memory_limit=limit)
+    options = SessionOptions(width=width, height=height, stream=Streaming.ON, gpu_memory_limit=limit,
+                             stream_detail_px=detail_px)
     warm = warm_up(str(built.path), options)
     local = stream(str(built.path), options, frames, limit_s)
     remotes = {(f"HTTP {n}" if len(requests) > 1 else "HTTP"): served(
@@ -345,7 +347,9 @@ def run(points: int, limit: int, size: tuple[int, int], frames: int, cache: Path
          f"Image {width}x{height}, GPU memory limit {limit / 2**20:.0f} MiB: the per-pixel buffers take "
          f"{pixel_bytes / 2**20:.1f} MiB ({memory.PIXEL_BYTES} bytes a pixel, progressive/memory.py), staging "
          f"{staging / 2**20:.1f} MiB, which leaves the store {local['capacity_points']:,} points in whole batches "
-         f"({local['capacity_points'] / built.points:.1%} of the cloud)."),
+         f"({local['capacity_points'] / built.points:.1%} of the cloud). A view reads no node whose points lie "
+         f"closer than {detail_px:g} px on screen (SessionOptions.stream_detail_px"
+         f"{'' if detail_px else ': 0, nodes until the memory is full'})."),
         (f"Each source is one session (SessionOptions(stream=Streaming.ON, gpu_memory_limit=...)) driven as a viewer "
          f"drives it: Session.frame with the camera, never waiting for a node. Overview: the auto camera from open; "
          f"its settled and converged seconds count from the session's open (the first image too, "
@@ -388,8 +392,9 @@ def run(points: int, limit: int, size: tuple[int, int], frames: int, cache: Path
                  "staging_bytes": staging, "corner": CORNER, "close": CLOSE, "fly": FLY, "still_seconds": limit_s,
                  "load_average": [load_before, load_after], "warm_up": warm, "file": local,
                  "http": {str(n): remotes[label] for n, label in zip(requests, remotes)},
-                 "http_latency_s": latency_s}
-    return table, RunInfo.from_caps(caps, f"streamed, {limit / 2**20:.0f} MiB limit, {width}x{height}")
+                 "http_latency_s": latency_s, "detail_px": detail_px}
+    return table, RunInfo.from_caps(caps, f"streamed, {limit / 2**20:.0f} MiB limit, {width}x{height}, "
+                                          f"detail {detail_px:g} px")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -407,6 +412,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="range requests in flight over HTTP; several: one HTTP session each, side by side")
     ap.add_argument("--http-latency", type=float, default=0.0, metavar="MS",
                     help="milliseconds each HTTP answer waits before it starts (a farther server's round trip)")
+    ap.add_argument("--detail", type=detail_arg, default=FINEST_PX, metavar="PX",
+                    help="SessionOptions.stream_detail_px: the finest detail a view reads (0: until the memory is full)")
     ap.add_argument("--out", type=Path, default=None, help="default: bench/results/<machine>/")
     args = ap.parse_args(argv)
     if args.build_only:
@@ -417,7 +424,7 @@ def main(argv: list[str] | None = None) -> int:
     width, height = (int(v) for v in args.size.split("x"))
     table, info = run(args.points, args.limit, (width, height), args.frames, args.cache, args.still_seconds,
                       args.laz, args.scratch, tuple(args.http_requests),
-                      args.http_latency / 1e3)
+                      args.http_latency / 1e3, args.detail)
     table.publish(info, args.out, RESULTS)
     return 0
 

@@ -7,9 +7,12 @@ pixels; a node wholly behind the eye, or (where the view knows its up direction 
 aspect) wholly beyond a side of the image, has none. Nodes are taken greedily, the largest
 error first, a node only once its parent is taken (so the kept set is a tree cut from
 the root and, since a child does not repeat its parent's points, a set without
-duplicates), until the next one does not fit. A child's error is at most half its
-parent's, so the order is also the one of every node sorted by error. Ties go to the
-shallower node, then the lower file index and key: the same inputs give the same nodes.
+duplicates), until the next one does not fit or its error is below the finest detail
+asked for (points closer on screen than that would only decide which of several points
+a pixel shows, as screen-space error thresholds do in Potree and 3D Tiles). A child's
+error is at most half its parent's, so the order is also the one of every node sorted by
+error. Ties go to the shallower node, then the lower file index and key: the same inputs
+give the same nodes.
 
 Plain numbers and arrays only (no camera objects): the loaders stand below the core.
 """
@@ -160,12 +163,16 @@ class Nodes:
 
 
 def choose(nodes: Nodes, view: View, budget: int, parent: np.ndarray | None = None,
-           errors: np.ndarray | None = None, order: np.ndarray | None = None) -> np.ndarray:
+           errors: np.ndarray | None = None, order: np.ndarray | None = None, finest_px: float = 0.0) -> np.ndarray:
     """Rows of the nodes kept for `view` within `budget` points, ascending: every root
-    (even past the budget: there is nothing coarser to show), then greedily by error.
+    (even past the budget: there is nothing coarser to show), then greedily by error
+    down to `finest_px` (0: as far as the budget goes; a node on screen whose points lie
+    closer than that is left out, and its subtree with it).
     parent, errors, order: nodes.parents(), nodes.errors(view) and the rows by
     decreasing error, ties by rank_of(nodes), where the caller has them (a choice made
     every time the camera moves need not find them anew)."""
+    if not (math.isfinite(finest_px) and finest_px >= 0):
+        raise ValueError("the finest detail must be a number of pixels, 0 or more")
     errors = nodes.errors(view) if errors is None else errors
     parent = nodes.parents() if parent is None else parent
     root = parent < 0
@@ -176,7 +183,7 @@ def choose(nodes: Nodes, view: View, budget: int, parent: np.ndarray | None = No
         # greedy order below is the whole order by the same keys: its prefix that fits.
         order = np.lexsort((rank_of(nodes), -errors)) if order is None else order
         rest = order[~root[order]]
-        fits = int(nodes.points[root].sum()) + np.cumsum(nodes.points[rest]) <= budget
+        fits = (int(nodes.points[root].sum()) + np.cumsum(nodes.points[rest]) <= budget) & (errors[rest] >= finest_px)
         taken = rest[: fits.size if fits.all() else int(np.argmin(fits))]
         return np.sort(np.concatenate([np.nonzero(root)[0], taken]).astype(np.int64))
     children: dict[int, list[int]] = {}
@@ -193,7 +200,7 @@ def choose(nodes: Nodes, view: View, budget: int, parent: np.ndarray | None = No
     kept = list(kept)
     while frontier:
         i = frontier[0][-1]
-        if total + int(nodes.points[i]) > budget:
+        if total + int(nodes.points[i]) > budget or errors[i] < finest_px:
             break
         heapq.heappop(frontier)
         kept.append(i)

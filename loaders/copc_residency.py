@@ -20,8 +20,11 @@ viewer's frame budget never waits for the network.
 
 Rules, with the reasons:
 - The target is `copc_choice.choose`'s tree cut, counted in store batches (a node takes
-  ceil(points / B) whole batches). Failed nodes and everything below them are left out,
-  so the room goes to nodes that can be read.
+  ceil(points / B) whole batches), down to the finest detail asked for where the budget
+  cannot hold every node (a still overview of a 1 B-point cloud with 4 GB of GPU memory
+  otherwise reads about 100 points a pixel: fine for the image, costly over a network).
+  Failed nodes and everything below them are left out, so the room goes to nodes that
+  can be read.
 - Requests are the target's missing nodes, largest screen-space error first (ties by
   level, file and key, as choose breaks them). A child is requested only once its
   parent is resident or requested, and at most `max_in_flight` are in flight. Requests
@@ -136,11 +139,15 @@ class Residency:
     """Which nodes hold which store batches, and which are loading. The budget is in
     whole store batches, because the GPU allocates batches, not points. The roots are
     kept even past the budget (nothing is coarser), so the capacity is the larger of the
-    two. Not thread-safe: one thread (the frame loop) drives it."""
+    two. finest_px: the finest detail a view asks for (choose's) where the budget cannot
+    hold every node; where it can, every node is read, so the still view becomes the
+    whole cloud's exact render. Not thread-safe: one thread (the frame loop) drives it."""
 
-    def __init__(self, nodes: Nodes, budget_points: int, store_batch_points: int):
+    def __init__(self, nodes: Nodes, budget_points: int, store_batch_points: int, finest_px: float = 0.0):
         if store_batch_points < 1 or budget_points < 0:
             raise ValueError("a store batch holds at least one point, and a budget is not negative")
+        if not (math.isfinite(finest_px) and finest_px >= 0):
+            raise ValueError("the finest detail must be a number of pixels, 0 or more")
         self.nodes = nodes
         self.store_batch_points = store_batch_points
         n = nodes.level.size
@@ -153,6 +160,7 @@ class Residency:
         self.cost = batch_cost(nodes.points, store_batch_points)
         self.budget = int(budget_points) // store_batch_points
         self.capacity = max(self.budget, int(self.cost[self.parent < 0].sum()))
+        self.finest_px = float(finest_px) if int(self.cost.sum()) > self.budget else 0.0
         self.status = np.zeros(n, np.int8)
         self.lost = np.zeros(n, bool)            # failed, or below a failed node: never requested
         self.batches: dict[int, tuple[int, ...]] = {}
@@ -178,7 +186,7 @@ class Residency:
         errors = self.nodes.errors(view) if errors is None else errors
         if not self.lost.any():
             return choose(dataclasses.replace(self.nodes, points=self.cost), view, self.budget, self.parent, errors,
-                          np.lexsort((self.rank, -errors)) if order is None else order)
+                          np.lexsort((self.rank, -errors)) if order is None else order, self.finest_px)
         rows = np.nonzero(~self.lost)[0]
         columns = {f.name: getattr(self.nodes, f.name)[rows] for f in dataclasses.fields(Nodes)}
         # The lost go with their whole subtrees, so every other row's parent is among the rows.
@@ -187,7 +195,7 @@ class Residency:
         up = self.parent[rows]
         parent = np.where(up >= 0, at[np.maximum(up, 0)], -1)
         return rows[choose(Nodes(**{**columns, "points": self.cost[rows]}), view, self.budget, parent, errors[rows],
-                           np.lexsort((self.rank[rows], -errors[rows])))]
+                           np.lexsort((self.rank[rows], -errors[rows])), self.finest_px)]
 
     def begin(self, plan: Plan) -> None:
         """Book a plan: its evictions freed, its requests loading in their batches."""

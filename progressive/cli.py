@@ -80,6 +80,14 @@ def float_arg(text: str) -> float:
         raise argparse.ArgumentTypeError(f"{shown(text)} is not a number") from None
 
 
+def detail_arg(text: str) -> float:
+    """A number of pixels, 0 or more."""
+    value = float_arg(text)
+    if not (np.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"{shown(text)} is not a number of pixels, 0 or more")
+    return value
+
+
 def seconds_arg(text: str) -> float:
     """A positive number of seconds."""
     value = float_arg(text)
@@ -197,6 +205,7 @@ def add_cloud_args(parser) -> None:
     """Options shared by render and view: the files, the frame size, loading, colouring."""
     from progressive.batches import BATCH_ORDER, BatchOrder
     from progressive.memory import SOFTWARE_STREAM_BYTES, STREAM_BYTES
+    from progressive.streaming import FINEST_PX
 
     parser.add_argument("files", nargs="*", type=path_arg, help="LAS/LAZ/fast-format files, one cloud (default: the bundled sample)")
     parser.add_argument("--width", type=size_arg, default=1280)
@@ -218,6 +227,10 @@ def add_cloud_args(parser) -> None:
                         help="COPC files: keep on the GPU the octree nodes each view needs, read in the background "
                              "as the camera moves, within the GPU memory (progressive frames; view streams COPC "
                              "files unless told --no-stream)")
+    parser.add_argument("--stream-detail", type=detail_arg, default=FINEST_PX, metavar="PX",
+                        help="a streamed COPC cloud larger than the GPU memory reads no node whose points lie closer "
+                             "than PX pixels on screen: fewer reads and bytes fetched, a coarser still image "
+                             f"(default {FINEST_PX:g}: nodes until the memory is full)")
     add_reproject_arg(parser)
     add_http_arg(parser)
     parser.add_argument("--palette", type=path_arg, metavar="FILE.json",
@@ -425,7 +438,7 @@ def session_options(args):
                           gpu_memory_limit=args.gpu_memory_limit, value_range=args.value_range,
                           class_filter=filters(args), palette=palette_from(args), reproject=args.reproject, http=http_from(args),
                           precision=args.precision, batch_order=args.batch_order,
-                          stream=streaming(args.stream, Streaming.OFF))
+                          stream=streaming(args.stream, Streaming.OFF), stream_detail_px=args.stream_detail)
 
 
 def cmd_render(args) -> int:
@@ -625,7 +638,8 @@ def view_session_options(args):
     return SessionOptions(width=args.width, height=args.height, color_by=args.color_by, partial=args.partial,
                           gpu_memory_limit=args.gpu_memory_limit, value_range=args.value_range,
                           class_filter=filters(args), palette=palette_from(args), reproject=args.reproject, http=http_from(args),
-                          batch_order=args.batch_order, stream=streaming(args.stream, Streaming.AUTO))
+                          batch_order=args.batch_order, stream=streaming(args.stream, Streaming.AUTO),
+                          stream_detail_px=args.stream_detail)
 
 
 def streaming(flag: bool | None, default):

@@ -50,7 +50,7 @@ from progressive.pointstore import CLASS_BYTES, GPUMemoryError
 from progressive.renderer import Frame, Raster, Renderer, ids_for
 from progressive.reproject import Geography, open_loader, target_crs
 from progressive.scene import CLASSIFICATION, AttributeSwitch, Scene
-from progressive.streaming import PLAN, READS_QUEUED, StoreChange, Streamer, StreamStatus
+from progressive.streaming import FINEST_PX, PLAN, READS_QUEUED, StoreChange, Streamer, StreamStatus
 
 PICK_RADIUS = 7
 """Pixels around a picked pixel searched for the nearest point shown."""
@@ -182,6 +182,9 @@ class SessionOptions:
     stream: Streaming = Streaming.OFF
     """COPC files: keep on the GPU the octree nodes each view needs, read in the
     background as the camera moves, within the GPU memory (progressive frames)."""
+    stream_detail_px: float = FINEST_PX
+    """A streamed cloud that the GPU memory cannot hold whole reads no node whose points
+    lie closer than this on screen (0: nodes until the memory is full)."""
 
 
 def node_view(camera: Camera, width: int, height: int) -> View:
@@ -311,7 +314,8 @@ class Session:
             self.memory = memory.plan(need * BATCH_SLOTS, self.glc.caps, options.width * options.height,
                                       options.gpu_memory_limit, CLASS_BYTES if class_filter else 0,
                                       default_bytes=memory.stream_bytes(self.glc.caps))
-            state = Streamer.residency(reader, self.memory.capacity * BATCH_POINTS // BATCH_SLOTS)
+            state = Streamer.residency(reader, self.memory.capacity * BATCH_POINTS // BATCH_SLOTS,
+                                       options.stream_detail_px)
             info = replace(self.info, points=state.capacity * BATCH_POINTS)
             scene = Scene(self.glc, info, self.attribute, chunk_points=options.chunk_points,
                           class_filter=class_filter, streamed=True, records=options.progressive.records)

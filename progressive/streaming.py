@@ -42,6 +42,15 @@ again (on the H200 at 1 B points, with one read a thread, 16 threads brought the
 overview 6,547 nodes in 20 s, about 330 a second; the frames that wrote nodes took a
 median 19 ms against 12 ms for the others, so their writing stayed under its 12 ms: most
 likely the reads, not the writes, held it back)."""
+FINEST_PX = 0.0
+"""The finest detail a streamed view reads where the memory limit cannot hold every node
+(SessionOptions.stream_detail_px), in pixels: 0, nodes until the memory is full, since
+detail finer than a pixel still decides which point a pixel shows. On the tiled sample
+at 20 M points, 640x360, a store of 90 % of them, a still overview read 15.5 M points and
+differed from the render of every point by a mean 1.9 of 255 per colour channel; with
+0.25 px it read 2.4 M and differed by 16.1, with 0.5 px 0.5 M and 26.0
+(bench/results/llvmpipe/detail/). The reads come largest error first either way, so a
+floor gives no earlier image: it saves reads (bytes over HTTP) and memory."""
 PLAN = PlanOptions()
 """How many nodes are read at once and how readily resident ones are evicted."""
 PLAN_SECONDS = 0.1
@@ -138,9 +147,10 @@ class Streamer:
             time.sleep(timeout)
 
     @staticmethod
-    def residency(reader: NodeReader, budget_points: int) -> Residency:
-        """The plan's state for a budget of points (the store gets its capacity)."""
-        return Residency(reader.nodes, budget_points, BATCH_POINTS)
+    def residency(reader: NodeReader, budget_points: int, finest_px: float = FINEST_PX) -> Residency:
+        """The plan's state for a budget of points (the store gets its capacity) and the
+        finest detail a view reads."""
+        return Residency(reader.nodes, budget_points, BATCH_POINTS, finest_px)
 
     def update(self, view: View) -> StoreChange:
         """Take the reads that have finished, write what may be shown, plan for `view`;

@@ -1,6 +1,7 @@
 """The COPC node choice for a view (loaders/copc_choice.py) against a brute-force numpy
 reference on synthetic octrees: every node's screen-space error from its 8 corners,
-every node sorted by it, the longest prefix within the budget; and the properties the
+every node sorted by it, the longest prefix within the budget and down to the finest
+detail; and the properties the
 choice promises (a tree cut from the root, within the budget, the same for the same
 inputs whatever their order, deeper near the camera)."""
 
@@ -63,9 +64,10 @@ def on_screen(view: View, corners: np.ndarray) -> bool:
     return not ((x > half_x).all() or (x < -half_x).all() or (y > half_y).all() or (y < -half_y).all())
 
 
-def reference(described, view: View, budget: int) -> set:
+def reference(described, view: View, budget: int, finest_px: float = 0.0) -> set:
     """(file, level, x, y, z) of the nodes kept, brute force: cubes from the keys, the
-    nearest distance per axis, ahead from the 8 corners, all nodes sorted."""
+    nearest distance per axis, ahead from the 8 corners, all nodes sorted, taken until
+    one does not fit or its error is below finest_px."""
     rows = []
     for f, (center, half, spacing, entries) in enumerate(described):
         for e in entries:
@@ -91,7 +93,7 @@ def reference(described, view: View, budget: int) -> set:
     for r in rows:
         if r[1] == 0:
             continue
-        if total + r[-1] > budget:
+        if total + r[-1] > budget or -r[0] < finest_px:
             break
         kept.add(r[1:6])
         total += r[-1]
@@ -123,13 +125,18 @@ def test_choice_equals_the_brute_force_reference(seed, sides):
     total = int(nodes.points.sum())
     for ortho in (False, True):
         view = random_view(rng, described, ortho, sides)
-        for budget in (0, *rng.integers(0, total, 4).tolist(), total):
-            rows = choose(nodes, view, budget)
-            assert keys_of(nodes, rows) == {(d, f, x, y, z) for d, f, x, y, z in reference(described, view, budget)}
+        errors = nodes.errors(view)
+        finite = errors[(errors > 0) & np.isfinite(errors)]
+        finest = [0.0, float(rng.choice(finite)) if finite.size else 1.0, 1e-9]
+        for budget, finest_px in itertools.product((0, *rng.integers(0, total, 4).tolist(), total), finest):
+            rows = choose(nodes, view, budget, finest_px=finest_px)
+            assert keys_of(nodes, rows) == {(d, f, x, y, z) for d, f, x, y, z in
+                                            reference(described, view, budget, finest_px)}
+            assert (errors[rows][nodes.level[rows] > 0] >= finest_px).all()
             roots = nodes.level == 0
             assert set(np.nonzero(roots)[0]) <= set(rows.tolist())
             assert nodes.points[rows].sum() <= max(budget, nodes.points[roots].sum())
-            if budget == total:
+            if budget == total and finest_px == 0:
                 assert rows.size == nodes.level.size
             kept = keys_of(nodes, rows)
             for d, f, x, y, z in kept:                  # a tree cut: every parent kept
@@ -256,3 +263,12 @@ def test_a_child_that_outranks_its_parent_still_waits_for_it():
     assert choose(nodes, view, 30).tolist() == [0, 1, 3]
     assert choose(nodes, view, 40).tolist() == [0, 1, 2, 3]
     assert choose(nodes, view, 10).tolist() == [0]
+    assert choose(nodes, view, 40, finest_px=(errors[3] + errors[1]) / 2).tolist() == [0, 3]    # 1 too fine
+    assert choose(nodes, view, 40, finest_px=errors[3] * 1.01).tolist() == [0]
+
+
+@pytest.mark.parametrize("finest_px", [-0.5, math.nan, math.inf])
+def test_the_finest_detail_is_a_number_of_pixels(finest_px):
+    nodes, described = octree(np.random.default_rng(0), 3, 0.8)
+    with pytest.raises(ValueError, match="finest detail"):
+        choose(nodes, random_view(np.random.default_rng(1), described, False), 100, finest_px=finest_px)

@@ -49,7 +49,7 @@ def naive_plan(state: Residency, described, batch_points: int, view: View, optio
     status = {k: Status(int(state.status[row[k]])) for k in keys}
     cost = {k: math.ceil(int(nodes.points[row[k]]) / batch_points) for k in keys}
     lost = {k for k in keys if state.lost[row[k]]}
-    target = reference(in_batches(described, batch_points, lost), view, state.budget)
+    target = reference(in_batches(described, batch_points, lost), view, state.budget, state.finest_px)
     errors = dict(zip(keys, nodes.errors(view).tolist()))
     booked = {k for k in keys if status[k] in BOOKED}
     missing = [k for k in sorted(keys, key=lambda k: (-errors[k], k)) if k in target and k not in booked]
@@ -218,6 +218,29 @@ def test_target_is_the_choice_in_store_batches(seed, sides):
         assert (rows == choose(counted, view, state.budget)).all()
 
 
+@pytest.mark.parametrize("seed", range(8))
+def test_the_finest_detail_bounds_the_target_where_the_budget_cannot_hold_every_node(seed):
+    """With a finest detail (here the median of the view's distinct errors) the target is
+    the cut that also stops at it, while the budget is short of the whole tree; a budget
+    that holds every node reads every node (the still view then becomes the whole
+    cloud's exact render)."""
+    rng = np.random.default_rng(seed)
+    nodes, described, batch_points, budget = setup(rng)
+    for ortho in (False, True):
+        view = random_view(rng, described, ortho, True)
+        errors = nodes.errors(view)
+        levels = np.unique(errors[(errors > 0) & np.isfinite(errors)])
+        finest = float(levels[levels.size // 2]) if levels.size > 1 else float(levels[0]) * 1.5
+        short = Residency(nodes, budget, batch_points, finest)
+        whole = Residency(nodes, int(short.cost.sum()) * batch_points, batch_points, finest)
+        assert short.cost.sum() > short.budget and short.finest_px == finest and whole.finest_px == 0.0
+        rows = short.target(view)
+        assert keys_of(nodes, rows) == reference(in_batches(described, batch_points, set()), view, short.budget,
+                                                 finest)
+        assert (errors[rows][nodes.level[rows] > 0] >= finest).all() and (errors < finest).any()
+        assert whole.target(view).size == nodes.points.size
+
+
 def same_plan(a, b) -> bool:
     return a.version == b.version and (a.target == b.target).all() and a.evict == b.evict and a.request == b.request
 
@@ -228,7 +251,7 @@ def random_walk(seed: int) -> dict:
     rng = np.random.default_rng(100 + seed)
     nodes, described, batch_points, budget = setup(rng)
     options = PlanOptions(int(rng.integers(1, 10)), float(rng.choice([1.0, 0.5, 0.25])))
-    state = Residency(nodes, budget, batch_points)
+    state = Residency(nodes, budget, batch_points, (0.0, 0.0, 0.5, 4.0)[seed % 4])
     scene = Scene()
     view = random_view(rng, described, bool(rng.random() < 0.3), bool(rng.random() < 0.5))
     met = {"requested": 0, "evicted": 0, "held": 0, "dropped": 0, "discarded": 0, "kept": 0}
@@ -459,6 +482,9 @@ def test_a_stale_plan_is_refused_and_options_are_checked():
             PlanOptions(**bad)
     with pytest.raises(ValueError):
         Residency(nodes, 100, 0)
+    for finest_px in (-1.0, math.nan, math.inf):
+        with pytest.raises(ValueError, match="finest detail"):
+            Residency(nodes, 100, 500, finest_px)
 
 
 def test_a_view_part_that_holds_spares_the_errors(monkeypatch):

@@ -438,6 +438,27 @@ def test_no_limit_streams_within_the_default(monkeypatch):
         assert any("by default" in w and "--gpu-memory-limit" in w for w in s.warnings), s.warnings
 
 
+def test_the_finest_detail_reads_fewer_nodes_and_is_exact_over_them(sample_copc):
+    """A finest detail (SessionOptions.stream_detail_px) keeps only nodes whose points lie
+    that far apart on screen, a tree cut within the one the memory alone allows; the
+    still view is exact over them. Where the memory holds every node, every node comes
+    whatever the detail asked for."""
+    _, xyz = las_xyz(sample_copc)
+    limit = limit_for(len(xyz) // 2)
+    with still(sample_copc, limit) as (s, camera):
+        full = set(np.nonzero(s.streamer.state.status == Status.RESIDENT)[0].tolist())
+    with still(sample_copc, limit, stream_detail_px=2.0) as (s, camera):
+        state = s.streamer.state
+        rows = np.nonzero(state.status == Status.RESIDENT)[0]
+        errors = state.nodes.errors(node_view(camera, W, H))
+        assert set(rows.tolist()) < full
+        assert (errors[rows][state.nodes.level[rows] > 0] >= 2.0).all()
+        assert_tree_cut(s)
+        assert_exact(s, camera, xyz)
+    with still(sample_copc, stream_detail_px=2.0) as (s, _):
+        assert s.status().stream.resident_nodes == s.status().stream.nodes
+
+
 def test_a_streamed_store_stays_within_the_buffers_it_may_have(monkeypatch):
     """Where every node would need more buffers than a store may have (llvmpipe's 128 MiB
     buffers: a 100 M-point COPC streamed with no limit failed to open), a streamed cloud
@@ -658,6 +679,7 @@ def test_render_streams_with_stats(tmp_path, capsys):
 @pytest.mark.parametrize("args, phrase", [
     (["--method", "brute"], "needs progressive frames"),
     (["--method", "progressive", "--reproject", "EPSG:4978"], "does not reproject"),
+    (["--method", "progressive", "--stream-detail", "-1"], "not a number of pixels"),
 ])
 def test_stream_refusals_are_one_line(args, phrase, tmp_path, capsys):
     out = tmp_path / "x.png"
