@@ -20,17 +20,16 @@ atomics, and both). A variant the driver does not compile gets a row without tim
 from __future__ import annotations
 
 import argparse
-import statistics
 import sys
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
-from bench.raster import median_gpu_ms
+from bench.raster import WARM_SECONDS, clear_and_draw, median_gpu_ms
 from bench.report import RunInfo, Table
 from bench.synthetic import SAMPLE, load, tiled
 from progressive import shaderlib
-from progressive.camera import auto_camera
+from progressive.camera import auto_camera, view_uniforms
 from progressive.context import GLContext, create_context
 from progressive.encoding import Encoding, Precision
 from progressive.loaders.records import RECORD_BYTES
@@ -236,6 +235,7 @@ def stages(glc: GLContext, points: int, size: tuple[int, int], repeats: int) -> 
         scene, _ = load(glc, cloud, fill=FillOrder.BATCHED, records=records, position_encoding=encoding)
         r = Renderer(glc, cloud.info, cloud.attribute, width=width, height=height, scene=scene)
         style = r.style()
+        view = view_uniforms(cam, cloud.info.origin, width, height)
         runs = [(stage, {} if patch is None else {"raster_compute.comp": patch}, ONE_WORD)
                 for stage, patch in STAGES.items()]
         if scene.store.words:
@@ -252,8 +252,8 @@ def stages(glc: GLContext, points: int, size: tuple[int, int], repeats: int) -> 
                 r.raster = _raster(glc, scene.store, r.vis, {}, ONE_WORD)
                 continue
             for precision in precisions:
-                ms = statistics.median([r.render(cam, width, height, style, precision=precision).gpu_ms["raster"]
-                                        for _ in range(repeats + 1)][1:])
+                r.render(cam, width, height, style, precision=precision)      # the raster's precision and state
+                ms = median_gpu_ms(glc, clear_and_draw(r, view), repeats)
                 rows.append(("raster", stage, f"{records.value}, {encoding.value}", precision.value, ms,
                              points * RECORD_BYTES / (ms / 1e3) / 1e9, points / (ms / 1e3) / 1e9))
         r.release()
@@ -271,9 +271,11 @@ def run(glc: GLContext, points: int, size: tuple[int, int], repeats: int) -> Tab
     table = Table(f"kernel_{points}", "Where the compute raster's time goes", f"{SAMPLE.name} tiled on a grid",
                   f"{points:,}", ("kind", "what", "store", "precision", "ms (median)", "GB/s", "G points/s"), rows)
     table.notes = notes + [
-        f"GPU ms from timestamps, median of {repeats} after one warm-up. read: {RECORD_BYTES}-byte records of a "
+        f"GPU ms from timestamps, median of {repeats} after {WARM_SECONDS:g} s of the same work back to back "
+        "and one warm-up (bench.raster sustain: the GPU's clocks up, as in a busy frame loop). read: {RECORD_BYTES}-byte records of a "
         f"store of whole batches ({BATCH_SLOTS:,} slots) read in that pattern, nothing drawn. raster: the "
-        f"64-bit batch walk at {size[0]}x{size[1]} over the whole cloud, auto camera, with its stages cut "
+        f"64-bit batch walk at {size[0]}x{size[1]} over the whole cloud, auto camera (a visibility clear and "
+        "the raster pass), with its stages cut "
         "(bench/kernel.py's docstring); store = RecordOrder, Encoding (the word store's 'load' decodes its "
         f"three words). GB/s counts {RECORD_BYTES} bytes a point whatever the store reads; G points/s every point."]
     return table

@@ -57,8 +57,25 @@ LAYOUTS = (Layout("file order", Order.FILE, FillOrder.FILE), Layout("Morton orde
                   batch_order=BatchOrder.MORTON))
 
 
-def median_gpu_ms(glc: GLContext, run, repeats: int) -> float:
-    """Median GPU milliseconds (timestamps) of `run()` over `repeats` runs after one warm-up."""
+WARM_SECONDS = 0.5
+"""Work kept up before a timed set, so that the GPU's clocks are those of a busy frame
+loop: on the H100 bench.kernel timed its dispatches, each a few ms between readbacks,
+while the SM clock sat at its idle 345 MHz of 1980 (bench/results/nvidia-h100/kernel_clocks/)."""
+
+
+def sustain(glc: GLContext, run, seconds: float = WARM_SECONDS) -> None:
+    """run() back to back for `seconds` of wall time (a glFinish every few)."""
+    t0 = time.perf_counter()
+    while time.perf_counter() - t0 < seconds:
+        for _ in range(4):
+            run()
+        glc.ctx.finish()
+
+
+def median_gpu_ms(glc: GLContext, run, repeats: int, warm_s: float = WARM_SECONDS) -> float:
+    """Median GPU milliseconds (timestamps) of `run()` over `repeats` runs after `warm_s`
+    seconds of it (sustain) and one warm-up."""
+    sustain(glc, run, warm_s)
     t = Timestamps(glc)
     ms = []
     for _ in range(repeats + 1):
@@ -151,14 +168,23 @@ def views(cloud: TiledCloud, aspect: float) -> dict[str, Camera]:
             "close-up": close_up(cloud, aspect)}
 
 
+def clear_and_draw(r: Renderer, view):
+    """A visibility clear and the raster pass over the whole store (as the last render
+    left its precision): what a raster row times without the frame around it."""
+    def run() -> None:
+        r.vis.clear()
+        r.raster.draw(view, 0, r.store.capacity)
+    return run
+
+
 def wall_ms(glc: GLContext, r: Renderer, view, repeats: int) -> float:
-    """Wall-clock ms of a visibility clear and the raster pass (as the last render left
-    its precision), between two glFinish: a check on the timestamps that needs no query."""
+    """Wall-clock ms of clear_and_draw between two glFinish: a check on the timestamps
+    that needs no query."""
+    run = clear_and_draw(r, view)
     glc.ctx.finish()
     t0 = time.perf_counter()
     for _ in range(repeats):
-        r.vis.clear()
-        r.raster.draw(view, 0, r.store.capacity)
+        run()
     glc.ctx.finish()
     return (time.perf_counter() - t0) / repeats * 1e3
 
