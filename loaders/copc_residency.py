@@ -146,8 +146,6 @@ class Residency:
     def __init__(self, nodes: Nodes, budget_points: int, store_batch_points: int, finest_px: float = 0.0):
         if store_batch_points < 1 or budget_points < 0:
             raise ValueError("a store batch holds at least one point, and a budget is not negative")
-        if not (math.isfinite(finest_px) and finest_px >= 0):
-            raise ValueError("the finest detail must be a number of pixels, 0 or more")
         self.nodes = nodes
         self.store_batch_points = store_batch_points
         n = nodes.level.size
@@ -160,13 +158,20 @@ class Residency:
         self.cost = batch_cost(nodes.points, store_batch_points)
         self.budget = int(budget_points) // store_batch_points
         self.capacity = max(self.budget, int(self.cost[self.parent < 0].sum()))
-        self.finest_px = float(finest_px) if int(self.cost.sum()) > self.budget else 0.0
+        self.set_finest(finest_px)
         self.status = np.zeros(n, np.int8)
         self.lost = np.zeros(n, bool)            # failed, or below a failed node: never requested
         self.batches: dict[int, tuple[int, ...]] = {}
         self.cancelled: set[int] = set()         # requests still in flight whose points are not wanted
         self.version = 0                         # bumped by every change, so a stale plan is refused
         self._free = list(range(self.capacity))  # a heap: the lowest free batch is taken first
+
+    def set_finest(self, finest_px: float) -> None:
+        """The finest detail a view asks for from the next target on (ignored where the
+        budget holds every node)."""
+        if not (math.isfinite(finest_px) and finest_px >= 0):
+            raise ValueError("the finest detail must be a number of pixels, 0 or more")
+        self.finest_px = float(finest_px) if int(self.cost.sum()) > self.budget else 0.0
 
     def rows(self, *status: Status) -> np.ndarray:
         return np.nonzero(np.isin(self.status, status))[0]
@@ -288,6 +293,7 @@ class ViewPart:
 
     view: View
     lost: int               # nodes lost when it was made (lost ones leave the target)
+    finest_px: float        # the state's finest detail when it was made
     errors: np.ndarray
     order: np.ndarray
     target: np.ndarray
@@ -300,10 +306,11 @@ class ViewPart:
         target = state.target(view, errors, order)
         in_target = np.zeros(errors.size, bool)
         in_target[target] = True
-        return cls(view, int(np.count_nonzero(state.lost)), errors, order, target, in_target)
+        return cls(view, int(np.count_nonzero(state.lost)), state.finest_px, errors, order, target, in_target)
 
     def holds(self, state: Residency, view: View) -> bool:
-        return self.view == view and self.lost == int(np.count_nonzero(state.lost))
+        return (self.view == view and self.lost == int(np.count_nonzero(state.lost))
+                and self.finest_px == state.finest_px)
 
 
 def plan(state: Residency, view: View, options: PlanOptions = PlanOptions(), part: ViewPart | None = None) -> Plan:

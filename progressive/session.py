@@ -575,6 +575,12 @@ class Session:
         if self.progressive:
             self.renderer.budget.params = params
 
+    def set_stream_detail(self, finest_px: float) -> None:
+        """Another finest detail for a streamed cloud (SessionOptions.stream_detail_px),
+        from the next frame's plan on; nothing for a cloud not streamed."""
+        if self.streamer is not None:
+            self.streamer.set_finest(finest_px)
+
     def stop_loading(self) -> None:
         """Keep what has loaded and read no more (a file failed while the viewer shows it)."""
         self.loading = False

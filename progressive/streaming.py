@@ -152,6 +152,12 @@ class Streamer:
         finest detail a view reads."""
         return Residency(reader.nodes, budget_points, BATCH_POINTS, finest_px)
 
+    def set_finest(self, finest_px: float) -> None:
+        """Another finest detail (SessionOptions.stream_detail_px), planned for at the
+        next update; nodes finer than it stay until their batches are needed."""
+        self.state.set_finest(finest_px)
+        self._events = True
+
     def update(self, view: View) -> StoreChange:
         """Take the reads that have finished, write what may be shown, plan for `view`;
         what that did to the store (the batches it wrote: `written`)."""

@@ -489,8 +489,8 @@ def test_a_stale_plan_is_refused_and_options_are_checked():
 
 def test_a_view_part_that_holds_spares_the_errors(monkeypatch):
     """plan() with a ViewPart of the same view and lost nodes computes no errors (nor
-    their sort and the choice); for another view, or once a node was lost, it makes the
-    part anew."""
+    their sort and the choice); for another view, once a node was lost, or for another
+    finest detail, it makes the part anew."""
     rng = np.random.default_rng(7)
     nodes, described, batch_points, budget = setup(rng, levels=4)
     state = Residency(nodes, budget, batch_points)
@@ -510,3 +510,7 @@ def test_a_view_part_that_holds_spares_the_errors(monkeypatch):
     state.failed(first.request[0].row, "test")
     plan(state, view, PlanOptions(), part)
     assert calls == [other, view]
+    part = ViewPart.of(state, view)
+    assert part.holds(state, view)
+    state.set_finest(0.5)           # another finest detail: another target
+    assert not part.holds(state, view)

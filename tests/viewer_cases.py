@@ -1189,3 +1189,40 @@ def test_a_copc_file_streams_in_the_window_and_a_node_that_fails_is_said(display
         no_gl_error(v)
     finally:
         v.close()
+
+
+def test_the_panel_sets_a_streamed_clouds_finest_detail(display, tmp_path):
+    """The finest detail set in the window (the panel's control calls set_stream_detail)
+    reaches the session's plan: the still view keeps only nodes whose points lie that far
+    apart, exactly; back at 0 it reads on until the memory is full; a cloud opened next
+    starts with the detail set."""
+    from test_copc_stream import assert_exact, las_xyz
+
+    from progressive import memory
+    from progressive.cli import main
+    from progressive.loaders.copc_residency import Status
+    from progressive.session import Streaming, node_view
+
+    copc = tmp_path / "sample.copc.laz"
+    assert main(["convert", str(SAMPLE), str(copc)]) == 0
+    _, xyz = las_xyz(copc)
+    v = open_viewer([copc], stream=Streaming.AUTO, gpu_memory_limit=memory.bytes_for(len(xyz) // 2, W * H))
+    try:
+        v.act(Action.PANEL)
+        v.set_stream_detail(2.0)
+        settle(v)
+        state = v.session.streamer.state
+        rows = np.nonzero(state.status == Status.RESIDENT)[0]
+        errors = state.nodes.errors(node_view(v.camera, *v.session.size))
+        assert rows.size > 0 and (errors[rows][state.nodes.level[rows] > 0] >= 2.0).all()
+        assert_exact(v.session, v.camera, xyz)
+        v.set_stream_detail(-1.0)       # as 0
+        settle(v)
+        assert v.settings.stream_detail_px == 0.0
+        assert np.count_nonzero(state.status == Status.RESIDENT) > rows.size
+        assert_exact(v.session, v.camera, xyz)
+        v.set_stream_detail(2.0)
+        assert v.open([str(copc)]) and v.session.streamer.state.finest_px == 2.0
+        no_gl_error(v)
+    finally:
+        v.close()

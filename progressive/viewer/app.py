@@ -135,7 +135,8 @@ class Viewer:
         self.present = PresentPass(self.glc)
         size = 1 if options.point_size is None else options.point_size     # the rules start from 1 pixel
         self.settings = ViewSettings(target_fps=display_refresh_hz(), point_size=size,
-                                     eye_dome=bool(options.eye_dome), eye_dome_params=options.eye_dome_params)
+                                     eye_dome=bool(options.eye_dome), eye_dome_params=options.eye_dome_params,
+                                     stream_detail_px=options.session.stream_detail_px)
         # the rules of viewer/defaults.py choose what the options leave as None, until
         # the user changes it (keys, panel); each choice keeps its reason
         self.auto_point_size = options.point_size is None
@@ -190,7 +191,8 @@ class Viewer:
         try:
             options = self.options.session
             session = Session(paths, replace(options, width=width, height=height, switchable=True, class_filter=True,
-                                             progressive=replace(options.progressive, budget=self._budget())),
+                                             progressive=replace(options.progressive, budget=self._budget()),
+                                             stream_detail_px=self.settings.stream_detail_px),
                               glc=self.glc)
         except (ProgressiveError, OSError) as exc:
             self.fail(str(exc))
@@ -587,6 +589,12 @@ class Viewer:
                                 fixed_budget=fixed or self.settings.fixed_budget)
         if self.session is not None:
             self.session.set_budget(self._budget())
+
+    def set_stream_detail(self, finest_px: float) -> None:
+        """A streamed cloud's finest detail (this cloud's and the next's); below 0 counts as 0."""
+        self.settings = replace(self.settings, stream_detail_px=max(0.0, finest_px))
+        if self.session is not None:
+            self.session.set_stream_detail(self.settings.stream_detail_px)
 
     def screenshot(self, path: Path | None = None) -> Path | None:
         """The frame as shown, as PNG (P); the path is new each time."""

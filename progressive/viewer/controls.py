@@ -91,6 +91,7 @@ class ViewSettings:
     budget_mode: BudgetMode = BudgetMode.ADAPTIVE
     target_fps: float = 60.0
     fixed_budget: int = 1_000_000
+    stream_detail_px: float = 0.0                       # a streamed cloud's finest detail (SessionOptions's)
     background: tuple[int, int, int] = (0, 0, 0)
     panel: bool = True
     help: bool = False

@@ -138,6 +138,12 @@ class Panel:
                     imgui.text(line)
             for line in stream_lines(status.stream) if status.stream is not None else ():
                 imgui.text(line)
+            if status.stream is not None:
+                changed, px = imgui.input_float("finest detail px", self.viewer.settings.stream_detail_px, 0.125, 0.5,
+                                                "%.3f")
+                if changed:
+                    self.viewer.set_stream_detail(px)
+                imgui.text("    (0: read nodes until the memory is full; more: fewer reads, coarser)")
             loaded, total = status.loaded, status.points
             imgui.progress_bar(loaded / max(1, total), imgui.ImVec2(-1, 0), f"{loaded:,} / {total:,} loaded")
 
