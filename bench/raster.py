@@ -217,6 +217,8 @@ def measure(glc: GLContext, cloud: TiledCloud, layouts, sizes, repeats: int) -> 
                     exact = frame.slots if exact is None else exact
                     ms = statistics.median(t[1:])
                     candidates = getattr(r.raster, "candidates", False)
+                    found = (r.raster.candidates_found(), r.raster.candidate_capacity(width * height)) \
+                        if candidates else None
                     read = bytes_read(scene.store, uniforms, precision) * (1 if candidates else r.raster.passes)
                     rows.append({"points": cloud.points, "width": width, "height": height, "layout": layout.label,
                                  "view": view, "raster": r.raster_path, "ms": ms, "ms_all": t[1:],
@@ -224,6 +226,7 @@ def measure(glc: GLContext, cloud: TiledCloud, layouts, sizes, repeats: int) -> 
                                  "batch_groups": getattr(r.raster, "batch_groups", False),
                                  "vector_loads": getattr(r.raster, "vector_loads", False),
                                  "candidates": candidates, "default_index_pass": tuning.candidates is None,
+                                 "candidates_found": found,
                                  "precision": precision.value, "wall_ms": wall,
                                  "passes": r.raster.passes, "points_per_s": cloud.points / (ms / 1e3),
                                  "bytes_per_point": read / cloud.points, "bytes_per_s": read / (ms / 1e3),
@@ -248,7 +251,7 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
                       "points", "size", "store order", "view", "rasterizer", "work group", "subgroup reduction",
                       "index pass", "precision", "ms (median)", "wall ms", "Mpoints/s", "B/point read", "GB/s read",
                       "share of copy bandwidth", "share of read bandwidth", "× GL_POINTS", "batches culled", "× overview", "covered pixels",
-                      "pixels ≠ first row"))
+                      "pixels ≠ first row", "candidates / room"))
     def twin(r: dict, **keys) -> float:
         """ms of the row of the same cloud, size and layout with `keys` changed."""
         want = dict(points=r["points"], width=r["width"], layout=r["layout"], **keys)
@@ -267,7 +270,8 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
                            ("batch, 4-word loads" if r["vector_loads"] else "batch") if r["batch_groups"] else "256 slots", "yes" if r["subgroup_reduction"] else "no",
                            index_pass_label(r["candidates"], r["passes"]), r["precision"], r["ms"], r["wall_ms"], r["points_per_s"] / 1e6, r["bytes_per_point"], r["bytes_per_s"] / 1e9,
                            r["share_of_copy"], r["share_of_read"], r["vs_points"], r["batches_culled"], r["vs_overview"], r["covered_pixels"],
-                           r["pixels_differing"]))
+                           r["pixels_differing"],
+                           None if r["candidates_found"] is None else "{:,} / {:,}".format(*r["candidates_found"])))
     missing = [] if glc.caps.atomic_int64 else [
         ("Compute 64-bit atomicMin: not run, this GPU lacks GL_NV_shader_atomic_int64 (llvmpipe has no 64-bit "
         "atomics); `--raster compute` falls back to the 32-bit two-pass path here.")]
@@ -296,7 +300,9 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
         "whole cloud; close-up = one corner tile from above at 45° (GL_POINTS not run); batches culled = share of "
         "the store's batches the culling test leaves out (batched layouts only); × overview = overview ms / this "
         "ms, same rasterizer. Work group: batch = one work group walks one batch's slices (ComputeTuning.batch_groups), "
-        "256 slots = one invocation a slot. Index pass (32-bit path): candidates = over the points that lowered or met their "
+        "256 slots = one invocation a slot. Candidates / room: the last frame's candidates and the room for them "
+        "(more than the room: the index pass ran over every point instead). "
+        "Index pass (32-bit path): candidates = over the points that lowered or met their "
         "pixel's depth in its depth pass (ComputeTuning.candidates; the default on a software renderer), every point = loading, "
         "decoding and projecting them all again. Mpoints/s and GB/s count every point of the cloud, culled ones "
         "included.")]
