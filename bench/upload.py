@@ -80,12 +80,13 @@ def uploads(sizes: list[int], repeats: int) -> tuple[list[dict], object]:
                 assert d.staging is s
                 runs[s].append({"seconds": seconds, "add_batch": scene.upload_seconds,
                                 "ring": d.stats.ring, "copied": d.stats.copied,
-                                "distribute": distribute_seconds(scene, records)})
+                                "distribute": distribute_seconds(scene, records),
+                                "scatter": distribute_seconds(scene, records, stage=False)})
                 scene.release()
         ratio = statistics.median(r["add_batch"] / c["add_batch"] for r, c in zip(runs[Staging.RING], runs[Staging.COPY]))
         for s in Staging:
-            med = {k: statistics.median(r[k] for r in runs[s]) for k in ("seconds", "add_batch", "distribute")}
-            best = {k: min(r[k] for r in runs[s]) for k in ("seconds", "add_batch", "distribute")}
+            med = {k: statistics.median(r[k] for r in runs[s]) for k in ("seconds", "add_batch", "distribute", "scatter")}
+            best = {k: min(r[k] for r in runs[s]) for k in ("seconds", "add_batch", "distribute", "scatter")}
             rows.append({"points": points, "staging": s.value, "runs": runs[s], "median": med, "best": best,
                          "ring_over_copy": ratio, "ring": runs[s][-1]["ring"], "copied": runs[s][-1]["copied"]})
     caps = glc.caps
@@ -113,15 +114,25 @@ def loader_pieces(tiles: list[tuple[int, object]]) -> list[tuple[int, object]]:
     return pieces
 
 
-def distribute_seconds(scene, records) -> float:
+def distribute_seconds(scene, records, stage: bool = True) -> float:
     """The GPU side of loading alone: every batch's records, packed already, staged and
-    distributed again (its frames are set: the same words), to glFinish."""
+    distributed again (its frames are set: the same words), to glFinish. Without
+    `stage` nothing is copied into the staging memory (the scatter reads whatever it
+    held, and the store gets that: time it last), so the scatter's share alone."""
     scene.glc.ctx.finish()
     t0 = time.perf_counter()
     for start, rec in records:
-        scene.distribute.upload(rec, start)
+        if stage:
+            scene.distribute.upload(rec, start)
+        else:
+            scene.distribute.upload_packed(_unstaged, rec.shape[0], start)
     scene.glc.ctx.finish()
     return time.perf_counter() - t0
+
+
+def _unstaged(out, lo: int, hi: int) -> int:
+    """A fill that writes nothing (distribute_seconds without staging)."""
+    return 0
 
 
 def run(sizes: list[int], repeats: int, startup_repeats: int, size: tuple[int, int]):
@@ -136,7 +147,8 @@ def run(sizes: list[int], repeats: int, startup_repeats: int, size: tuple[int, i
                   "autzen_trim.las tiled", ", ".join(f"{n:,}" for n in sizes),
                   ("points", "staging", "load s", "M points/s", "add_batch s (best)", "M points/s (add_batch)",
                    "add_batch ring / copy", "pieces ring / copied", "stage + distribute s (best)",
-                   "M points/s (stage + distribute)", "first image s (best)", "upload s (first image)"))
+                   "M points/s (stage + distribute)", "M points/s (distribute, nothing staged)", "first image s (best)",
+                   "upload s (first image)"))
     load_before = os.getloadavg()[0]
     warm = {"mesa": tempfile.mkdtemp(prefix="mesa-warm-"), "programs": tempfile.mkdtemp(prefix="programs-warm-")}
     env = environment(WARM, warm)
@@ -158,7 +170,7 @@ def run(sizes: list[int], repeats: int, startup_repeats: int, size: tuple[int, i
                            f"{cell(med['add_batch'])} ({cell(r['best']['add_batch'])})",
                            r["points"] / med["add_batch"] / 1e6, r["ring_over_copy"], f"{r['ring']} / {r['copied']}",
                            f"{cell(med['distribute'])} ({cell(r['best']['distribute'])})",
-                           r["points"] / med["distribute"] / 1e6,
+                           r["points"] / med["distribute"] / 1e6, r["points"] / med["scatter"] / 1e6,
                            f"{cell(first[s]['process'])} ({cell(best[s])})", first[s]["upload"]))
     table.notes = [
         (f"One run, ring and copy alternating, median of {repeats} (best in brackets); add_batch ring / copy: the "
@@ -175,7 +187,10 @@ def run(sizes: list[int], repeats: int, startup_repeats: int, size: tuple[int, i
          f"the loaded records, packed already, in pieces of about a loader batch ({BATCH_POINTS:,} points, "
          "consecutive tiles joined, as the loader hands its batches over), copied into the staging memory and distributed again (the word "
          "store encodes them in their frames, set by the load), to glFinish; add_batch's batch boxes, frames and "
-         "packing are left out."),
+         "packing are left out. Distribute, nothing staged: the same with nothing copied into the staging memory "
+         "(the scatter reads what the ring's slots, or the copy's fresh buffer, held), the GPU's share alone: on "
+         "the H100 the CPU's copy into the ring took about half of stage + distribute "
+         "(bench/results/nvidia-h100/distribute_copy/)."),
         (f"first image s: `progressive view` headless on the bundled sample at {size[0]}x{size[1]}, a fresh process "
          f"from spawn to glFinish after the first frame with points, median of {startup_repeats}, caches warm "
          "(Mesa's shader cache and the program binary cache, as bench/startup.py's last state); upload s: the "
