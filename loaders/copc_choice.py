@@ -8,8 +8,8 @@ aspect) wholly beyond a side of the image, has none. Nodes are taken greedily, t
 error first, a node only once its parent is taken (so the kept set is a tree cut from
 the root and, since a child does not repeat its parent's points, a set without
 duplicates), until the next one does not fit or its error is below the finest detail
-asked for (points closer on screen than that would only decide which of several points
-a pixel shows, as screen-space error thresholds do in Potree and 3D Tiles). A child's
+asked for (a screen-space error threshold, as Potree and 3D Tiles have; finer nodes
+still change which point a pixel shows). A child's
 error is at most half its parent's, so the order is also the one of every node sorted by
 error. Ties go to the shallower node, then the lower file index and key: the same inputs
 give the same nodes.

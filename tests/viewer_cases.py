@@ -1216,6 +1216,8 @@ def test_the_panel_sets_a_streamed_clouds_finest_detail(display, tmp_path):
         errors = state.nodes.errors(node_view(v.camera, *v.session.size))
         assert rows.size > 0 and (errors[rows][state.nodes.level[rows] > 0] >= 2.0).all()
         assert_exact(v.session, v.camera, xyz)
+        v.set_stream_detail(float("inf"))       # typed in the panel: nothing changes
+        assert v.settings.stream_detail_px == 2.0
         v.set_stream_detail(-1.0)       # as 0
         settle(v)
         assert v.settings.stream_detail_px == 0.0

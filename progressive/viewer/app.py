@@ -5,6 +5,7 @@ a new session, and any bad input ends as a message in the window, never a crash.
 from __future__ import annotations
 
 import enum
+import math
 import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -591,7 +592,10 @@ class Viewer:
             self.session.set_budget(self._budget())
 
     def set_stream_detail(self, finest_px: float) -> None:
-        """A streamed cloud's finest detail (this cloud's and the next's); below 0 counts as 0."""
+        """A streamed cloud's finest detail (this cloud's and the next's); below 0 counts
+        as 0, and one not finite (typed in the panel) changes nothing."""
+        if not math.isfinite(finest_px):
+            return
         self.settings = replace(self.settings, stream_detail_px=max(0.0, finest_px))
         if self.session is not None:
             self.session.set_stream_detail(self.settings.stream_detail_px)

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field, replace
 from progressive.camera import NO_CLIP, Clip, Returns
 from progressive.colors import Colormap
 from progressive.effects import MAX_POINT_SIZE, Effects, EyeDome
+from progressive.streaming import FINEST_PX
 from progressive.viewer.navigation import View
 
 
@@ -91,7 +92,7 @@ class ViewSettings:
     budget_mode: BudgetMode = BudgetMode.ADAPTIVE
     target_fps: float = 60.0
     fixed_budget: int = 1_000_000
-    stream_detail_px: float = 0.0                       # a streamed cloud's finest detail (SessionOptions's)
+    stream_detail_px: float = FINEST_PX                 # a streamed cloud's finest detail (SessionOptions's)
     background: tuple[int, int, int] = (0, 0, 0)
     panel: bool = True
     help: bool = False
