@@ -272,7 +272,8 @@ def run(glc: GLContext, points: int, size: tuple[int, int], repeats: int) -> Tab
                   f"{points:,}", ("kind", "what", "store", "precision", "ms (median)", "GB/s", "G points/s"), rows)
     table.notes = notes + [
         f"GPU ms from timestamps, median of {repeats} after {WARM_SECONDS:g} s of the same work back to back "
-        "and one warm-up (bench.raster sustain: the GPU's clocks up, as in a busy frame loop). read: {RECORD_BYTES}-byte records of a "
+        f"and one warm-up (bench.raster sustain: the GPU's clocks up, as in a busy frame loop). read: {RECORD_BYTES}-byte "
+        "records of a "
         f"store of whole batches ({BATCH_SLOTS:,} slots) read in that pattern, nothing drawn. raster: the "
         f"64-bit batch walk at {size[0]}x{size[1]} over the whole cloud, auto camera (a visibility clear and "
         "the raster pass), with its stages cut "
