@@ -88,6 +88,7 @@ class StreamStatus:
     missing_px: float           # the coarsest detail the view still waits for: the largest screen-space
                                 # error of a node it keeps not yet shown, in pixels (0: settled; inf: the
                                 # view not planned yet)
+    finest_px: float            # the finest detail a view reads (0: until the memory is full, or every node fits)
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
@@ -263,7 +264,7 @@ class Streamer:
         return StreamStatus(int(s.size), int(points.sum()), int(resident.sum()), int(points[resident].sum()),
                             int(np.count_nonzero(s == Status.LOADING)), int(np.count_nonzero(s == Status.HELD)),
                             int(np.count_nonzero(s == Status.FAILED)), self.state.capacity * BATCH_POINTS,
-                            self.evicted, bool(self.scene.settled), self.missing_px())
+                            self.evicted, bool(self.scene.settled), self.missing_px(), self.state.finest_px)
 
     def missing_px(self) -> float:
         """StreamStatus.missing_px: 0 once settled; unknown (inf) until the view of the

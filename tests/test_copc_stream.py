@@ -455,7 +455,10 @@ def test_the_finest_detail_reads_fewer_nodes_and_is_exact_over_them(sample_copc)
         assert (errors[rows][state.nodes.level[rows] > 0] >= 2.0).all()
         assert_tree_cut(s)
         assert_exact(s, camera, xyz)
+        assert s.status().stream.finest_px == 2.0
+        assert stream_lines(s.status().stream)[-1].strip() == "the view's nodes are all on the GPU (down to 2 px)"
     with still(sample_copc, stream_detail_px=2.0) as (s, _):
+        assert s.status().stream.finest_px == 0.0       # every node fits: none is left out
         assert s.status().stream.resident_nodes == s.status().stream.nodes
 
 

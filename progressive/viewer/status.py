@@ -35,7 +35,8 @@ def stream_lines(s: StreamStatus) -> list[str]:
              f"    points {s.resident_points:,} / {s.points:,} (room for {s.capacity_points:,})",
              f"    {s.loading_nodes:,} loading, {s.held_nodes:,} waiting, {s.evicted_nodes:,} evicted"
              + (f", {s.failed_nodes:,} failed" if s.failed_nodes else "")]
-    lines.append("    the view's nodes are all on the GPU" if s.settled else
+    lines.append("    the view's nodes are all on the GPU" + (f" (down to {s.finest_px:g} px)" if s.finest_px else "")
+                 if s.settled else
                  "    reading the view's nodes" + (f" (detail of {s.missing_px:.1f} px still missing)"
                                                     if math.isfinite(s.missing_px) else ""))
     return lines
