@@ -171,8 +171,7 @@ def choose(nodes: Nodes, view: View, budget: int, parent: np.ndarray | None = No
     parent, errors, order: nodes.parents(), nodes.errors(view) and the rows by
     decreasing error, ties by rank_of(nodes), where the caller has them (a choice made
     every time the camera moves need not find them anew)."""
-    if not (math.isfinite(finest_px) and finest_px >= 0):
-        raise ValueError("the finest detail must be a number of pixels, 0 or more")
+    finest_px = finest_detail(finest_px)
     errors = nodes.errors(view) if errors is None else errors
     parent = nodes.parents() if parent is None else parent
     root = parent < 0
@@ -208,6 +207,13 @@ def choose(nodes: Nodes, view: View, budget: int, parent: np.ndarray | None = No
         for c in children.get(i, []):
             heapq.heappush(frontier, entry(c))
     return np.sort(np.asarray(kept, np.int64))
+
+
+def finest_detail(px: float) -> float:
+    """`px` as choose's finest detail: a number of pixels, 0 or more."""
+    if not (math.isfinite(px) and px >= 0):
+        raise ValueError("the finest detail must be a number of pixels, 0 or more")
+    return float(px)
 
 
 def rank_of(nodes: Nodes) -> np.ndarray:

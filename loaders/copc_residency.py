@@ -57,7 +57,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from progressive.loaders.copc_choice import Nodes, View, choose, rank_of
+from progressive.loaders.copc_choice import Nodes, View, choose, finest_detail, rank_of
 
 
 class Status(enum.IntEnum):
@@ -169,9 +169,8 @@ class Residency:
     def set_finest(self, finest_px: float) -> None:
         """The finest detail a view asks for from the next target on (ignored where the
         budget holds every node)."""
-        if not (math.isfinite(finest_px) and finest_px >= 0):
-            raise ValueError("the finest detail must be a number of pixels, 0 or more")
-        self.finest_px = float(finest_px) if int(self.cost.sum()) > self.budget else 0.0
+        finest_px = finest_detail(finest_px)
+        self.finest_px = finest_px if int(self.cost.sum()) > self.budget else 0.0
 
     def rows(self, *status: Status) -> np.ndarray:
         return np.nonzero(np.isin(self.status, status))[0]
