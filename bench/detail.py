@@ -25,6 +25,8 @@ from bench.data import SHARED
 from bench.report import RunInfo, Table
 from bench.stream import build
 from progressive import memory
+from progressive.context import Capabilities
+from progressive.reference import EMPTY
 from progressive.session import Method, Session, SessionOptions, Streaming
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -33,7 +35,6 @@ SIZE = "320x180"
 TILED_SIZE = "640x360"
 POINTS = 5_000_000
 DETAILS = (0.0, 0.125, 0.25, 0.5, 1.0)
-EMPTY = 0xFFFFFFFF
 FRAMES = 2000
 """Most frames a still view is given to converge (the bench fails past them)."""
 COLUMNS = ("file", "points", "image", "finest detail px", "resident points", "share of file", "nodes read",
@@ -60,14 +61,15 @@ def compare(ids: np.ndarray, image: np.ndarray, ref_ids: np.ndarray, ref_image: 
             "rgb": float(rgb[covered].mean())}
 
 
-def measure(path: Path, size: tuple[int, int], share: float, details) -> list[dict]:
+def measure(path: Path, size: tuple[int, int], share: float, details) -> tuple[list[dict], Capabilities]:
+    """The rows of one file, and the device that drew them."""
     width, height = size
     with Session([str(path)], SessionOptions(width=width, height=height, color_by="intensity",
                                              method=Method.BRUTE)) as s:
         camera = s.auto_camera()
         points = s.info.points
         s.frame(camera)
-        ref_ids, ref_image = s.ids(), s.image()
+        ref_ids, ref_image, caps = s.ids(), s.image(), s.glc.caps
     limit = memory.bytes_for(int(points * share), width * height)
     rows = []
     for detail in details:
@@ -80,15 +82,15 @@ def measure(path: Path, size: tuple[int, int], share: float, details) -> list[di
                          "resident_points": status.stream.resident_points, "nodes_read": status.copc[0].nodes_read,
                          "bytes_read": status.copc[0].bytes_read, "seconds": seconds, "frames": frames,
                          **compare(s.ids(), s.image(), ref_ids, ref_image)})
-    return rows
+    return rows, caps
 
 
 def run(sources: list[tuple[Path, tuple[int, int]]], share: float, details) -> tuple[Table, RunInfo]:
     rows = []
     for path, size in sources:
-        rows += measure(path, size, share, details)
-    with Session([str(sources[0][0])], SessionOptions(width=16, height=16)) as s:
-        info = RunInfo.from_caps(s.glc.caps, f"finest detail, limit {share:.0%} of the points")
+        got, caps = measure(path, size, share, details)
+        rows += got
+    info = RunInfo.from_caps(caps, f"finest detail, limit {share:.0%} of the points")
     table = Table("detail", "Streamed views by finest detail: what they read and what they leave out",
                   ", ".join(p.name for p, _ in sources), ", ".join(f"{r['points']:,}" for r in rows[::len(details)]),
                   COLUMNS)

@@ -224,3 +224,21 @@ def test_stream_bench_builds_from_laz_alone(tmp_path, capsys):
     assert "120,000 points" in capsys.readouterr().out
     assert sorted(p.name for p in cache.iterdir()) == ["autzen_trim_x120000.copc.json", "autzen_trim_x120000.copc.laz"]
     assert stream.build(120_000, cache).cached
+
+
+def test_detail_bench_runs(tmp_path):
+    """bench.detail on the sample converted to COPC: a row for each finest detail, a
+    coarser one reading no more points, shares of the reference's covered pixels."""
+    from bench import detail
+    from conftest import SAMPLE
+    from progressive.cli import main as cli
+
+    copc = tmp_path / "sample.copc.laz"
+    assert cli(["convert", str(SAMPLE), str(copc)]) == 0
+    table, info = detail.run([(copc, (160, 120))], 0.5, (0.0, 4.0))
+    rows = table.raw["rows"]
+    assert [r["detail_px"] for r in rows] == [0.0, 4.0] and info.device
+    assert 0 < rows[1]["resident_points"] <= rows[0]["resident_points"] <= rows[0]["points"] // 2 + 1
+    for r in rows:
+        assert r["covered"] > 0 and 0 <= r["empty"] + r["other"] <= 1 and 0 <= r["rgb"] <= 255
+    assert len(table.rows) == 2
