@@ -13,17 +13,22 @@ words loaded, not decoded) and the full walk with 1, 2 or 8 records prefetched i
 ComputeTuning.prefetch's default, with the subgroup reduction, with the decode not `precise`, and with four-word loads (ComputeTuning.vector_loads;
 its load and projection stages too; and the four-word walk with the projection's two
 divisions made one reciprocal, with its four points' pixels read together before their
-atomics, and both). A variant the driver does not compile gets a row without times. 64-bit only
+atomics, and both). A variant the driver does not compile gets a row without times. Beside
+them, the "prototype" rows: the paper's walk at its plainest on a synthetic store of its
+own (PROTOTYPE_SHADER), what the walk would cost without the renderer's layout. 64-bit only
 (llvmpipe lacks the atomics: the section says so and times the reads alone).
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
+
+import numpy as np
 
 from bench.raster import WARM_SECONDS, clear_and_draw, median_gpu_ms
 from bench.report import RunInfo, Table
@@ -162,6 +167,106 @@ def reads(glc: GLContext, points: int, repeats: int) -> list[tuple]:
     return rows
 
 
+PROTOTYPE_SHADER = """#version 450
+#extension GL_ARB_gpu_shader_int64 : require
+#extension GL_NV_shader_atomic_int64 : require
+layout(local_size_x = 256) in;
+layout(std430, binding = 0) readonly buffer W { uint words[]; };
+layout(std430, binding = 1) readonly buffer F { vec4 frames[]; };
+layout(std430, binding = 2) buffer V { uint64_t vis[]; };
+uniform uint u_b;
+uniform uint u_rounds;
+uniform uvec2 u_size;
+uniform vec2 u_scale;
+const uint BATCH_SLOTS = %du, SLICE_POINTS = %du, ROUNDS = BATCH_SLOTS / SLICE_POINTS;
+void main() {
+    uint b = gl_WorkGroupID.x + gl_WorkGroupID.y * gl_NumWorkGroups.x;
+    if (b >= u_b) return;
+    vec3 base = frames[2u * b].xyz, step = frames[2u * b + 1u].xyz;
+    uint acc = 0u;
+    for (uint k = 0u; k < %s; ++k) {
+        uint i = b * BATCH_SLOTS + k * SLICE_POINTS + gl_LocalInvocationID.x;
+        uint w = words[i];
+        %s
+    }
+    if (acc == 0x7FC00001u) vis[0] = uint64_t(acc);
+}
+"""
+"""The 2-billion-points paper's walk at its plainest, on its own synthetic store: one
+work group a batch of BATCH_SLOTS points (random 10-bit cells in a tile of a grid, the
+batch's frame folded into no transform), a word a point, a plain loop; each point
+projected (perspective, camera above the grid's centre) and drawn with
+read-before-atomicMin. What the renderer's walk would cost without its layout's address
+arithmetic, buffer switch, ranges and prefetch arrays, on the same GPU in the same run."""
+PROTOTYPE_BODIES = {
+    "load": "acc ^= w;",
+    "full": "vec3 p = base + vec3((uvec3(w) >> uvec3(20u, 10u, 0u)) & 1023u) * step;\n"
+            "        vec3 v = p - vec3(0.5, 0.5, 1.2);\n"
+            "        float depth = -v.z;\n"
+            "        float fx = (u_scale.x * v.x / depth * 0.5 + 0.5) * float(u_size.x);\n"
+            "        float fy = (0.5 - u_scale.y * v.y / depth * 0.5) * float(u_size.y);\n"
+            "        if (!(fx >= 0.0 && fx < float(u_size.x) && fy >= 0.0 && fy < float(u_size.y))) continue;\n"
+            "        uint pixel = uint(fy) * u_size.x + uint(fx);\n"
+            "        uint64_t key = (uint64_t(floatBitsToUint(depth)) << 32) | uint64_t(i);\n"
+            "        if (key < vis[pixel]) atomicMin(vis[pixel], key);",
+}
+PROTOTYPE_LOOPS = {"rounds a constant": "ROUNDS", "rounds a uniform": "u_rounds"}
+
+
+def prototype(glc: GLContext, points: int, size: tuple[int, int], repeats: int) -> list[tuple]:
+    """PROTOTYPE_SHADER's rows: each body with the loop's count a constant (unrollable)
+    and a uniform, over `points` points (whole batches) at `size`."""
+    batches = -(-points // BATCH_SLOTS)
+    side = math.ceil(math.sqrt(batches * size[0] / size[1]))
+    rows_of_tiles = -(-batches // side)
+    rng = np.random.default_rng(1)
+    words = glc.ctx.buffer(reserve=batches * BATCH_SLOTS * 4)
+    piece = 1 << 24
+    for at in range(0, batches * BATCH_SLOTS, piece):
+        n = min(piece, batches * BATCH_SLOTS - at)
+        words.write(rng.integers(0, 1 << 30, n, dtype=np.uint32).tobytes(), offset=at * 4)
+    b = np.arange(batches)
+    tile = np.array([1.0 / side, 1.0 / rows_of_tiles, 0.05])
+    frames = np.zeros((batches, 2, 4), np.float32)
+    frames[:, 0, 0], frames[:, 0, 1] = (b % side) * tile[0], (b // side) * tile[1]
+    frames[:, 1, :3] = tile / 1024.0
+    frame_buf = glc.ctx.buffer(frames.tobytes())
+    vis = glc.ctx.buffer(reserve=size[0] * size[1] * 8)
+    f = 1.2 / 0.5                   # the grid's half width at the camera's distance fills the image
+    rows = []
+    for loop_name, loop in PROTOTYPE_LOOPS.items():
+        for body_name, body in PROTOTYPE_BODIES.items():
+            name = f"{body_name}, {loop_name}"
+            try:
+                program = glc.ctx.compute_shader(PROTOTYPE_SHADER % (BATCH_SLOTS, SLICE_POINTS, loop, body))
+            except Exception as error:      # a driver without 64-bit atomics: a row without times
+                print(f"bench.kernel: prototype {name}: {error}", file=sys.stderr)
+                rows.append(("prototype", name, "", "", float("nan"), float("nan"), float("nan")))
+                continue
+            values = {"u_b": batches, "u_rounds": BATCH_SLOTS // SLICE_POINTS, "u_size": size,
+                      "u_scale": (f, f)}
+            for uniform, value in values.items():
+                if uniform in program:
+                    program[uniform] = value
+            gx = min(batches, 65535)
+            grid = (gx, -(-batches // gx), 1)
+
+            def run(p=program, g=grid) -> None:
+                glc.gl.clear_u32(vis.glo, 0xFFFFFFFF, total=vis.size)
+                words.bind_to_storage_buffer(0)
+                frame_buf.bind_to_storage_buffer(1)
+                vis.bind_to_storage_buffer(2)
+                p.run(*g)
+            ms = median_gpu_ms(glc, run, repeats)
+            n = batches * BATCH_SLOTS
+            rows.append(("prototype", name, "a word a point", "10-bit", ms, n * RECORD_BYTES / (ms / 1e3) / 1e9,
+                         n / (ms / 1e3) / 1e9))
+            program.release()
+    for buf in (words, frame_buf, vis):
+        buf.release()
+    return rows
+
+
 STORES = ((RecordOrder.BATCHES, Encoding.WORDS), (RecordOrder.BATCHES, Encoding.FLOAT), (RecordOrder.SLOTS, Encoding.WORDS))
 """Record order and position encoding of each store the stages run on (the word
 store's "load" stage includes decoding its words)."""
@@ -265,6 +370,7 @@ def run(glc: GLContext, points: int, size: tuple[int, int], repeats: int) -> Tab
     rows = reads(glc, points, repeats)
     notes = []
     if glc.caps.atomic_int64:
+        rows += prototype(glc, points, size, repeats)
         rows += stages(glc, points, size, repeats)
     else:
         notes.append("Raster stages: not run, this GPU lacks GL_NV_shader_atomic_int64 (64-bit atomics).")
@@ -278,7 +384,8 @@ def run(glc: GLContext, points: int, size: tuple[int, int], repeats: int) -> Tab
         f"64-bit batch walk at {size[0]}x{size[1]} over the whole cloud, auto camera (a visibility clear and "
         "the raster pass), with its stages cut "
         "(bench/kernel.py's docstring); store = RecordOrder, Encoding (the word store's 'load' decodes its "
-        f"three words). GB/s counts {RECORD_BYTES} bytes a point whatever the store reads; G points/s every point."]
+        "three words). prototype: PROTOTYPE_SHADER's walk at the same size, its loads alone and its full "
+        f"raster, its loop of {BATCH_SLOTS // SLICE_POINTS} rounds counted by a constant or by a uniform. GB/s counts {RECORD_BYTES} bytes a point whatever the store reads; G points/s every point."]
     return table
 
 
