@@ -10,7 +10,7 @@ filters and the projection, "+ read" the read-before-atomicMin, "atomic, no read
 every atomic without the read before it, "full" the whole one-word walk. On the word
 store each stage runs at exact and adaptive precision, beside "load, no decode" (the
 words loaded, not decoded) and the full walk with 1, 2 or 8 records prefetched instead of
-ComputeTuning.prefetch's default, with the subgroup reduction, with the decode not `precise`, and with four-word loads (ComputeTuning.vector_loads;
+ComputeTuning.prefetch's default, with the subgroup reduction, with the decode not `precise`, with a plain loop (plain_loop), and with four-word loads (ComputeTuning.vector_loads;
 its load and projection stages too; and the four-word walk with the projection's two
 divisions made one reciprocal, with its four points' pixels read together before their
 atomics, and both). A variant the driver does not compile gets a row without times. Beside
@@ -118,6 +118,22 @@ def reads_together() -> tuple[str, str]:
             "            for (uint m = 0u; m < 4u; ++m) if (keys[m] < held[m]) atomicMin(visibility[pix[m]], keys[m]);\n")
 
 
+def plain_loop() -> tuple[str, str]:
+    """The one-word walk's loop (its prefetch arrays, the range's first round computed)
+    made the prototype's: every round in turn, a constant count, the range tested per
+    point (brute force only: no attribute word, no filters)."""
+    text = shaderlib.shader_text("raster_compute.comp")
+    start = text.index("    uint k = first > base ?")
+    end = text.index("#else\nvoid main() {", start)
+    return (text[start:end],
+            "    for (uint k = 0u; k < ROUNDS; ++k) {\n"
+            "        uint slot = base + k * stride;\n"
+            "        uvec3 w = point_words(records + k * record_stride, levels);\n"
+            "        if (slot < first || slot > last) continue;\n"
+            "        raster_by(slot, slot, uvec4(position_bits(w, levels, frame_base, frame_step), EMPTY), view_m, view_t);\n"
+            "    }\n}\n")
+
+
 ONE_WORD = ComputeTuning(vector_loads=False, winners=False)
 """The stages' walk: one word a load, `prefetch` records a slice apart (the four-word
 walk, the renderer's 64-bit default, is a variant beside it). No winners pass (on by
@@ -132,6 +148,7 @@ VARIANTS = {
     "full, subgroup reduction": (replace(ONE_WORD, subgroup_reduction=True), {}),
     "full, four-word loads": (FOUR_WORDS, {}),
     "full, decode fused": (ONE_WORD, {"points.glsl": FUSED}),
+    "full, a plain loop": (ONE_WORD, {"raster_compute.comp": plain_loop()}),
     "load, four-word loads": (FOUR_WORDS, {"raster_compute.comp": STAGES["load"]}),
     "+ project, four-word loads": (FOUR_WORDS, {"raster_compute.comp": STAGES["+ project"]}),
     "full, four-word loads, one reciprocal": (FOUR_WORDS, {"camera.glsl": RECIPROCAL}),
