@@ -32,11 +32,14 @@ from bench.synthetic import SAMPLE
 from progressive import memory
 from progressive.camera import Camera
 from progressive.cli import bytes_arg, detail_arg
+from progressive.loaders.copc import open_copc
 from progressive.loaders.copc_residency import Status
 from progressive.loaders.copc_write import write_copc
 from progressive.loaders.http import REQUESTS_IN_FLIGHT, HttpOptions
+from progressive.loaders.las import selection
+from progressive.loaders.laz import decode_chunks
 from progressive.loaders.records import RECORD_BYTES
-from progressive.loaders.types import BATCH_POINTS
+from progressive.loaders.types import BATCH_POINTS, available_cores
 from progressive.session import Session, SessionOptions, Streaming
 from progressive.streaming import FINEST_PX, WRITE_SECONDS, WRITE_STILL_SECONDS
 
@@ -68,6 +71,8 @@ FIELDS = ("seconds", "resident_nodes", "resident_points", "loading_nodes", "held
           "settled", "converged", "missing_px", "frame", "stream_s", "issue_s")
 """What is recorded of each frame (raw JSON, a list per field): frame is the renderer's
 index (its GPU record joins it after the leg), stream_s and issue_s Session.host's parts."""
+CEILING_POINTS = 20_000_000
+"""Most points of the file the decode ceiling (decode_rate) decodes."""
 SLOW_MS = 1e3 / 60
 """A moving frame slower than this missed the viewer's frame target (BudgetParams.target_ns)."""
 
@@ -259,7 +264,35 @@ def stream(source: str, options: SessionOptions, frames: int, limit_s: float) ->
         return {"batches": [used, state.capacity, state.store_batch_points], "source": source, "first_image_s": first_image, "startup": dict(s.startup), "capacity_points": capacity,
                 "nodes": end.stream.nodes, "on_gpu": end.on_gpu, "resident_points": end.stream.resident_points,
                 "failed_nodes": end.stream.failed_nodes, "warnings": s.warnings, "legs": legs_out,
-                "device": s.glc.caps}
+                "names": list(s.streamer.reader.names), "device": s.glc.caps}
+
+
+def decode_rate(path: Path, names: tuple[str, ...], points: int) -> dict:
+    """lazrs on every core alone over the file's first `points` points, decoding the
+    layers of `names` (what the stream's nodes were read with): the decode ceiling a
+    streamed view's reads stand under, measured beside them. Points/s is None where the
+    file's chunks cannot be decoded in parallel (no sound chunk table)."""
+    source = open_copc(path)
+    cores = available_cores()
+    t0 = time.perf_counter()
+    decoded = sum(len(r) for r in decode_chunks(str(path), source.laz, points, points, source.records.dtype, cores,
+                                                 selection(names)))
+    seconds = time.perf_counter() - t0
+    return {"points": decoded, "seconds": seconds, "cores": cores, "names": list(names),
+            "points_per_s": decoded / seconds if decoded else None}
+
+
+def decode_note(ceiling: dict, overview_points: int) -> str:
+    """What decode_rate found, and the least time the overview's resident points take at it."""
+    layers = ", ".join(ceiling["names"]) or "no attribute"
+    if ceiling["points_per_s"] is None:
+        return "Decode ceiling: not measured (the file's chunks cannot be decoded in parallel)."
+    rate = ceiling["points_per_s"]
+    return (f"Decode ceiling, measured after the runs: lazrs alone on {ceiling['cores']} cores "
+            f"(decompress_points_with_chunk_table over the file's first {ceiling['points']:,} points, positions and "
+            f"{layers}, the layers the stream read) decoded {rate / 1e6:.1f} M points/s. At that rate the "
+            f"{overview_points:,} points the file's overview held take {overview_points / rate:.2f} s to decode: no "
+            f"stream of this file settles that view sooner, whatever its writes and plans cost.")
 
 
 def warm_up(source: str, options: SessionOptions) -> dict:
@@ -321,6 +354,7 @@ def run(points: int, limit: int, size: tuple[int, int], frames: int, cache: Path
     remotes = {(f"HTTP {n}" if len(requests) > 1 else "HTTP"): served(
         built.path, replace(options, http=HttpOptions(in_flight=n)), frames, limit_s, latency_s) for n in requests}
     runs = {"file": local, **remotes}
+    ceiling = decode_rate(built.path, tuple(local["names"]), min(built.points, CEILING_POINTS))
     load_after = os.getloadavg()[0]
     caps = local.pop("device")
     for remote in remotes.values():
@@ -387,12 +421,13 @@ def run(points: int, limit: int, size: tuple[int, int], frames: int, cache: Path
          + f"Load average (1 min) {load_before:.1f} before, {load_after:.1f} after, on {os.cpu_count()} cores shared "
            f"with other work: other processes show in the frame times and the seconds to settle."),
     ]
+    table.notes.insert(1, decode_note(ceiling, local["legs"][0]["resident_points"]))
     table.raw = {"built": {k: str(v) if isinstance(v, Path) else v for k, v in asdict(built).items()},
                  "limit_bytes": limit, "size": list(size), "frames_per_leg": frames, "pixel_bytes": pixel_bytes,
                  "staging_bytes": staging, "corner": CORNER, "close": CLOSE, "fly": FLY, "still_seconds": limit_s,
                  "load_average": [load_before, load_after], "warm_up": warm, "file": local,
                  "http": {str(n): remotes[label] for n, label in zip(requests, remotes)},
-                 "http_latency_s": latency_s, "detail_px": detail_px}
+                 "http_latency_s": latency_s, "detail_px": detail_px, "decode_ceiling": ceiling}
     return table, RunInfo.from_caps(caps, f"streamed, {limit / 2**20:.0f} MiB limit, {width}x{height}, "
                                           f"detail {detail_px:g} px")
 

@@ -206,6 +206,8 @@ def test_stream_bench_runs(tmp_path):
     assert raw["built"]["points"] == 110_000 and not raw["built"]["cached"]
     assert raw["warm_up"]["first_image_s"] > 0 and "programs" in raw["warm_up"]["startup"]
     assert sorted(raw["http"]) == ["2", "3"] and raw["http_latency_s"] == 0.005
+    ceiling = raw["decode_ceiling"]     # every point of the file, decoded with the layers the stream read
+    assert ceiling["points"] == 110_000 and ceiling["names"] == raw["file"]["names"] and ceiling["points_per_s"] > 0
     for run in (raw["file"], *raw["http"].values()):
         assert 0 < run["resident_points"] <= run["capacity_points"]
         assert all(leg["nodes_read"] >= leg["resident_nodes"] for leg in run["legs"])
@@ -213,7 +215,7 @@ def test_stream_bench_runs(tmp_path):
     assert all(r["MB fetched"] is None for r in rows if r["source"] == "file")
     assert stream.build(110_000, tmp_path / "cache").cached
     md = (tmp_path / "stream.md").read_text()
-    assert md.startswith("# ") and "N: 110,000" in md
+    assert md.startswith("# ") and "N: 110,000" in md and "Decode ceiling, measured after the runs" in md
     assert {line.count("|") for line in md.splitlines() if line.startswith("|")} == {len(stream.COLUMNS) + 1}
 
 
