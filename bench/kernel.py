@@ -22,6 +22,7 @@ own (PROTOTYPE_SHADER), what the walk would cost without the renderer's layout. 
 from __future__ import annotations
 
 import argparse
+import itertools
 import math
 import sys
 from collections.abc import Callable
@@ -41,7 +42,7 @@ from progressive.loaders.records import RECORD_BYTES
 from progressive.passes.cull import CullPass
 from progressive.passes.raster_compute import ComputeRaster, ComputeTuning
 from progressive.permutation import BATCH_SLOTS, SLICE_POINTS, FillOrder
-from progressive.pointstore import RecordOrder
+from progressive.pointstore import BLOCK_RECORDS, RecordOrder
 from progressive.renderer import Renderer
 
 READS = {
@@ -203,7 +204,7 @@ void main() {
     uint acc = 0u;
     for (uint k = 0u; k < %s; ++k) {
         uint i = b * BATCH_SLOTS + k * SLICE_POINTS + gl_LocalInvocationID.x;
-        uint w = words[i];
+        uint w = words[%s];
         %s
     }
     if (acc == 0x7FC00001u) vis[0] = uint64_t(acc);
@@ -228,6 +229,12 @@ PROTOTYPE_BODIES = {
             "        if (key < vis[pixel]) atomicMin(vis[pixel], key);",
 }
 PROTOTYPE_LOOPS = {"rounds a constant": "ROUNDS", "rounds a uniform": "u_rounds"}
+PROTOTYPE_PLACES = {"a word a point": "i",
+                    "the word store's blocks": f"(i / {BLOCK_RECORDS}u * 4u) * {BLOCK_RECORDS}u + i % {BLOCK_RECORDS}u"}
+"""Where point i's word lies: one plane of words, or the word store's first plane in its
+blocks of BLOCK_RECORDS records holding four planes in turn (progressive/pointstore.py;
+its address arithmetic and its stride between blocks, on a buffer four times as large,
+without the buffer switch, the ranges or the prefetch arrays)."""
 
 
 def prototype(glc: GLContext, points: int, size: tuple[int, int], repeats: int) -> list[tuple]:
@@ -237,10 +244,10 @@ def prototype(glc: GLContext, points: int, size: tuple[int, int], repeats: int) 
     side = math.ceil(math.sqrt(batches * size[0] / size[1]))
     rows_of_tiles = -(-batches // side)
     rng = np.random.default_rng(1)
-    words = glc.ctx.buffer(reserve=batches * BATCH_SLOTS * 4)
+    words = glc.ctx.buffer(reserve=batches * BATCH_SLOTS * 4 * 4)     # room for the blocks' four planes
     piece = 1 << 24
-    for at in range(0, batches * BATCH_SLOTS, piece):
-        n = min(piece, batches * BATCH_SLOTS - at)
+    for at in range(0, batches * BATCH_SLOTS * 4, piece):
+        n = min(piece, batches * BATCH_SLOTS * 4 - at)
         words.write(rng.integers(0, 1 << 30, n, dtype=np.uint32).tobytes(), offset=at * 4)
     b = np.arange(batches)
     tile = np.array([1.0 / side, 1.0 / rows_of_tiles, 0.05])
@@ -251,14 +258,14 @@ def prototype(glc: GLContext, points: int, size: tuple[int, int], repeats: int) 
     vis = glc.ctx.buffer(reserve=size[0] * size[1] * 8)
     f = 1.2 / 0.5                   # the grid's half width at the camera's distance fills the image
     rows = []
-    for loop_name, loop in PROTOTYPE_LOOPS.items():
+    for (place_name, place), (loop_name, loop) in itertools.product(PROTOTYPE_PLACES.items(), PROTOTYPE_LOOPS.items()):
         for body_name, body in PROTOTYPE_BODIES.items():
             name = f"{body_name}, {loop_name}"
             try:
-                program = glc.ctx.compute_shader(PROTOTYPE_SHADER % (BATCH_SLOTS, SLICE_POINTS, loop, body))
+                program = glc.ctx.compute_shader(PROTOTYPE_SHADER % (BATCH_SLOTS, SLICE_POINTS, loop, place, body))
             except Exception as error:      # a driver without 64-bit atomics: a row without times
                 print(f"bench.kernel: prototype {name}: {error}", file=sys.stderr)
-                rows.append(("prototype", name, "", "", float("nan"), float("nan"), float("nan")))
+                rows.append(("prototype", name, place_name, "", float("nan"), float("nan"), float("nan")))
                 continue
             values = {"u_b": batches, "u_rounds": BATCH_SLOTS // SLICE_POINTS, "u_size": size,
                       "u_scale": (f, f)}
@@ -276,7 +283,7 @@ def prototype(glc: GLContext, points: int, size: tuple[int, int], repeats: int) 
                 p.run(*g)
             ms = median_gpu_ms(glc, run, repeats)
             n = batches * BATCH_SLOTS
-            rows.append(("prototype", name, "a word a point", "10-bit", ms, n * RECORD_BYTES / (ms / 1e3) / 1e9,
+            rows.append(("prototype", name, place_name, "10-bit", ms, n * RECORD_BYTES / (ms / 1e3) / 1e9,
                          n / (ms / 1e3) / 1e9))
             program.release()
     for buf in (words, frame_buf, vis):
@@ -402,7 +409,8 @@ def run(glc: GLContext, points: int, size: tuple[int, int], repeats: int) -> Tab
         "the raster pass), with its stages cut "
         "(bench/kernel.py's docstring); store = RecordOrder, Encoding (the word store's 'load' decodes its "
         "three words). prototype: PROTOTYPE_SHADER's walk at the same size, its loads alone and its full "
-        f"raster, its loop of {BATCH_SLOTS // SLICE_POINTS} rounds counted by a constant or by a uniform. GB/s counts {RECORD_BYTES} bytes a point whatever the store reads; G points/s every point."]
+        "raster, each point's word in a plane of its own or where the word store keeps it (store: PROTOTYPE_PLACES), "
+        f"its loop of {BATCH_SLOTS // SLICE_POINTS} rounds counted by a constant or by a uniform. GB/s counts {RECORD_BYTES} bytes a point whatever the store reads; G points/s every point."]
     return table
 
 

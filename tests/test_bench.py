@@ -59,7 +59,7 @@ def test_kernel_section_times_every_read_pattern(gl):
     assert len(stages) == (expected if gl.caps.atomic_int64 else 0)
     assert all(r[4] > 0 for r in stages)
     prototype = [r for r in table.rows if r[0] == "prototype"]
-    assert len(prototype) == (len(kernel.PROTOTYPE_BODIES) * len(kernel.PROTOTYPE_LOOPS) if gl.caps.atomic_int64 else 0)
+    assert len(prototype) == (len(kernel.PROTOTYPE_BODIES) * len(kernel.PROTOTYPE_LOOPS) * len(kernel.PROTOTYPE_PLACES) if gl.caps.atomic_int64 else 0)
     assert all(r[4] > 0 for r in prototype)
     assert gl.ctx.error == "GL_NO_ERROR"
 
