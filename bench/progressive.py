@@ -147,7 +147,7 @@ def run_case(glc: GLContext, scene: Scene, cloud: TiledCloud, size: tuple[int, i
                    batch_groups=r.raster.batch_groups if hasattr(r.raster, "batch_groups") else False,
                    winners=r.raster.winners is not None, prepare=PREPARE_LABELS[r.prepare.ballot],
                    index_pass=index_pass_label(r.raster.candidates, r.raster.passes),
-                   default_index_pass=tuning.candidates is None)
+                   default_index_pass=tuning.candidates == DEFAULT_TUNING.candidates)
     r.release()
     return summary, [s.as_dict() for s in stats]
 
@@ -212,7 +212,8 @@ def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], ta
     the 32-bit path's index pass over the depth pass's candidates and/or over every
     point, side by side (ComputeTuning.candidates; None: the renderer's choice)."""
     walks = (True, False) if compare_walk else (True,)
-    tunings = [ComputeTuning(batch_groups=g, winners=w, candidates=c) for g in walks for w in winners for c in index_pass]
+    tunings = [ComputeTuning(batch_groups=g, winners=w, candidates=DEFAULT_TUNING.candidates if c is None else c)
+               for g in walks for w in winners for c in index_pass]
     cloud = tiled(str(SAMPLE), points)
     rows, frames, brute = [], {}, {}
     for position_encoding, records in ((e, o) for e in encodings for o in record_orders):
@@ -274,7 +275,7 @@ def run(glc: GLContext, points: int, size: tuple[int, int], fixed: list[int], ta
          f"random; gathered/frame = median records a frame read from the store that way. Prepare entries: how "
          f"prepare's pixels take their places in the list, a subgroup at a time by ballot (GL_ARB_shader_ballot) or "
          f"a work group at a time after a barrier. Index pass (the 32-bit path): over the points that lowered or met "
-         f"their pixel's depth in the depth pass (candidates, the renderer's on a software renderer; it runs inside "
+         f"their pixel's depth in the depth pass (candidates, the renderer's default; it runs inside "
          f"the first pass) or over every point again. Cold frame: the "
          f"case's first frame, which knows no fill rate yet and so adds the growth stages (budget.grow); its "
          f"parts: the first pass's first fill / adaptive part / grow 1 / grow 2, + the later passes over the "

@@ -28,7 +28,7 @@ from progressive.context import GLContext, create_context
 from progressive.encoding import Encoding, Precision
 from progressive.gpu import grid
 from progressive.loaders.records import RECORD_BYTES
-from progressive.passes.raster_compute import ComputeTuning, subgroup_reduction_available
+from progressive.passes.raster_compute import DEFAULT_TUNING, ComputeTuning, subgroup_reduction_available
 from progressive.permutation import FillOrder
 from progressive.pointstore import RecordOrder
 from progressive.renderer import Raster, Renderer
@@ -134,7 +134,7 @@ def variants(glc: GLContext, batched: bool, words: bool) -> list[tuple[Raster, C
         one, four = ComputeTuning(vector_loads=False), ComputeTuning(vector_loads=True)
         out += [(r, four, Precision.EXACT), (r, one, Precision.ADAPTIVE), (r, four, Precision.ADAPTIVE)] if words else []
         if r is Raster.COMPUTE32:       # the index pass the renderer does not choose here, too
-            out.append((r, ComputeTuning(vector_loads=False, candidates=not glc.caps.software), Precision.EXACT))
+            out.append((r, ComputeTuning(vector_loads=False, candidates=not DEFAULT_TUNING.candidates), Precision.EXACT))
     return out
 
 
@@ -225,7 +225,7 @@ def measure(glc: GLContext, cloud: TiledCloud, layouts, sizes, repeats: int) -> 
                                  "subgroup_reduction": getattr(r.raster, "partitioned", False),
                                  "batch_groups": getattr(r.raster, "batch_groups", False),
                                  "vector_loads": getattr(r.raster, "vector_loads", False),
-                                 "candidates": candidates, "default_index_pass": tuning.candidates is None,
+                                 "candidates": candidates, "default_index_pass": tuning.candidates == DEFAULT_TUNING.candidates,
                                  "candidates_found": found,
                                  "precision": precision.value, "wall_ms": wall,
                                  "passes": r.raster.passes, "points_per_s": cloud.points / (ms / 1e3),
@@ -303,7 +303,7 @@ def run(glc: GLContext, points: list[int], sizes: list[tuple[int, int]], repeats
         "256 slots = one invocation a slot. Candidates / room: the last frame's candidates and the room for them "
         "(more than the room: the index pass ran over every point instead). "
         "Index pass (32-bit path): candidates = over the points that lowered or met their "
-        "pixel's depth in its depth pass (ComputeTuning.candidates; the default on a software renderer), every point = loading, "
+        "pixel's depth in its depth pass (ComputeTuning.candidates; the default), every point = loading, "
         "decoding and projecting them all again. Mpoints/s and GB/s count every point of the cloud, culled ones "
         "included.")]
     table.raw = {"copy_bytes": copy_bytes, "copy_bytes_per_s": copy, "copy_methods": copies,

@@ -63,10 +63,11 @@ class ComputeTuning:
     prefetch: records each invocation of a one-word walk loads before it draws them.
     candidates: the 32-bit path's depth pass lists the points that lowered or met their
     pixel's depth, and the index pass reads that list (16 bytes a candidate, in order)
-    instead of loading, decoding and projecting every point again. None: on a software
-    renderer, where it measured 1.2-1.4x faster in an overview
-    (bench/results/llvmpipe/index_candidates/); not yet on a GPU, where every candidate
-    takes one atomic on a single counter and a dense view overflows the room.
+    instead of loading, decoding and projecting every point again: 1.2-1.4x faster on
+    llvmpipe in an overview (bench/results/llvmpipe/index_candidates/), 1.2x on the H100
+    at 100 M points (bench/results/nvidia-h100/adaptive_fold/) and 1.9x at 1 B, where
+    the appends cost the depth pass 6 % (bench/results/nvidia-h100/candidates_1B/). A
+    view with more candidates than room wastes the appends and walks every point again.
     winners: a progressive frame ends with the winners pass over its points, which
     leaves each pixel's record for prepare (Winners), instead of prepare gathering each
     new winner from the store at random. None: for a store of WINNERS_MIN_BYTES or more."""
@@ -76,7 +77,7 @@ class ComputeTuning:
     vector_loads: bool | None = None
     prefetch: int = PREFETCH
     winners: bool | None = None
-    candidates: bool | None = None
+    candidates: bool = True
 
 
 DEFAULT_TUNING = ComputeTuning()
@@ -149,7 +150,7 @@ class ComputeRaster:
             self._clear_improved()
         self._candidates = None
         self._candidate_programs: dict[str, object] = {}
-        if (glc.caps.software if tuning.candidates is None else tuning.candidates) and not atomic64:
+        if tuning.candidates and not atomic64:
             self._candidate_programs = {
                 name: shaderlib.compute(glc.ctx, "raster_candidates.comp", defines, label=f"raster32 candidates {name}")
                 for name, defines in self._candidate_defines().items()}
