@@ -21,7 +21,7 @@ from progressive.errors import ProgressiveError
 from progressive.loaders.records import ELEVATION, EXPONENT
 from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, CloudInfo, nonfinite_records
 from progressive.packing import batch_words, pack_into
-from progressive.passes.distribute import DistributePass
+from progressive.passes.distribute import DistributePass, stage_copy
 from progressive.passes.percentile import PercentilePass
 from progressive.permutation import BATCH_POINTS, LAYOUT, FillOrder
 from progressive.pointstore import PointStore, RecordOrder
@@ -608,11 +608,11 @@ def stage_cells(out: np.ndarray, batch: Batch, shown: np.ndarray, hides: bool, l
     shown scalar), those whose word is not finite."""
     n = hi - lo
     flat = _run_of(out)
-    flat[:3 * n].reshape(n, 3)[...] = batch.grid.cells[lo:hi].astype(np.int32, copy=False).view(np.uint32)
+    stage_copy(flat[:3 * n].reshape(n, 3), batch.grid.cells[lo:hi].astype(np.int32, copy=False).view(np.uint32))
     if shown.ndim == 2:
-        flat[3 * n:].view(np.uint8)[:3 * n].reshape(n, 3)[...] = shown[lo:hi]
+        stage_copy(flat[3 * n:].view(np.uint8)[:3 * n].reshape(n, 3), shown[lo:hi])
         return 0
-    flat[3 * n:] = shown[lo:hi]
+    stage_copy(flat[3 * n:], shown[lo:hi])
     return int(np.count_nonzero((shown[lo:hi] & EXPONENT) == EXPONENT)) if hides else 0
 
 

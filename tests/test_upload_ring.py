@@ -18,6 +18,7 @@ from progressive.glext import GL_ALREADY_SIGNALED
 from progressive.loaders.records import pack_records
 from progressive.loaders.types import Batch, nonfinite_records
 from progressive.packing import batch_words, pack_into
+from progressive.passes import distribute
 from progressive.passes.distribute import DistributePass, Staging, without_buffer_storage
 from progressive.permutation import BATCH_POINTS
 from progressive.pointstore import EMPTY_WORD
@@ -348,3 +349,29 @@ def test_negative_file_integers_are_staged_exactly(gl, sample_batches):
     assert np.array_equal(held[:, :3], pack_words(cells))
     assert store.cell_shifts[batch].max() > 0
     scene.release()
+
+
+@pytest.mark.parametrize("case", ["rows", "bytes", "strided source", "other dtype", "over the held size"])
+def test_stage_copy_equals_numpy_assignment(monkeypatch, case):
+    """stage_copy writes what dst[...] = src writes, by its memmove holding the GIL where
+    both are contiguous and alike, else by numpy (a strided source, another dtype, a copy
+    over HELD_COPY_BYTES)."""
+    rng = np.random.default_rng(3)
+    src = rng.integers(0, 1 << 32, (1000, 4), dtype=np.uint32)
+    if case == "bytes":
+        src = rng.integers(0, 256, (999, 3), dtype=np.uint8)
+    elif case == "strided source":
+        src = src[::2]
+    elif case == "other dtype":
+        src = src.astype(np.int64)
+    elif case == "over the held size":
+        monkeypatch.setattr(distribute, "HELD_COPY_BYTES", 64)
+    dst = np.zeros(src.shape, np.uint8 if case == "bytes" else np.uint32)
+    want = dst.copy()
+    want[...] = src
+    moves = []
+    memmove = distribute._MEMMOVE_HOLDING_GIL
+    monkeypatch.setattr(distribute, "_MEMMOVE_HOLDING_GIL", lambda *args: moves.append(args) or memmove(*args))
+    distribute.stage_copy(dst, src)
+    np.testing.assert_array_equal(dst, want)
+    assert len(moves) == (case in ("rows", "bytes"))

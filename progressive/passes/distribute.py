@@ -9,6 +9,7 @@ buffer, which never waits either."""
 
 from __future__ import annotations
 
+import ctypes
 import enum
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -32,6 +33,28 @@ WORD_PIECE_WORDS = 1 << 24
 """Attribute words one piece of a switch stages (64 MiB): handed a slot of records'
 worth (2 M words) split over 8 threads, packing threads spent about as long starting
 and joining as packing (bench/results/nvidia-h200/packing.md, words a call)."""
+
+HELD_COPY_BYTES = 4 << 20
+"""A copy into the staging memory up to this size keeps the GIL (stage_copy). numpy lets
+it go for any copy of more than 500 items, and a frame thread that lets it go then waits
+to take it back from the reading threads: on the H100 machine a streamed node's copies
+(about 350 KB) spent 0.10 ms copying and 0.38 ms waiting
+(bench/results/nvidia-h100/stream_writes/write_parts_100M.txt). A larger copy lets it
+go, so that a loader's pieces of 8 MB do not keep the parser threads out for a
+millisecond."""
+_MEMMOVE_HOLDING_GIL = ctypes.PYFUNCTYPE(ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_size_t)(
+    ctypes.cast(ctypes.memmove, ctypes.c_void_p).value)
+
+
+def stage_copy(dst: np.ndarray, src: np.ndarray) -> None:
+    """dst[...] = src: one memmove holding the GIL where both are C-contiguous, alike in
+    shape and dtype, and of HELD_COPY_BYTES or less; else numpy's assignment."""
+    if (dst.nbytes <= HELD_COPY_BYTES and dst.shape == src.shape and dst.dtype == src.dtype
+            and dst.flags.c_contiguous and src.flags.c_contiguous):
+        _MEMMOVE_HOLDING_GIL(dst.ctypes.data, src.ctypes.data, dst.nbytes)
+    else:
+        dst[...] = src
+
 
 Fill = Callable[[np.ndarray, int, int], int]
 """fill(out, lo, hi) writes items [lo, hi) into `out` ((hi - lo, width) uint32, or
@@ -289,7 +312,7 @@ def _copy(data: np.ndarray, width: int) -> Fill:
     rows = np.asarray(data, dtype=np.uint32).reshape(-1, width)
 
     def fill(out: np.ndarray, lo: int, hi: int) -> int:
-        out[...] = rows[lo:hi]
+        stage_copy(out, rows[lo:hi])
         return 0
 
     return fill
