@@ -18,7 +18,7 @@ from progressive.bindings import MAX_POINT_CHUNKS, Binding, UniformBinding
 from progressive.context import GLContext
 from progressive.errors import ProgressiveError
 from progressive.loaders.records import RECORD_BYTES
-from progressive.permutation import BATCH_SLOTS, LAYOUT, SLICE_POINTS, FillOrder, Permutation
+from progressive.permutation import BATCH_POINTS, BATCH_SLOTS, LAYOUT, SLICE_POINTS, FillOrder, Permutation
 
 EMPTY_WORD = 0xFFFFFFFF
 """Every slot starts as NaN coordinates, which no pass draws: unloaded slots stay dark."""
@@ -124,8 +124,9 @@ class PointStore:
         filters that apply whatever attribute is shown. records: where the batched
         layout's records live (the slot order is a benchmark baseline).
         position_encoding: words relative to the batch (batched layout only) or float
-        records. placed: every point written comes with its file-order index (reorder),
-        as a streamed cloud's nodes do; the indices of slots never written mean nothing."""
+        records. placed: points are written a run of whole batches at a time with the
+        file-order index of its first (place_run), as a streamed cloud's nodes are; the
+        indices of slots never written mean nothing."""
         self.count = count
         self.placed = placed
         try:
@@ -169,9 +170,10 @@ class PointStore:
         self.box_buffer = glc.ctx.buffer(self.boxes.tobytes())
         self.box_buffer.label = "batch boxes"
         self.frames = encoding.empty_frames(max(1, self.permutation.batches))
-        self.file_order: np.ndarray | None = None
-        """Where batches were reordered (batches.BatchOrder.MORTON): the file-order index
-        of each cloud index (the permutation's input), uint32; None: the same."""
+        self._file_order: np.ndarray | None = None
+        self._batch_starts = np.zeros(max(1, self.permutation.batches), np.int64) if placed else None
+        """A placed store's: the file-order index of each batch's first point, the rest
+        following on (place_run)."""
         self.least_cells = np.zeros((max(1, self.permutation.batches), 3), dtype=np.int64)
         self.cell_shifts = np.zeros((max(1, self.permutation.batches), 3), dtype=np.int64)
         self.integer = np.zeros(max(1, self.permutation.batches), dtype=bool)
@@ -292,27 +294,52 @@ class PointStore:
         if self.class_buffer is not None:
             self.class_buffer.bind_to_storage_buffer(Binding.CLASSES)
 
+    @property
+    def file_order(self) -> np.ndarray | None:
+        """Where batches were reordered (batches.BatchOrder.MORTON) or placed: the
+        file-order index of each cloud index (the permutation's input), uint32; None: the
+        same. A placed store's is made from its batches' starts when asked (tests)."""
+        if self._batch_starts is not None:
+            return self.file_indices(np.arange(self.count)).astype(np.uint32)
+        return self._file_order
+
     def reorder(self, first: int, file_indices: np.ndarray) -> None:
         """Cloud indices first.. hold the points of these file-order indices (a loaded
-        batch's rows sorted before upload, a streamed node's points)."""
-        if self.file_order is None:
-            # Identity for the batches never reordered; a placed store's indices are all given
-            # here, so it starts from zeros, pages the system hands out untouched (np.arange
-            # wrote all of them: 0.13-2.3 s for a 4 GiB store's 255 M on the 2-core machine, in
-            # the first node's write, before the first image; bench/results/llvmpipe/stream_store_probes/).
-            self.file_order = np.zeros(self.count, np.uint32) if self.placed else np.arange(self.count, dtype=np.uint32)
-        self.file_order[first: first + len(file_indices)] = file_indices
+        batch's rows sorted before upload)."""
+        if self.placed:
+            raise ValueError("a placed store's points are written in runs of whole batches (place_run)")
+        if self._file_order is None:
+            self._file_order = np.arange(self.count, dtype=np.uint32)    # the identity for the batches never reordered
+        self._file_order[first: first + len(file_indices)] = file_indices
+
+    def place_run(self, first: int, start: int, count: int) -> None:
+        """Cloud indices first.. first + count - 1 (first a batch's first) hold the
+        file-order indices start.. (a streamed node's points): a few batches' starts, not
+        an index a point, so that a node's write spends no numpy call over its points. The
+        frame loop lets the GIL go in every numpy call of more than 500 items and then
+        waits to take it back from the reading threads: on the H100 machine a node's
+        indices written point by point took 0.25 ms of its write's 1.61, 0.06 of them
+        running (bench/results/nvidia-h100/stream_writes/write_parts_100M.txt)."""
+        if not self.placed or first % BATCH_POINTS:
+            raise ValueError("runs are placed from a batch's first point, in a placed store")
+        b = first // BATCH_POINTS
+        for k in range(-(-count // BATCH_POINTS)):
+            self._batch_starts[b + k] = start + k * BATCH_POINTS
 
     def file_indices(self, cloud: np.ndarray) -> np.ndarray:
         """File-order indices of cloud indices (the permutation's inputs)."""
-        return np.asarray(cloud) if self.file_order is None else self.file_order[cloud]
+        if self._batch_starts is not None:
+            cloud = np.asarray(cloud, dtype=np.int64)
+            return self._batch_starts[cloud // BATCH_POINTS] + cloud % BATCH_POINTS
+        return np.asarray(cloud) if self._file_order is None else self._file_order[cloud]
 
     def slots_of(self, file_indices: np.ndarray) -> np.ndarray:
         """The slot of each file-order index: the GPU's tie key (tests, references)."""
         cloud = np.asarray(file_indices, dtype=np.int64)
-        if self.file_order is not None:
+        order = self.file_order
+        if order is not None:
             back = np.empty(self.count, dtype=np.int64)
-            back[self.file_order] = np.arange(self.count)
+            back[order] = np.arange(self.count)
             cloud = back[cloud]
         return self.permutation.forward(cloud)
 

@@ -134,7 +134,7 @@ class Scene:
         indices, which ids report). One write for a node's consecutive batches, each
         write having a fixed cost of its own."""
         at = first * BATCH_POINTS
-        self.store.reorder(at, np.arange(part.start, part.start + part.count, dtype=np.uint32))
+        self.store.place_run(at, part.start, part.count)
         placed = replace(part, start=at)
         if part.grid is not None and part.grid.runs is not None:      # encoding.node_runs, found as if at 0
             placed = replace(placed, grid=replace(part.grid, runs=part.grid.runs.moved(at)))

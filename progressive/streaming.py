@@ -7,7 +7,7 @@ and empties the batches of evicted nodes. Nothing here waits: a view whose nodes
 still on their way draws the coarser ones already resident. A node is written only once
 its whole path from the root is resident (Residency shows it then), so the resident set
 is always a tree cut: no point twice, no hole. Points keep their cloud indices (the
-store's way back, PointStore.file_order), so ids and picks mean what they mean for the
+store's way back, PointStore.place_run), so ids and picks mean what they mean for the
 file read whole; a still view converges to the exact render of the resident nodes.
 """
 

@@ -266,20 +266,41 @@ def test_sorted_rows_are_the_whole_store_batches_of_a_loaded_batch():
     assert batches.sorted_rows(start, xyz[: 3 * BATCH_POINTS - 10]) is None      # one whole batch only
 
 
-def test_a_placed_stores_order_starts_from_zeros(gl):
-    """A placed store (a streamed cloud's) is given the file-order index of every point
-    written to it, so its map starts from zeros, which the system hands out untouched;
-    a loaded store's map keeps the identity for the batches never reordered."""
+def test_a_placed_store_keeps_its_runs_by_batch(gl):
+    """A placed store (a streamed cloud's) takes runs of whole batches with the file-order
+    index of their first point (a node's, PointStore.place_run): its file indices follow
+    on through each run's batches, a later run over an earlier one where they meet; it
+    keeps a start a batch, no index a point, and refuses a run that starts inside a batch
+    or rows reordered one by one. A loaded store's map keeps the identity for the batches
+    never reordered."""
+    from progressive.permutation import BATCH_POINTS
     from progressive.pointstore import PointStore
 
+    count = 6 * BATCH_POINTS
+    store = PointStore(gl, count, placed=True)
+    try:
+        store.place_run(0, 1_000_000, 2 * BATCH_POINTS + 7)            # three batches, the last 7 points
+        store.place_run(2 * BATCH_POINTS, 5_000, BATCH_POINTS)          # the first run's last batch, again
+        store.place_run(4 * BATCH_POINTS, 77, 10)
+        cloud = np.array([0, BATCH_POINTS + 3, 2 * BATCH_POINTS, 2 * BATCH_POINTS + 6, 4 * BATCH_POINTS + 9])
+        want = [1_000_000, 1_000_000 + BATCH_POINTS + 3, 5_000, 5_006, 86]
+        np.testing.assert_array_equal(store.file_indices(cloud), want)
+        np.testing.assert_array_equal(store.file_order[cloud], want)
+        assert store._batch_starts.nbytes == 8 * store.permutation.batches
+        for bad in (lambda: store.place_run(5, 0, 10), lambda: store.reorder(100, np.array([1], np.uint32))):
+            with pytest.raises(ValueError):
+                bad()
+    finally:
+        store.release()
     given = np.array([7, 3, 11], dtype=np.uint32)
-    for placed in (False, True):
-        store = PointStore(gl, 5_000, placed=placed)
-        try:
-            store.reorder(100, given)
-            expected = np.zeros(5_000, np.uint32) if placed else np.arange(5_000, dtype=np.uint32)
-            expected[100:103] = given
-            np.testing.assert_array_equal(store.file_order, expected)
-            np.testing.assert_array_equal(store.file_indices(np.arange(100, 103)), given)
-        finally:
-            store.release()
+    store = PointStore(gl, 5_000)
+    try:
+        store.reorder(100, given)
+        expected = np.arange(5_000, dtype=np.uint32)
+        expected[100:103] = given
+        np.testing.assert_array_equal(store.file_order, expected)
+        np.testing.assert_array_equal(store.file_indices(np.arange(100, 103)), given)
+        with pytest.raises(ValueError):
+            store.place_run(0, 0, 10)
+    finally:
+        store.release()

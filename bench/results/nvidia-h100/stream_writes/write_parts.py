@@ -45,6 +45,7 @@ def timed(name, fn):
 PARTS = [
     (streaming.Streamer, "_write", WHOLE),
     (PointStore, "reorder", "PointStore.reorder (ids)"),
+    (PointStore, "place_run", "PointStore.place_run (ids, a start a batch)"),
     (scene_module, "frame_parts", "frame_parts (batch frames)"),
     (PointStore, "set_frames", "PointStore.set_frames"),
     (scene_module.Scene, "_upload_records", "Scene._upload_records"),
