@@ -14,7 +14,7 @@
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
-CHUNKS=(files-100M load-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B winners-1B records-1B accuracy attributes packing upload-100M startup-100M viewer-load-100M mainthread-100M startup-1B convert-1B copc-1B stream-1B stream-200M pytest)
+CHUNKS=(files-100M load-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B winners-1B records-1B accuracy attributes packing upload-100M startup-100M viewer-load-100M mainthread-100M startup-1B convert-1B copc-1B stream-1B stream-200M writes-100M pytest)
 chunk="${1:-list}"
 if [ "$chunk" = list ]; then
     printf '%s\n' "${CHUNKS[@]}"
@@ -89,6 +89,12 @@ case "$chunk" in
     # 1 GB limit, from the file and over HTTP with each answer 30 ms late (bench/results/nvidia-h100/stream_http_requests/)
     stream-200M)      "${PYTHON:-python3}" -m bench.stream --points 200000000 --laz --limit 1G --size 1920x1080 --still-seconds 20 \
                           --http-latency 30 --scratch /dev/shm --out "$OUT/$(machine)" "${@:2}" ;;
+    # where a streamed node's write spends the frame thread's time, part by part, running apart from waiting for
+    # the GIL: the 100 M-point COPC (built once, about 30 s), 1 GiB limit, a still overview until it converges
+    # (bench/results/nvidia-h100/stream_writes/); its table on stdout
+    writes-100M)      "${PYTHON:-python3}" -m bench.stream --points 100000000 --laz --build-only --scratch /dev/shm "${@:2}" >&2
+                      PYTHONPATH=".:${PYTHONPATH:-}" "${PYTHON:-python3}" bench/results/nvidia-h100/stream_writes/write_parts.py \
+                          bench/.cache/autzen_trim_x100000000.copc.laz 1073741824 1920x1080 12 ;;
     # what the window reads against what render reads, at 100M points: the sample (point format 3) and a LAZ of
     # point format 8 tiled as LAS and LAZ, each session warm, 3 repeats (bench.load first_image_table); render's
     # session at 8 and 16 parser threads too, beside the default 4 (do more take the frame loop's core?)
