@@ -92,9 +92,11 @@ case "$chunk" in
     # where a streamed node's write spends the frame thread's time, part by part, running apart from waiting for
     # the GIL: the 100 M-point COPC (built once, about 30 s), 1 GiB limit, a still overview until it converges
     # (bench/results/nvidia-h100/stream_writes/); its table on stdout
-    writes-100M)      "${PYTHON:-python3}" -m bench.stream --points 100000000 --laz --build-only --scratch /dev/shm "${@:2}" >&2
+    # (the file's path: the last line --build-only prints, "PATH: N points, ...")
+    writes-100M)      copc="$("${PYTHON:-python3}" -m bench.stream --points 100000000 --laz --build-only --scratch /dev/shm "${@:2}" \
+                          | tail -n 1 | cut -d: -f1)"
                       PYTHONPATH=".:${PYTHONPATH:-}" "${PYTHON:-python3}" bench/results/nvidia-h100/stream_writes/write_parts.py \
-                          bench/.cache/autzen_trim_x100000000.copc.laz 1073741824 1920x1080 12 ;;
+                          "$copc" 1073741824 1920x1080 12 ;;
     # what the window reads against what render reads, at 100M points: the sample (point format 3) and a LAZ of
     # point format 8 tiled as LAS and LAZ, each session warm, 3 repeats (bench.load first_image_table); render's
     # session at 8 and 16 parser threads too, beside the default 4 (do more take the frame loop's core?)
