@@ -96,10 +96,10 @@ def packing_seconds(scene: Scene, attribute, words: np.ndarray, repeats: int) ->
     kept = sorted(scene.batches, key=lambda b: b.start)
     run = WordRun(packer, [(b, 0, b.count) for b in kept])
     if run.rgb_bytes:
-        fill = threaded(run.fill_rgb, scene._packing_pool(), PACK_THREADS)
+        fill = threaded(run.fill_rgb, scene.distribute.copy.pool, PACK_THREADS)
         words = words.view(np.uint8)[:3 * run.count].reshape(run.count, 3)
     else:
-        fill = threaded(run.fill, scene._packing_pool(), PACK_THREADS)
+        fill = threaded(run.fill, scene.distribute.copy.pool, PACK_THREADS)
     best = float("inf")
     for _ in range(repeats):
         t0 = time.perf_counter()

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import bisect
 import time
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -21,10 +20,11 @@ from progressive.errors import ProgressiveError
 from progressive.loaders.records import ELEVATION, EXPONENT
 from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, CloudInfo, nonfinite_records
 from progressive.packing import batch_words, pack_into
-from progressive.passes.distribute import DistributePass, stage_copy
+from progressive.passes.distribute import DistributePass
 from progressive.passes.percentile import PercentilePass
 from progressive.permutation import BATCH_POINTS, LAYOUT, FillOrder
 from progressive.pointstore import PointStore, RecordOrder
+from progressive.stagecopy import StageCopier
 from progressive.wordpack import PACK_THREADS, WordPacker, WordRun, threaded
 
 RANGE_GROWTH = 2
@@ -117,7 +117,6 @@ class Scene:
         arrays so far, and how many of their rows those hold."""
         self.joined = 0             # points whose later attributes have joined their kept batch
         self.switch: AttributeSwitch | None = None
-        self._pool: ThreadPoolExecutor | None = None     # packs words; made at the first switch
         self._percentile: PercentilePass | None = None
         self._range: tuple[float, float] | None = None
         self._range_loaded = 0      # points loaded when the range was taken (0: not taken for this attribute)
@@ -268,8 +267,9 @@ class Scene:
             else np.zeros(0, dtype=bool)
         if not integer.any():
             words = batch_words(batch, attribute, float(self.info.origin[2]))
-            return self.distribute.upload_packed(lambda out, lo, hi: pack_into(out, batch, attribute, words, lo, hi),
-                                                 batch.count, batch.start)
+            return self.distribute.upload_packed(
+                lambda out, lo, hi: pack_into(out, batch, attribute, words, lo, hi, self.distribute.copy),
+                batch.count, batch.start)
         if not integer.all():       # batches of both kinds: each run of one kind on its own
             cuts = (first + np.flatnonzero(np.diff(integer)) + 1) * BATCH_POINTS - batch.start
             edges = [0, *cuts.tolist(), batch.count]
@@ -277,7 +277,7 @@ class Scene:
         hides = attribute.kind is AttributeKind.SCALAR
         rgb = _rgb_bytes(batch, attribute)
         shown = rgb if rgb is not None else batch_words(batch, attribute, float(self.info.origin[2]))
-        return self.distribute.upload_packed(lambda out, lo, hi: stage_cells(out, batch, shown, hides, lo, hi),
+        return self.distribute.upload_packed(lambda out, lo, hi: stage_cells(out, batch, shown, hides, lo, hi, self.distribute.copy),
                                              batch.count, batch.start, cells=True, rgb=rgb is not None,
                                              hide_nonfinite=hides)
 
@@ -367,10 +367,10 @@ class Scene:
             else:
                 run = self._word_run(sw, packer)
                 if run.rgb_bytes:
-                    self.distribute.upload_rgb(threaded(run.fill_rgb, self._packing_pool(), PACK_THREADS), run.start,
+                    self.distribute.upload_rgb(threaded(run.fill_rgb, self.distribute.copy.pool, PACK_THREADS), run.start,
                                                run.count)
                 else:
-                    self.distribute.upload_words(threaded(run.fill, self._packing_pool(), PACK_THREADS), run.start,
+                    self.distribute.upload_words(threaded(run.fill, self.distribute.copy.pool, PACK_THREADS), run.start,
                                                  run.count)
                 self._streamed(sw, run.count, words=True)
         sw.seconds += time.perf_counter() - t0
@@ -412,11 +412,6 @@ class Scene:
                     self.skipped += batch.nonfinite_positions
                     self.held[k] = sw.attribute
                 sw.next_batch, sw.next_row = sw.next_batch + 1, 0
-
-    def _packing_pool(self) -> ThreadPoolExecutor | None:
-        if self._pool is None and PACK_THREADS > 1:
-            self._pool = ThreadPoolExecutor(PACK_THREADS, thread_name_prefix="pack words")
-        return self._pool
 
     def drawable(self, hidden: frozenset[int]) -> frozenset[int]:
         """Category codes to leave out: with the classes kept, always; else only while a
@@ -494,9 +489,6 @@ class Scene:
     def release(self) -> None:
         if self._percentile is not None:
             self._percentile.release()
-        if self._pool is not None:
-            self._pool.shutdown()
-            self._pool = None
         self.distribute.release()
         self.store.release()
         self.batches.clear()
@@ -599,7 +591,8 @@ def part_boxes(part: Batch) -> tuple[int, np.ndarray]:
     return batch_boxes.boxes_of(_positions(part), part.start, _all_finite(part))
 
 
-def stage_cells(out: np.ndarray, batch: Batch, shown: np.ndarray, hides: bool, lo: int, hi: int) -> int:
+def stage_cells(out: np.ndarray, batch: Batch, shown: np.ndarray, hides: bool, lo: int, hi: int,
+                copy: StageCopier) -> int:
     """Rows [lo, hi) of a LAS batch staged as the distribute pass encodes them
     (shaders/distribute.comp STAGED_CELLS): their X, Y, Z as the file has them, then
     what they show, each one copy into `out` ((hi - lo, 4) uint32, read as one run of
@@ -608,11 +601,11 @@ def stage_cells(out: np.ndarray, batch: Batch, shown: np.ndarray, hides: bool, l
     shown scalar), those whose word is not finite."""
     n = hi - lo
     flat = _run_of(out)
-    stage_copy(flat[:3 * n].reshape(n, 3), batch.grid.cells[lo:hi].astype(np.int32, copy=False).view(np.uint32))
+    copy(flat[:3 * n].reshape(n, 3), batch.grid.cells[lo:hi].astype(np.int32, copy=False).view(np.uint32))
     if shown.ndim == 2:
-        stage_copy(flat[3 * n:].view(np.uint8)[:3 * n].reshape(n, 3), shown[lo:hi])
+        copy(flat[3 * n:].view(np.uint8)[:3 * n].reshape(n, 3), shown[lo:hi])
         return 0
-    stage_copy(flat[3 * n:], shown[lo:hi])
+    copy(flat[3 * n:], shown[lo:hi])
     return int(np.count_nonzero((shown[lo:hi] & EXPONENT) == EXPONENT)) if hides else 0
 
 

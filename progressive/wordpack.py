@@ -124,14 +124,16 @@ class WordRun:
 
 def threaded(fill: Callable[[np.ndarray, int, int], int], pool: Executor | None, threads: int,
              least: int = THREAD_POINTS):
-    """`fill` with pieces of at least 2·`least` items split over `threads` of the pool
-    (each writes its own rows of `out`); the sum of what the parts return."""
+    """`fill` with pieces of at least 2·`least` items split over `threads` threads, the
+    calling one and the pool's (each writes its own rows of `out`); the sum of what the
+    parts return."""
     def split(out: np.ndarray, lo: int, hi: int) -> int:
         parts = min(threads, (hi - lo) // least)
         if pool is None or parts < 2:
             return fill(out, lo, hi)
         cuts = np.linspace(lo, hi, parts + 1).astype(np.int64).tolist()
-        jobs = [pool.submit(fill, out[a - lo: b - lo], a, b) for a, b in zip(cuts, cuts[1:])]
-        return sum(job.result() for job in jobs)
+        jobs = [pool.submit(fill, out[a - lo: b - lo], a, b) for a, b in zip(cuts[1:], cuts[2:])]
+        here = fill(out[: cuts[1] - lo], lo, cuts[1])
+        return here + sum(job.result() for job in jobs)
 
     return split

@@ -11,14 +11,13 @@ import dataclasses
 import numpy as np
 import pytest
 
-from progressive import encoding
+from progressive import encoding, stagecopy
 from progressive.attributes import default_attribute
 from progressive.encoding import Encoding
 from progressive.glext import GL_ALREADY_SIGNALED
 from progressive.loaders.records import pack_records
 from progressive.loaders.types import Batch, nonfinite_records
 from progressive.packing import batch_words, pack_into
-from progressive.passes import distribute
 from progressive.passes.distribute import DistributePass, Staging, without_buffer_storage
 from progressive.permutation import BATCH_POINTS
 from progressive.pointstore import EMPTY_WORD
@@ -351,27 +350,40 @@ def test_negative_file_integers_are_staged_exactly(gl, sample_batches):
     scene.release()
 
 
-@pytest.mark.parametrize("case", ["rows", "bytes", "strided source", "other dtype", "over the held size"])
+@pytest.mark.parametrize("case", ["rows", "bytes", "strided source", "other dtype", "over the held size",
+                                  "split over threads", "split, other dtype", "too small to split"])
 def test_stage_copy_equals_numpy_assignment(monkeypatch, case):
-    """stage_copy writes what dst[...] = src writes, by its memmove holding the GIL where
-    both are contiguous and alike, else by numpy (a strided source, another dtype, a copy
-    over HELD_COPY_BYTES)."""
+    """StageCopier writes what dst[...] = src writes: by its memmove holding the GIL where
+    both are contiguous and alike, by numpy where not (a strided source, another dtype, a
+    copy over HELD_COPY_BYTES), and by numpy split by rows over three threads where each
+    gets THREAD_COPY_BYTES (the calling thread copies a part, the pool the others)."""
     rng = np.random.default_rng(3)
     src = rng.integers(0, 1 << 32, (1000, 4), dtype=np.uint32)
     if case == "bytes":
         src = rng.integers(0, 256, (999, 3), dtype=np.uint8)
     elif case == "strided source":
         src = src[::2]
-    elif case == "other dtype":
+    elif case in ("other dtype", "split, other dtype"):
         src = src.astype(np.int64)
-    elif case == "over the held size":
-        monkeypatch.setattr(distribute, "HELD_COPY_BYTES", 64)
+    if case not in ("rows", "bytes", "strided source", "other dtype"):
+        monkeypatch.setattr(stagecopy, "HELD_COPY_BYTES", 64)
+    if case.startswith("split"):
+        monkeypatch.setattr(stagecopy, "THREAD_COPY_BYTES", 1000)     # 16,000 bytes: three parts
+    elif case == "too small to split":
+        monkeypatch.setattr(stagecopy, "THREAD_COPY_BYTES", 10_000)   # the calling thread alone
     dst = np.zeros(src.shape, np.uint8 if case == "bytes" else np.uint32)
     want = dst.copy()
     want[...] = src
     moves = []
-    memmove = distribute._MEMMOVE_HOLDING_GIL
-    monkeypatch.setattr(distribute, "_MEMMOVE_HOLDING_GIL", lambda *args: moves.append(args) or memmove(*args))
-    distribute.stage_copy(dst, src)
+    memmove = stagecopy._MEMMOVE_HOLDING_GIL
+    monkeypatch.setattr(stagecopy, "_MEMMOVE_HOLDING_GIL", lambda *args: moves.append(args) or memmove(*args))
+    copier = stagecopy.StageCopier(3)
+    submitted = []
+    if copier.pool is not None:
+        submit = copier.pool.submit
+        monkeypatch.setattr(copier.pool, "submit", lambda *a: submitted.append(a[1].shape) or submit(*a))
+    copier(dst, src)
+    copier.close()
     np.testing.assert_array_equal(dst, want)
     assert len(moves) == (case in ("rows", "bytes"))
+    assert submitted == ([(333, 4), (334, 4)] if case.startswith("split") else [])

@@ -9,7 +9,6 @@ buffer, which never waits either."""
 
 from __future__ import annotations
 
-import ctypes
 import enum
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -24,6 +23,7 @@ from progressive.gpu import grid
 from progressive.loaders.records import RECORD_BYTES
 from progressive.loaders.types import BATCH_POINTS
 from progressive.pointstore import PointStore
+from progressive.stagecopy import StageCopier
 
 RING_SLOTS = 4
 """Pieces the GPU may still be reading while the CPU packs the next: a frame's batches
@@ -33,28 +33,6 @@ WORD_PIECE_WORDS = 1 << 24
 """Attribute words one piece of a switch stages (64 MiB): handed a slot of records'
 worth (2 M words) split over 8 threads, packing threads spent about as long starting
 and joining as packing (bench/results/nvidia-h200/packing.md, words a call)."""
-
-HELD_COPY_BYTES = 4 << 20
-"""A copy into the staging memory up to this size keeps the GIL (stage_copy). numpy lets
-it go for any copy of more than 500 items, and a frame thread that lets it go then waits
-to take it back from the reading threads: on the H100 machine a streamed node's copies
-(about 350 KB) spent 0.10 ms copying and 0.38 ms waiting
-(bench/results/nvidia-h100/stream_writes/write_parts_100M.txt). A larger copy lets it
-go, so that a loader's pieces of 8 MB do not keep the parser threads out for a
-millisecond."""
-_MEMMOVE_HOLDING_GIL = ctypes.PYFUNCTYPE(ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_size_t)(
-    ctypes.cast(ctypes.memmove, ctypes.c_void_p).value)
-
-
-def stage_copy(dst: np.ndarray, src: np.ndarray) -> None:
-    """dst[...] = src: one memmove holding the GIL where both are C-contiguous, alike in
-    shape and dtype, and of HELD_COPY_BYTES or less; else numpy's assignment."""
-    if (dst.nbytes <= HELD_COPY_BYTES and dst.shape == src.shape and dst.dtype == src.dtype
-            and dst.flags.c_contiguous and src.flags.c_contiguous):
-        _MEMMOVE_HOLDING_GIL(dst.ctypes.data, src.ctypes.data, dst.nbytes)
-    else:
-        dst[...] = src
-
 
 Fill = Callable[[np.ndarray, int, int], int]
 """fill(out, lo, hi) writes items [lo, hi) into `out` ((hi - lo, width) uint32, or
@@ -145,6 +123,8 @@ class DistributePass:
         self.word_piece = max(1, min(word_piece, store.count))
         """Words a piece of a switch stages through the ring (set before the first switch)."""
         self._stage = None      # the copy path's buffer: made when first needed
+        self.copy = StageCopier()
+        """Copies into the staging memory (the fills of this pass's uploads and the scene's)."""
         self.stats = StagingStats()
         int64 = glc.caps.shader_int64
         defines = dict(store.defines, PERMUTE_INT64=1) if int64 else dict(store.defines)
@@ -182,7 +162,7 @@ class DistributePass:
 
     def upload(self, records: np.ndarray, start: int) -> None:
         """Scatter (n, 4) uint32 records whose first has file-order index `start`."""
-        self._scatter(self._program(False), _copy(records, RECORD_WORDS), records.shape[0], RECORD_WORDS, start)
+        self._scatter(self._program(False), _copy(records, RECORD_WORDS, self.copy), records.shape[0], RECORD_WORDS, start)
 
     def upload_packed(self, fill: Fill, count: int, start: int, cells: bool = False, rgb: bool = False,
                       hide_nonfinite: bool = False) -> int:
@@ -212,7 +192,7 @@ class DistributePass:
         staging memory, in pieces of word_piece_items() through the words' own ring."""
         self.words = self.words or self._build(1, "distribute words")
         if isinstance(words, np.ndarray):
-            words, count = _copy(words, 1), words.shape[0]
+            words, count = _copy(words, 1, self.copy), words.shape[0]
         self._scatter(self.words, words, count, 1, start, self._switch_ring(), self.word_piece_items())
 
     def upload_rgb(self, fill: Fill, start: int, count: int) -> None:
@@ -232,7 +212,7 @@ class DistributePass:
     def upload_classes(self, codes: np.ndarray, start: int) -> None:
         """Set the flags (class, first and last return) of n points (stores that keep classes)."""
         self.classes = self.classes or self._build(0, "distribute classes", 1)
-        self._scatter(self.classes, _copy(codes, 1), codes.shape[0], 1, start)
+        self._scatter(self.classes, _copy(codes, 1, self.copy), codes.shape[0], 1, start)
 
     def upload_class_bytes(self, fill: Fill, count: int, start: int) -> None:
         """Set the flags of points start.. from their class, return number and number of
@@ -287,6 +267,7 @@ class DistributePass:
             if ring is not None:
                 ring.release()
         self.ring = self.word_ring = None
+        self.copy.close()
         for obj in (self._stage, *self._programs.values(), self.words, self.rgb_words, self.classes,
                     self.class_bytes):
             if obj is not None:
@@ -307,12 +288,12 @@ def _items(staged: np.ndarray, count: int, width: int, item_bytes: int | None) -
     return staged.reshape(-1).view(np.uint8)[:count * item_bytes].reshape(count, item_bytes)
 
 
-def _copy(data: np.ndarray, width: int) -> Fill:
+def _copy(data: np.ndarray, width: int, copy: StageCopier) -> Fill:
     """A fill that copies rows of an array already made."""
     rows = np.asarray(data, dtype=np.uint32).reshape(-1, width)
 
     def fill(out: np.ndarray, lo: int, hi: int) -> int:
-        stage_copy(out, rows[lo:hi])
+        copy(out, rows[lo:hi])
         return 0
 
     return fill

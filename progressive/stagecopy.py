@@ -1,0 +1,71 @@
+"""Copies into the staging memory (the distribute pass's mapped slots) from the frame
+loop's thread, GPU-free. A small copy keeps the GIL, so the thread does not wait to take
+it back from the loader's threads. A large copy is split over threads, because one core
+writes to mapped memory at about a quarter of the rate eight reach: 9.9 GB/s against
+32-38 GB/s on the H100 machine (bench/results/nvidia-h100/kernel_prototype/pcie.json)."""
+
+from __future__ import annotations
+
+import ctypes
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+from progressive.wordpack import PACK_THREADS
+
+HELD_COPY_BYTES = 4 << 20
+"""A copy up to this size keeps the GIL. numpy lets it go for any copy of more than 500
+items, and a frame thread that lets it go then waits to take it back from the reading
+threads: on the H100 machine a streamed node's copies (about 350 KB) spent 0.10 ms
+copying and 0.38 ms waiting (bench/results/nvidia-h100/stream_writes/write_parts_100M.txt).
+A larger copy lets it go, so that a loader's pieces of 8 MB do not keep the parser
+threads out for a millisecond."""
+THREAD_COPY_BYTES = 1 << 20
+"""Fewest bytes a copying thread is handed: a part costs its thread about as long to
+start and join as copying a few hundred KB."""
+
+_MEMMOVE_HOLDING_GIL = ctypes.PYFUNCTYPE(ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_size_t)(
+    ctypes.cast(ctypes.memmove, ctypes.c_void_p).value)
+
+
+def _alike(dst: np.ndarray, src: np.ndarray) -> bool:
+    return (dst.shape == src.shape and dst.dtype == src.dtype and dst.flags.c_contiguous
+            and src.flags.c_contiguous)
+
+
+class StageCopier:
+    """dst[...] = src: one memmove holding the GIL where both are C-contiguous, alike in
+    shape and dtype, and of HELD_COPY_BYTES or less; else numpy's assignment, split by
+    rows over up to `threads` threads (this one among them) where each gets at least
+    THREAD_COPY_BYTES. The pool is made at the first copy that needs it; the scene packs
+    a switch's words on it too (one pool of staging threads)."""
+
+    def __init__(self, threads: int = PACK_THREADS):
+        self.threads = threads
+        self._pool: ThreadPoolExecutor | None = None
+
+    @property
+    def pool(self) -> ThreadPoolExecutor | None:
+        """The staging threads (None where only one may be used)."""
+        if self._pool is None and self.threads > 1:
+            self._pool = ThreadPoolExecutor(self.threads - 1, thread_name_prefix="progressive-stage")
+        return self._pool
+
+    def __call__(self, dst: np.ndarray, src: np.ndarray) -> None:
+        if dst.nbytes <= HELD_COPY_BYTES and _alike(dst, src):
+            _MEMMOVE_HOLDING_GIL(dst.ctypes.data, src.ctypes.data, dst.nbytes)
+            return
+        parts = min(self.threads, dst.nbytes // THREAD_COPY_BYTES, dst.shape[0] if dst.ndim else 1)
+        if parts < 2 or dst.shape != src.shape or self.pool is None:
+            dst[...] = src
+            return
+        cuts = np.linspace(0, dst.shape[0], parts + 1).astype(np.int64).tolist()
+        jobs = [self.pool.submit(np.copyto, dst[a:b], src[a:b], "unsafe") for a, b in zip(cuts[1:], cuts[2:])]
+        np.copyto(dst[:cuts[1]], src[:cuts[1]], "unsafe")
+        for job in jobs:
+            job.result()
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
