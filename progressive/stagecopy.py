@@ -11,6 +11,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from progressive.loaders.types import available_cores
 from progressive.wordpack import PACK_THREADS
 
 HELD_COPY_BYTES = 4 << 20
@@ -23,6 +24,12 @@ threads out for a millisecond."""
 THREAD_COPY_BYTES = 1 << 20
 """Fewest bytes a copying thread is handed: a part costs its thread about as long to
 start and join as copying a few hundred KB."""
+COPY_THREADS = min(4, available_cores())
+"""Threads a large copy is split over at most. More copy faster but slow the GPU's reads
+of the slots it scatters meanwhile, which share the host's memory: on the H100 machine the
+GPU side of loading 100 M points ran at 508, 868, 752 and 710 M points/s with the copy on
+1, 4, 8 and 16 threads, its scatter dispatches taking 43, 69, 96 and 118 ms
+(bench/results/nvidia-h100/distribute_copy/dist_gpu_100M.json)."""
 
 _MEMMOVE_HOLDING_GIL = ctypes.PYFUNCTYPE(ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_size_t)(
     ctypes.cast(ctypes.memmove, ctypes.c_void_p).value)
@@ -36,12 +43,14 @@ def _alike(dst: np.ndarray, src: np.ndarray) -> bool:
 class StageCopier:
     """dst[...] = src: one memmove holding the GIL where both are C-contiguous, alike in
     shape and dtype, and of HELD_COPY_BYTES or less; else numpy's assignment, split by
-    rows over up to `threads` threads (this one among them) where each gets at least
-    THREAD_COPY_BYTES. The pool is made at the first copy that needs it; the scene packs
-    a switch's words on it too (one pool of staging threads)."""
+    rows over up to `parts` threads (this one among them) where each gets at least
+    THREAD_COPY_BYTES. The pool of `threads` (the caller and threads - 1 more) is made at
+    the first use; the scene packs a switch's words on it too (one pool of staging
+    threads)."""
 
-    def __init__(self, threads: int = PACK_THREADS):
+    def __init__(self, threads: int = PACK_THREADS, parts: int = COPY_THREADS):
         self.threads = threads
+        self.parts = min(parts, threads)
         self._pool: ThreadPoolExecutor | None = None
 
     @property
@@ -55,7 +64,7 @@ class StageCopier:
         if dst.nbytes <= HELD_COPY_BYTES and _alike(dst, src):
             _MEMMOVE_HOLDING_GIL(dst.ctypes.data, src.ctypes.data, dst.nbytes)
             return
-        parts = min(self.threads, dst.nbytes // THREAD_COPY_BYTES, dst.shape[0] if dst.ndim else 1)
+        parts = min(self.parts, dst.nbytes // THREAD_COPY_BYTES, dst.shape[0] if dst.ndim else 1)
         if parts < 2 or dst.shape != src.shape or self.pool is None:
             dst[...] = src
             return

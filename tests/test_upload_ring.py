@@ -377,7 +377,7 @@ def test_stage_copy_equals_numpy_assignment(monkeypatch, case):
     moves = []
     memmove = stagecopy._MEMMOVE_HOLDING_GIL
     monkeypatch.setattr(stagecopy, "_MEMMOVE_HOLDING_GIL", lambda *args: moves.append(args) or memmove(*args))
-    copier = stagecopy.StageCopier(3)
+    copier = stagecopy.StageCopier(4, parts=3)
     submitted = []
     if copier.pool is not None:
         submit = copier.pool.submit

@@ -58,7 +58,7 @@ def main() -> None:
 
     from progressive.stagecopy import StageCopier
     copy_rows = dm._copy
-    copiers = {n: StageCopier(n) for n in [1] + threads}
+    copiers = {n: StageCopier(n, parts=n) for n in [1] + threads}
 
     def with_copier(n):
         return lambda data, width, copy: copy_rows(data, width, copiers[n])
