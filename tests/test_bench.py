@@ -104,12 +104,14 @@ def test_convert_bench_runs(tmp_path):
 def test_mainthread_bench_runs(tmp_path):
     """bench.mainthread times the frames of loading sessions beside the loader alone, a
     row for each count of parser threads, and profiles one session of each (the fast
-    format's one session: it holds one attribute)."""
+    format's one session: it holds one attribute). Its 40 functions that took longest
+    with what they call: Python 3.12's profile holds the parser threads' calls too, and
+    on the H100 machine the frame was not among the first 5."""
     from bench import mainthread
 
     out = tmp_path / "out"
     assert mainthread.main(["--points", "30000", "--repeats", "1", "--size", "96x64", "--label", "test",
-                            "--cache", str(tmp_path / "cache"), "--out", str(out), "--profile", "5",
+                            "--cache", str(tmp_path / "cache"), "--out", str(out), "--profile", "40",
                             "--parser-threads", "1", "2"]) == 0
     rows = json.loads((out / "mainthread.json").read_text())["raw"]["rows"]
     expected = [(f, t, s) for f in ("LAS", "LAZ", "fast") for t in (1, 2)

@@ -23,6 +23,7 @@ from progressive.loaders import las as las_module
 from progressive.loaders.fastformat import HEADER_BYTES
 from progressive.loaders.las import open_las
 from progressive.loaders.laz import decode_chunks
+from progressive.loaders.types import PARSER_THREADS
 
 CHUNKED = ("lone-star.copc.laz", "lion_takanawa.copc.laz", "las_with_several_extra_byte_bloc.laz",
            "pine_plot.laz", "fullwave.laz")
@@ -531,8 +532,11 @@ def test_loader_keeps_large_blocks(monkeypatch):
 def test_a_frame_loop_waits_for_the_next_batch_without_taking_it():
     """CloudLoader.wait: true at once while a batch is ready (and it stays for poll),
     false after the timeout while none comes (the loader held after its first), true
-    once one does."""
-    with CloudLoader([SAMPLE], batch_points=20_000) as loader:
+    once one does. As many parser threads as a default loader starts at most, and more
+    batches than threads: a thread that finds no batch left to parse hands over its end,
+    which wakes wait (on the 16-core H100 machine 20,000-point batches, six of them, woke
+    it beside 8 threads)."""
+    with CloudLoader([SAMPLE], batch_points=5_000, parser_threads=PARSER_THREADS) as loader:
         loader.start(first=1)
         assert loader.wait(10.0) and loader.wait(0.0)
         assert len(loader.poll()) == 1
