@@ -26,6 +26,43 @@ from progressive.gpu import grid
 from progressive.passes import distribute as dm
 
 
+class DispatchClock:
+    """A GPU timestamp before and after every compute dispatch while on (the programs'
+    run patched): the GPU's own time in the dispatches, and their span, since reset()."""
+
+    def __init__(self, glc, program_class, capacity: int = 8192):
+        self.glc, self.cls, self.run = glc, program_class, program_class.run
+        self.ids = (ctypes.c_uint * capacity)()
+        glc.gl.gen_queries(capacity, self.ids)
+        self.used = 0
+
+    def on(self) -> None:
+        clock, run = self, self.run
+
+        def stamped(program, *args, **kwargs):
+            clock.glc.gl.query_counter(clock.ids[clock.used], GL_TIMESTAMP)
+            run(program, *args, **kwargs)
+            clock.glc.gl.query_counter(clock.ids[clock.used + 1], GL_TIMESTAMP)
+            clock.used += 2
+        self.cls.run = stamped
+
+    def off(self) -> None:
+        self.cls.run = self.run
+
+    def reset(self) -> None:
+        self.used = 0
+
+    def ms(self) -> tuple[float, float]:
+        """(ms inside the dispatches, ms from the first to the last stamp)."""
+        t = []
+        for i in range(self.used):
+            v = ctypes.c_uint64(0)
+            self.glc.gl.get_query_object_ui64v(self.ids[i], GL_QUERY_RESULT, ctypes.byref(v))
+            t.append(v.value)
+        return sum(t[i + 1] - t[i] for i in range(0, len(t), 2)) / 1e6, (t[-1] - t[0]) / 1e6
+
+
+
 def main() -> None:
     points, rounds, out_path = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3]
     threads = [int(v) for v in sys.argv[4:]] or [4, 8, 16]
@@ -35,26 +72,7 @@ def main() -> None:
     scene, load_s = load(glc, cloud, records=ProgressiveOptions().records)
     d = scene.distribute
     program = d._program(False)
-    cls = type(program)
-    run = cls.run
-    ids = (ctypes.c_uint * 8192)()
-    glc.gl.gen_queries(len(ids), ids)
-    used = [0]
-
-    def stamped(self, *args, **kwargs):
-        glc.gl.query_counter(ids[used[0]], GL_TIMESTAMP)
-        run(self, *args, **kwargs)
-        glc.gl.query_counter(ids[used[0] + 1], GL_TIMESTAMP)
-        used[0] += 2
-
-    def gpu_ms() -> tuple[float, float]:
-        t = []
-        for i in range(used[0]):
-            v = ctypes.c_uint64(0)
-            glc.gl.get_query_object_ui64v(ids[i], GL_QUERY_RESULT, ctypes.byref(v))
-            t.append(v.value)
-        inside = sum(t[i + 1] - t[i] for i in range(0, len(t), 2)) / 1e6
-        return inside, (t[-1] - t[0]) / 1e6
+    clock = DispatchClock(glc, type(program))
 
     from progressive.stagecopy import StageCopier
     copy_rows = dm._copy
@@ -71,15 +89,15 @@ def main() -> None:
     eight = StagingRing(glc, glc.gl.storage, four.slot_bytes, 8)
     ways.update({f"{name}, 8 slots": way for name, way in list(ways.items())})
     results = {w: {"wall_s": [], "gpu_dispatch_ms": [], "gpu_span_ms": [], "ring": [], "copied": []} for w in ways}
-    cls.run = stamped
+    clock.on()
     for k in range(rounds + 1):
         for name, way in ways.items():
             d.ring = eight if name.endswith("8 slots") else four
             dm._copy = way
-            used[0] = 0
+            clock.reset()
             r0, c0 = d.stats.ring, d.stats.copied
             wall = distribute_seconds(scene, pieces)
-            inside, span = gpu_ms()
+            inside, span = clock.ms()
             if k:
                 row = results[name]
                 row["wall_s"].append(wall)
@@ -100,7 +118,7 @@ def main() -> None:
             program[name] = value
     dev = {"wall_s": [], "gpu_dispatch_ms": [], "gpu_span_ms": []}
     for k in range(rounds + 1):
-        used[0] = 0
+        clock.reset()
         glc.ctx.finish()
         t0 = time.perf_counter()
         d.store.bind()
@@ -115,13 +133,13 @@ def main() -> None:
             offset += n * 16
         glc.ctx.finish()
         wall = time.perf_counter() - t0
-        inside, span = gpu_ms()
+        inside, span = clock.ms()
         if k:
             dev["wall_s"].append(wall)
             dev["gpu_dispatch_ms"].append(inside)
             dev["gpu_span_ms"].append(span)
     results["device buffer, no staging"] = dev
-    cls.run = run
+    clock.off()
     out = {}
     for name, row in results.items():
         wall = statistics.median(row["wall_s"])
@@ -142,4 +160,5 @@ def main() -> None:
               f"{o['runs'].get('copied', ['-'])[-1]}")
 
 
-main()
+if __name__ == "__main__":
+    main()

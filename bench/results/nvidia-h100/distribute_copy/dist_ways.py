@@ -5,18 +5,18 @@ buffer before the scatter. Wall clock and the GPU's time in the scatter dispatch
 
     PYTHONPATH=. python dist_ways.py POINTS ROUNDS OUT.json
 """
-import ctypes
 import json
 import statistics
 import sys
 import time
+
+from dist_gpu import DispatchClock
 
 from bench.synthetic import SAMPLE, load, tiled
 from bench.upload import distribute_seconds, loader_pieces
 from progressive.bindings import Binding
 from progressive.context import create_context
 from progressive.frame_loop import ProgressiveOptions
-from progressive.glext import GL_QUERY_RESULT, GL_TIMESTAMP
 from progressive.gpu import grid
 from progressive.passes import distribute as dm
 from progressive.passes.distribute import StagingRing
@@ -31,25 +31,7 @@ def main() -> None:
     scene, _ = load(glc, cloud, records=ProgressiveOptions().records)
     d = scene.distribute
     program = d._program(False)
-    cls = type(program)
-    run = cls.run
-    ids = (ctypes.c_uint * 8192)()
-    glc.gl.gen_queries(len(ids), ids)
-    used = [0]
-
-    def stamped(self, *args, **kwargs):
-        glc.gl.query_counter(ids[used[0]], GL_TIMESTAMP)
-        run(self, *args, **kwargs)
-        glc.gl.query_counter(ids[used[0] + 1], GL_TIMESTAMP)
-        used[0] += 2
-
-    def gpu_ms() -> float:
-        t = []
-        for i in range(used[0]):
-            v = ctypes.c_uint64(0)
-            glc.gl.get_query_object_ui64v(ids[i], GL_QUERY_RESULT, ctypes.byref(v))
-            t.append(v.value)
-        return sum(t[i + 1] - t[i] for i in range(0, len(t), 2)) / 1e6
+    clock = DispatchClock(glc, type(program))
 
     copy_rows = dm._copy
     step = d.piece_items(4)
@@ -123,20 +105,20 @@ def main() -> None:
     ways["driver copy: orphaned buffer, glBufferSubData"] = own_loop(orphan_write)
     ways["driver copy: 4 device buffers in turn, glBufferSubData"] = own_loop(device_write)
     results = {w: {"wall_s": [], "gpu_dispatch_ms": [], "ring": [], "copied": []} for w in ways}
-    cls.run = stamped
+    clock.on()
     for k in range(rounds + 1):
         for name, way in ways.items():
-            used[0] = 0
+            clock.reset()
             r0, c0 = d.stats.ring, d.stats.copied
             wall = way()
-            inside = gpu_ms()
+            inside = clock.ms()[0]
             if k:
                 row = results[name]
                 row["wall_s"].append(wall)
                 row["gpu_dispatch_ms"].append(inside)
                 row["ring"].append(d.stats.ring - r0)
                 row["copied"].append(d.stats.copied - c0)
-    cls.run = run
+    clock.off()
     out = {}
     for name, row in results.items():
         wall = statistics.median(row["wall_s"])
