@@ -63,16 +63,30 @@ class DispatchClock:
 
 
 
-def main() -> None:
-    points, rounds, out_path = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3]
-    threads = [int(v) for v in sys.argv[4:]] or [4, 8, 16]
+def loaded(points: int):
+    """(context, loader-sized pieces, scene, seconds): the sample tiled to `points`, loaded
+    into the renderer's store; the scene's scatter program and a DispatchClock on it."""
     glc = create_context()
     cloud = tiled(str(SAMPLE), points)
     pieces = loader_pieces(list(cloud.batches()))
     scene, load_s = load(glc, cloud, records=ProgressiveOptions().records)
+    program = scene.distribute._program(False)
+    return glc, pieces, scene, load_s, program, DispatchClock(glc, type(program))
+
+
+def summary(points: int, row: dict) -> dict:
+    """A way's medians (wall clock, GPU time in the dispatches) and its runs."""
+    wall = statistics.median(row["wall_s"])
+    disp = statistics.median(row["gpu_dispatch_ms"])
+    return {"wall_Mpoints_s": points / wall / 1e6, "gpu_dispatch_Mpoints_s": points / disp * 1e-3,
+            "wall_ms": wall * 1e3, "gpu_dispatch_ms": disp, "runs": row}
+
+
+def main() -> None:
+    points, rounds, out_path = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3]
+    threads = [int(v) for v in sys.argv[4:]] or [4, 8, 16]
+    glc, pieces, scene, load_s, program, clock = loaded(points)
     d = scene.distribute
-    program = d._program(False)
-    clock = DispatchClock(glc, type(program))
 
     from progressive.stagecopy import StageCopier
     copy_rows = dm._copy
@@ -142,11 +156,7 @@ def main() -> None:
     clock.off()
     out = {}
     for name, row in results.items():
-        wall = statistics.median(row["wall_s"])
-        disp = statistics.median(row["gpu_dispatch_ms"])
-        out[name] = {"wall_Mpoints_s": points / wall / 1e6, "gpu_dispatch_Mpoints_s": points / disp * 1e-3,
-                     "wall_ms": wall * 1e3, "gpu_dispatch_ms": disp,
-                     "gpu_span_ms": statistics.median(row["gpu_span_ms"]), "runs": row}
+        out[name] = dict(summary(points, row), gpu_span_ms=statistics.median(row["gpu_span_ms"]))
     out.update(points=points, pieces=len(pieces), piece_points=statistics.median(r.shape[0] for _, r in pieces),
                load_s=load_s, slot_bytes=d.ring.slot_bytes if d.ring else None,
                gl_renderer=glc.ctx.info["GL_RENDERER"], store=type(d.store).__name__)

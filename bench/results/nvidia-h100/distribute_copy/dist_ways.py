@@ -6,17 +6,13 @@ buffer before the scatter. Wall clock and the GPU's time in the scatter dispatch
     PYTHONPATH=. python dist_ways.py POINTS ROUNDS OUT.json
 """
 import json
-import statistics
 import sys
 import time
 
-from dist_gpu import DispatchClock
+from dist_gpu import loaded, summary
 
-from bench.synthetic import SAMPLE, load, tiled
-from bench.upload import distribute_seconds, loader_pieces
+from bench.upload import distribute_seconds
 from progressive.bindings import Binding
-from progressive.context import create_context
-from progressive.frame_loop import ProgressiveOptions
 from progressive.gpu import grid
 from progressive.passes import distribute as dm
 from progressive.passes.distribute import StagingRing
@@ -25,13 +21,8 @@ from progressive.stagecopy import StageCopier
 
 def main() -> None:
     points, rounds, out_path = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3]
-    glc = create_context()
-    cloud = tiled(str(SAMPLE), points)
-    pieces = loader_pieces(list(cloud.batches()))
-    scene, _ = load(glc, cloud, records=ProgressiveOptions().records)
+    glc, pieces, scene, _, program, clock = loaded(points)
     d = scene.distribute
-    program = d._program(False)
-    clock = DispatchClock(glc, type(program))
 
     copy_rows = dm._copy
     step = d.piece_items(4)
@@ -121,12 +112,9 @@ def main() -> None:
     clock.off()
     out = {}
     for name, row in results.items():
-        wall = statistics.median(row["wall_s"])
-        disp = statistics.median(row["gpu_dispatch_ms"])
-        out[name] = {"wall_Mpoints_s": points / wall / 1e6, "gpu_dispatch_Mpoints_s": points / disp * 1e-3,
-                     "wall_ms": wall * 1e3, "gpu_dispatch_ms": disp, "runs": row}
-        print(f"{name:56s} wall {wall * 1e3:7.1f} ms {points / wall / 1e6:6.0f} M/s  GPU {disp:6.1f} ms "
-              f"{points / disp * 1e-3:6.0f} M/s  ring/copied {row['ring'][-1]}/{row['copied'][-1]}")
+        o = out[name] = summary(points, row)
+        print(f"{name:56s} wall {o['wall_ms']:7.1f} ms {o['wall_Mpoints_s']:6.0f} M/s  GPU {o['gpu_dispatch_ms']:6.1f} ms "
+              f"{o['gpu_dispatch_Mpoints_s']:6.0f} M/s  ring/copied {row['ring'][-1]}/{row['copied'][-1]}")
     out.update(points=points, pieces=len(pieces), step=step, gl_renderer=glc.ctx.info["GL_RENDERER"])
     with open(out_path, "w") as f:
         json.dump(out, f, indent=1)
