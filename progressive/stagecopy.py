@@ -12,7 +12,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from progressive.loaders.types import available_cores
-from progressive.wordpack import PACK_THREADS
+from progressive.wordpack import PACK_THREADS, threaded
 
 HELD_COPY_BYTES = 4 << 20
 """A copy up to this size keeps the GIL. numpy lets it go for any copy of more than 500
@@ -43,8 +43,8 @@ def _alike(dst: np.ndarray, src: np.ndarray) -> bool:
 class StageCopier:
     """dst[...] = src: one memmove holding the GIL where both are C-contiguous, alike in
     shape and dtype, and of HELD_COPY_BYTES or less; else numpy's assignment, split by
-    rows over up to `parts` threads (this one among them) where each gets at least
-    THREAD_COPY_BYTES. The pool of `threads` (the caller and threads - 1 more) is made at
+    rows over up to `parts` threads (this one among them, wordpack.threaded) where each
+    gets at least THREAD_COPY_BYTES. The pool of `threads` (the caller and threads - 1 more) is made at
     the first use; the scene packs a switch's words on it too (one pool of staging
     threads)."""
 
@@ -64,15 +64,13 @@ class StageCopier:
         if dst.nbytes <= HELD_COPY_BYTES and _alike(dst, src):
             _MEMMOVE_HOLDING_GIL(dst.ctypes.data, src.ctypes.data, dst.nbytes)
             return
-        parts = min(self.parts, dst.nbytes // THREAD_COPY_BYTES, dst.shape[0] if dst.ndim else 1)
-        if parts < 2 or dst.shape != src.shape or self.pool is None:
+        n = dst.shape[0] if dst.ndim else 0
+        rows = max(1, THREAD_COPY_BYTES * n // max(1, dst.nbytes))     # rows a thread is handed at least
+        if dst.shape != src.shape or self.parts < 2 or n < 2 * rows:
             dst[...] = src
             return
-        cuts = np.linspace(0, dst.shape[0], parts + 1).astype(np.int64).tolist()
-        jobs = [self.pool.submit(np.copyto, dst[a:b], src[a:b], "unsafe") for a, b in zip(cuts[1:], cuts[2:])]
-        np.copyto(dst[:cuts[1]], src[:cuts[1]], "unsafe")
-        for job in jobs:
-            job.result()
+        threaded(lambda out, lo, hi: np.copyto(out, src[lo:hi], "unsafe") or 0, self.pool, self.parts,
+                 least=rows)(dst, 0, n)
 
     def close(self) -> None:
         if self._pool is not None:
