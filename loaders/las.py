@@ -7,9 +7,9 @@ what is left of a damaged LAZ when the caller asks for partial input, is
 loaders/salvage.py's.
 
 Points are numpy structured arrays of the point format's dtype. An uncompressed file's
-records are read by the parser threads themselves, each read releasing the GIL; a LAZ
-with a sound chunk table is decoded by lazrs several chunks at a time on every core
-(loaders/laz.py). Parsing is numpy over blocks of records, no per-point Python.
+records are read by the parser threads themselves, a batch in one read that releases the
+GIL; a LAZ with a sound chunk table is decoded by lazrs several chunks at a time on every
+core (loaders/laz.py). Parsing is whole-array numpy, no per-point Python.
 """
 
 from __future__ import annotations
@@ -67,12 +67,6 @@ HEADER_PREFIX = 375                     # the LAS 1.4 header; older ones are sho
 MIN_HEADER = {0: 227, 1: 227, 2: 227, 3: 235, 4: 375}
 SCAN_ANGLE_STEP = 0.006                 # degrees per unit of the PF 6-10 scan_angle
 PROBE_PIECE = 65_536                    # points per read while looking for 16-bit colour
-PARSE_ROWS = 65_536
-"""Records a batch is parsed at a time (about 2 MB of them): each attribute's extraction
-reads the records once, so a whole batch's (17 MB) would come from memory a dozen times,
-while a block of them stays in the core's cache. On the 2-core machine, whose 32 MB cache
-holds a batch, one thread parsed 25.4 against 28.4 ns a point and two threads alike
-(bench/results/llvmpipe/parse_blocks/)."""
 KEPT_BYTES = 1 << 26
 """Most bytes of records the probe of a loader's first LAZ keeps for its first batches
 (KeptRecords); what lies past them is decoded again."""
@@ -210,8 +204,7 @@ class Records:
 @dataclass(frozen=True)
 class Span:
     """Records of an uncompressed file not read yet: the parser thread that gets a span
-    reads it as it parses it (reads without the GIL), so reads run on every parser thread
-    at once."""
+    reads it (one read, without the GIL), so reads run on every parser thread at once."""
 
     first: int
     count: int
@@ -298,49 +291,32 @@ class LasSource:
 
     def parse(self, chunk: np.ndarray | Span, start: int, origin: np.ndarray, names: tuple[str, ...]) -> Batch:
         """A Batch of the named attributes; positions are computed in float64 as laspy
-        scales them, so that float32 rounding happens only once. The records are parsed
-        PARSE_ROWS at a time, each block in a few numpy calls (each releases the GIL, and
-        each return to Python waits for it while another thread holds it)."""
+        scales them, so that float32 rounding happens only once. The whole batch in
+        a few large numpy calls: each releases the GIL, and each return to Python waits
+        for it while another thread (the frame loop's) holds it."""
+        if isinstance(chunk, Span):
+            chunk = read_span(self.info.path, self.records, chunk, self.info.points)
         n = len(chunk)
-        wanted = [name for name in names if name != "elevation"]
-        cells = np.empty((n, 3), np.int32)
-        positions = np.empty((n, 3), np.float32)
-        scaled = np.empty(min(n, PARSE_ROWS))
-        attributes: dict[str, np.ndarray] = {}
-        counts = dict.fromkeys(wanted, 0)
-        least, most = np.full(3, np.iinfo(np.int64).max), np.full(3, np.iinfo(np.int64).min)
+        raw = chunk.view(np.uint8).reshape(n, chunk.dtype.itemsize)
+        cells = _rows_of(raw, 0, 12).view("<i4").reshape(n, 3)     # X, Y, Z lead every point format
         scales, offsets = self.records.scales, self.records.offsets
+        positions = np.empty((n, 3), np.float32)
+        scaled = np.empty(n)
+        least, most = _column_ends(cells)
         with np.errstate(over="ignore", invalid="ignore"):     # overflow is counted, not warned
-            for first, block in self._blocks(chunk):
-                end = first + len(block)
-                raw = block.view(np.uint8).reshape(end - first, block.dtype.itemsize)
-                block_cells = cells[first:end]
-                _rows_of(raw, 0, 12, block_cells.view(np.uint8).reshape(end - first, 12))    # X, Y, Z lead every point format
-                if end > first:
-                    block_least, block_most = _column_ends(block_cells)
-                    np.minimum(least, block_least, out=least)
-                    np.maximum(most, block_most, out=most)
-                for axis in range(3):       # a column at a time: numpy's loops over rows of 3 are slow
-                    part = scaled[:end - first]
-                    np.multiply(block_cells[:, axis], scales[axis], out=part)  # as Records.coordinates (laspy's rule)
-                    part += offsets[axis]
-                    np.subtract(part, origin[axis], out=positions[first:end, axis], casting="same_kind")
-                record = laspy.PackedPointRecord(block, self.records.point_format)
-                for name in wanted:
-                    if name in attributes:
-                        values = self._values(record, raw, name, attributes[name][first:end])
-                    else:       # the first block's values tell the array's type
-                        values = self._values(record, raw, name)
-                        attributes[name] = np.empty((n, *values.shape[1:]), values.dtype)
-                        attributes[name][first:end] = values
-                    counts[name] += nonfinite_count(values)
+            for axis in range(3):       # a column at a time: numpy's loops over rows of 3 are slow
+                np.multiply(cells[:, axis], scales[axis], out=scaled)  # as Records.coordinates (laspy's rule)
+                scaled += offsets[axis]
+                np.subtract(scaled, origin[axis], out=positions[:, axis], casting="same_kind")
             # scaling is monotonic: the ends of the integers are the ends of the coordinates
             ends = np.float64([least, most]) * scales + offsets if n else np.float64([[np.inf] * 3, [-np.inf] * 3])
             lo, hi = ends.min(axis=0), ends.max(axis=0)
             # Rounding is monotonic: where the least and greatest coordinates of each axis
             # are finite as float32 positions, every position is (no pass over them).
             ends_finite = np.isfinite(np.float32([lo - origin, hi - origin])).all()
-        counts = {name: bad for name, bad in counts.items() if bad}
+        record = laspy.PackedPointRecord(chunk, self.records.point_format)
+        attributes = {name: self._values(record, raw, name) for name in names if name != "elevation"}
+        counts = {name: bad for name, v in attributes.items() if (bad := nonfinite_count(v))}
         for name in counts:
             quiet_nans(attributes[name])
         grid = Grid(cells, tuple(map(float, self.records.scales)), tuple(map(float, self.records.offsets)))
@@ -348,56 +324,35 @@ class LasSource:
                      nonfinite_positions=0 if ends_finite else nonfinite_rows(positions), nonfinite_values=counts,
                      grid=grid)
 
-    def _blocks(self, chunk: np.ndarray | Span) -> Iterator[tuple[int, np.ndarray]]:
-        """The records of `chunk` PARSE_ROWS at a time with the first's row in it (one
-        block, maybe empty, at least): views of an array, or a Span read block by block
-        into one buffer, so that a batch's records are never all in memory at once."""
-        if not isinstance(chunk, Span):
-            for lo in range(0, max(1, len(chunk)), PARSE_ROWS):
-                yield lo, chunk[lo:lo + PARSE_ROWS]
-            return
-        buffer = np.empty(min(chunk.count, PARSE_ROWS), self.records.dtype)
-        with open_binary(self.info.path) as stream:
-            for lo in range(0, max(1, chunk.count), PARSE_ROWS):
-                part = Span(chunk.first + lo, min(PARSE_ROWS, chunk.count - lo))
-                yield lo, _read_records(stream, self.info.path, self.records, part, self.info.points, buffer[:part.count])
-
-    def _values(self, chunk: laspy.PackedPointRecord, raw: np.ndarray, name: str,
-                out: np.ndarray | None = None) -> np.ndarray:
-        """One attribute of the records written into `out` (their rows of the batch's
-        array), or else as its own array (a copy, not a view of the records). `raw`:
-        the records as (n, record length) bytes."""
-        if name == "rgb" and self.info.rgb_16bit:   # the depth is decided once per file (FileInfo.rgb_16bit)
-            # Red, green and blue are consecutive 16-bit fields in every point format. A
-            # 16-bit channel's value >> 8 is its high byte, the second (little endian):
-            # copied a channel at a time, 1.6x faster than shifting the words.
+    def _values(self, chunk: laspy.PackedPointRecord, raw: np.ndarray, name: str) -> np.ndarray:
+        """One attribute's own array (a copy, not a view of the records). `raw`: the
+        records as (n, record length) bytes."""
+        if name == "rgb":
+            # The depth is decided once per file (FileInfo.rgb_16bit); 8-bit files clip.
+            # Red, green and blue are consecutive 16-bit fields in every point format.
             red = chunk.array.dtype.fields["red"][1]
-            out = np.empty((raw.shape[0], 3), np.uint8) if out is None else out
-            for channel in range(3):
-                out[:, channel] = raw[:, red + 2 * channel + 1]
-            return out
-        if name == "rgb":       # 8-bit files clip
-            red = chunk.array.dtype.fields["red"][1]
-            values = np.minimum(_rows_of(raw, red, 6).view("<u2").reshape(-1, 3), RGB8_MAX).astype(np.uint8)
-        elif name == "scan_angle" and self.info.point_format < 6:
-            values = np.asarray(chunk["scan_angle_rank"], dtype=np.float32)
-        elif name == "scan_angle":
-            values = (np.asarray(chunk["scan_angle"], dtype=np.float64) * SCAN_ANGLE_STEP).astype(np.float32)
-        else:
-            column = self.columns[name]
-            values = np.asarray(chunk[column.dimension])
-            values = values if column.index is None else values[:, column.index]
-        if out is None:
-            return np.ascontiguousarray(values)
-        out[...] = values
-        return out
+            if self.info.rgb_16bit:
+                # A 16-bit channel's value >> 8 is its high byte, the second (little
+                # endian): copied a channel at a time, 1.6x faster than shifting the words.
+                out = np.empty((raw.shape[0], 3), np.uint8)
+                for channel in range(3):
+                    out[:, channel] = raw[:, red + 2 * channel + 1]
+                return out
+            return np.minimum(_rows_of(raw, red, 6).view("<u2").reshape(-1, 3), RGB8_MAX).astype(np.uint8)
+        if name == "scan_angle":
+            if self.info.point_format < 6:
+                return np.asarray(chunk["scan_angle_rank"], dtype=np.float32)
+            return (np.asarray(chunk["scan_angle"], dtype=np.float64) * SCAN_ANGLE_STEP).astype(np.float32)
+        column = self.columns[name]
+        values = np.asarray(chunk[column.dimension])
+        return np.ascontiguousarray(values if column.index is None else values[:, column.index])
 
 
-def _rows_of(raw: np.ndarray, at: int, size: int, out: np.ndarray | None = None) -> np.ndarray:
+def _rows_of(raw: np.ndarray, at: int, size: int) -> np.ndarray:
     """Bytes at..at+size of every record ((n, record length) uint8) as one contiguous
-    (n, size) copy (into `out` where given), each row moved as one item: numpy copies a
-    strided (n, 3) view element by element, several times slower."""
-    out = np.empty((raw.shape[0], size), np.uint8) if out is None else out
+    (n, size) copy, each row moved as one item: numpy copies a strided (n, 3) view
+    element by element, several times slower."""
+    out = np.empty((raw.shape[0], size), np.uint8)
     out.view(f"V{size}")[:, 0] = raw[:, at:at + size].view(f"V{size}")[:, 0]
     return out
 
@@ -452,10 +407,8 @@ def read_span(path: str, records: Records, span: Span, count: int) -> np.ndarray
         return _read_records(stream, path, records, span, count)
 
 
-def _read_records(stream, path: str, records: Records, span: Span, count: int,
-                  out: np.ndarray | None = None) -> np.ndarray:
-    """The records of `span` (into `out`, span.count of them, where given)."""
-    array = np.empty(span.count, records.dtype) if out is None else out
+def _read_records(stream, path: str, records: Records, span: Span, count: int) -> np.ndarray:
+    array = np.empty(span.count, records.dtype)
     stream.seek(records.point_data + span.first * records.dtype.itemsize)
     got = stream.readinto(memoryview(array).cast("B"))
     if got != array.nbytes:

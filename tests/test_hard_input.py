@@ -24,7 +24,6 @@ from PIL import Image
 from conftest import SAMPLE, shared_file
 from progressive.cli import main
 from progressive.loaders import BATCH_POINTS, CloudLoader, describe, open_cloud
-from progressive.loaders import las as las_module
 from progressive.loaders.fastformat import HEADER_BYTES
 
 TINY = ["--width", "64", "--height", "48"]
@@ -343,11 +342,8 @@ def nan_extra_bytes(tmp_path_factory, sample) -> tuple[Path, laspy.LasData]:
 
 
 @pytest.mark.filterwarnings("error")
-@pytest.mark.parametrize("kwargs, rows", [({}, None), ({"batch_points": 3_000, "parser_threads": 3}, None), ({}, 700)])
-def test_nonfinite_extra_bytes_are_counted_and_kept(nan_extra_bytes, kwargs, rows, monkeypatch):
-    """Also with batches parsed in blocks of 700 records (las.PARSE_ROWS): counted over blocks."""
-    if rows is not None:
-        monkeypatch.setattr(las_module, "PARSE_ROWS", rows)
+@pytest.mark.parametrize("kwargs", [{}, {"batch_points": 3_000, "parser_threads": 3}])
+def test_nonfinite_extra_bytes_are_counted_and_kept(nan_extra_bytes, kwargs):
     path, las = nan_extra_bytes
     loader, batches = load(path, **kwargs)
     assert loader.nonfinite_values == expected_nonfinite()

@@ -17,7 +17,6 @@ import pytest
 from conftest import SAMPLE, shared_file, shared_files
 from progressive.errors import InputError
 from progressive.loaders import BATCH_POINTS, CloudLoader, describe, format_text, open_cloud, write_fast
-from progressive.loaders import las as las_module
 from progressive.loaders.fastformat import HEADER_BYTES
 from progressive.loaders.las import LasSource
 from progressive.loaders.records import pack_records
@@ -70,14 +69,9 @@ def one_line_naming(exc: InputError, path: Path) -> None:
 
 # --- every real file against laspy ------------------------------------------------------
 
-@pytest.mark.parametrize("rows", [None, 777], ids=["parse rows", "blocks of 777"])
 @pytest.mark.parametrize("path", shared_files() or [pytest.param(None, marks=pytest.mark.skip("no shared data"))],
                          ids=lambda p: getattr(p, "name", "none"))
-def test_matches_laspy(path: Path, rows: int | None, monkeypatch):
-    """Every real file; also with its batches parsed in blocks of records that divide nothing
-    (las.PARSE_ROWS), so that every file's batches span several."""
-    if rows is not None:
-        monkeypatch.setattr(las_module, "PARSE_ROWS", rows)
+def test_matches_laspy(path: Path):
     with laspy.open(path) as reader:
         if reader.header.point_count > LARGE:
             pytest.skip(f"{path.name} is large; the loader is measured in bench/")
