@@ -4,6 +4,7 @@ well-formed tables, JSON and PNG plots (not a timed test)."""
 from __future__ import annotations
 
 import json
+import sys
 
 import numpy as np
 
@@ -105,8 +106,9 @@ def test_mainthread_bench_runs(tmp_path):
     """bench.mainthread times the frames of loading sessions beside the loader alone, a
     row for each count of parser threads, and profiles one session of each (the fast
     format's one session: it holds one attribute). Its 40 functions that took longest
-    with what they call: Python 3.12's profile holds the parser threads' calls too, and
-    on the H100 machine the frame was not among the first 5."""
+    with what they call: the frame among them, or from Python 3.12 (whose profile holds
+    every thread's calls, and on the H100 machine's 16 cores left out the frame whatever
+    the count) functions of progressive."""
     from bench import mainthread
 
     out = tmp_path / "out"
@@ -125,7 +127,9 @@ def test_mainthread_bench_runs(tmp_path):
         session = session.split(",")[0]
         head, *rest = (out / f"profile_{fmt}_{threads}_{session}.txt").read_text().splitlines()
         assert head.startswith(f"autzen_trim_x30000.{suffixes[fmt]}, session {session}") and "(profiled: " in head
-        assert any("function calls" in line for line in rest) and any("(frame)" in line for line in rest)
+        assert any("function calls" in line for line in rest)
+        ours = "/progressive/" if sys.version_info >= (3, 12) else "(frame)"
+        assert any(ours in line for line in rest), ours
 
 
 def test_plan_bench_runs(tmp_path):
