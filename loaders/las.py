@@ -67,6 +67,8 @@ HEADER_PREFIX = 375                     # the LAS 1.4 header; older ones are sho
 MIN_HEADER = {0: 227, 1: 227, 2: 227, 3: 235, 4: 375}
 SCAN_ANGLE_STEP = 0.006                 # degrees per unit of the PF 6-10 scan_angle
 PROBE_PIECE = 65_536                    # points per read while looking for 16-bit colour
+FROM_INTEGERS = frozenset({"scan_angle"})
+"""Float attributes made from a record's integers: never NaN or infinite, not checked."""
 KEPT_BYTES = 1 << 26
 """Most bytes of records the probe of a loader's first LAZ keeps for its first batches
 (KeptRecords); what lies past them is decoded again."""
@@ -316,7 +318,7 @@ class LasSource:
             ends_finite = np.isfinite(np.float32([lo - origin, hi - origin])).all()
         record = laspy.PackedPointRecord(chunk, self.records.point_format)
         attributes = {name: self._values(record, raw, name) for name in names if name != "elevation"}
-        counts = {name: bad for name, v in attributes.items() if (bad := nonfinite_count(v))}
+        counts = {name: bad for name, v in attributes.items() if name not in FROM_INTEGERS and (bad := nonfinite_count(v))}
         for name in counts:
             quiet_nans(attributes[name])
         grid = Grid(cells, tuple(map(float, self.records.scales)), tuple(map(float, self.records.offsets)))
@@ -338,14 +340,31 @@ class LasSource:
                 for channel in range(3):
                     out[:, channel] = raw[:, red + 2 * channel + 1]
                 return out
-            return np.minimum(_rows_of(raw, red, 6).view("<u2").reshape(-1, 3), RGB8_MAX).astype(np.uint8)
+            channels = _rows_of(raw, red, 6).view("<u2").reshape(-1, 3)
+            return np.minimum(channels, RGB8_MAX, out=np.empty(channels.shape, np.uint8), casting="unsafe")
         if name == "scan_angle":
             if self.info.point_format < 6:
                 return np.asarray(chunk["scan_angle_rank"], dtype=np.float32)
             return (np.asarray(chunk["scan_angle"], dtype=np.float64) * SCAN_ANGLE_STEP).astype(np.float32)
         column = self.columns[name]
+        composed, field = chunk.sub_fields_dict.get(column.dimension, (None, None))
+        if field is not None and (bits := _bit_field(chunk.array[composed], field.mask)) is not None:
+            return bits
         values = np.asarray(chunk[column.dimension])
         return np.ascontiguousarray(values if column.index is None else values[:, column.index])
+
+
+def _bit_field(packed: np.ndarray, mask: int) -> np.ndarray | None:
+    """laspy's (packed & mask) >> lowest bit of mask in one numpy call where one does it:
+    a field from the lowest bit (class, return number) is the mask alone, one up to the
+    highest bit (point format 6-10's number of returns) the shift alone; else None."""
+    ones = np.iinfo(packed.dtype).max
+    low = (mask & -mask).bit_length() - 1
+    if low == 0:
+        return np.bitwise_and(packed, packed.dtype.type(mask))
+    if mask == ones >> low << low:
+        return np.right_shift(packed, packed.dtype.type(low))
+    return None
 
 
 def _rows_of(raw: np.ndarray, at: int, size: int) -> np.ndarray:

@@ -318,9 +318,15 @@ def nonfinite_records(records: np.ndarray) -> tuple[int, int]:
 
 
 def nonfinite_count(values: np.ndarray) -> int:
-    """NaN/Inf values of a float array; integer arrays have none."""
+    """NaN/Inf values of a float array; integer arrays have none. A finite sum means
+    every value is finite: one pass and no mask for the usual case (the parser threads
+    wait for the GIL after each numpy call); an infinite or NaN sum (a value that is not
+    finite, or finite ones that overflow) is counted exactly."""
     if values.dtype.kind != "f":
         return 0
+    with np.errstate(over="ignore", invalid="ignore"):
+        if np.isfinite(np.add.reduce(values, axis=None)):
+            return 0
     return int(values.size - np.count_nonzero(np.isfinite(values)))
 
 

@@ -12,7 +12,8 @@ from conftest import SAMPLE
 from progressive.attributes import default_attribute
 from progressive.camera import Camera, auto_camera
 from progressive.loaders import CloudLoader
-from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, CloudInfo
+from progressive.loaders.las import _bit_field
+from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, CloudInfo, nonfinite_count
 from progressive.reference import EMPTY, reference_ids
 from progressive.renderer import Raster, Renderer
 
@@ -162,3 +163,35 @@ def test_fast_format_records_with_nonfinite_shown_values_are_hidden():
     other = AttributeInfo("intensity", AttributeKind.SCALAR, np.dtype("f4"))
     unmasked = pack_records(Batch(start=0, positions=records[:, :3].view(np.float32), records=records.copy()), other, 0.0)
     assert nonfinite_records(unmasked)[0] == 0
+
+
+@pytest.mark.filterwarnings("error")
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_nonfinite_count_equals_a_count_of_the_mask(dtype):
+    """The loaders' count of NaN/Inf values (a sum first, then the mask where the sum is not
+    finite) against numpy's mask: none, each kind, both infinities (whose sum is NaN), and
+    finite values whose sum overflows; no warning."""
+    big = np.finfo(dtype).max
+    rng = np.random.default_rng(5)
+    cases = [rng.normal(size=1000), np.full(1000, big), np.array([big, -big, big])]
+    for bad in ([np.nan], [np.inf], [-np.inf], [np.inf, -np.inf], [np.nan, np.inf, np.nan]):
+        values = rng.normal(size=1000)
+        values[rng.choice(1000, len(bad), replace=False)] = bad
+        cases.append(values)
+    for values in cases:
+        values = values.astype(dtype)
+        assert nonfinite_count(values) == np.count_nonzero(~np.isfinite(values))
+    assert nonfinite_count(np.arange(10)) == 0
+
+
+def test_bit_fields_equal_laspys():
+    """A point format's bit fields read in one numpy call where one does it, else left to
+    laspy: every field of formats 3 and 6 over every byte value equals laspy's."""
+    for point_format in (3, 6):
+        record = laspy.PackedPointRecord.zeros(256, laspy.PointFormat(point_format))
+        for name, (composed, field) in record.sub_fields_dict.items():
+            record.array[composed] = np.arange(256, dtype=np.uint8)
+            got = _bit_field(record.array[composed], field.mask)
+            if got is not None:
+                assert got.dtype == np.uint8 and got.flags.c_contiguous
+                np.testing.assert_array_equal(got, np.asarray(record[name]), err_msg=name)
