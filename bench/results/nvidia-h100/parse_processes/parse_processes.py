@@ -6,17 +6,21 @@ batches the same way, and hand each batch's arrays back through one shared-memor
 (copied in once there; the parent maps it and makes arrays on it, no copy), as a
 loader's batches would come back; and the same pool parsing without handing anything
 back (the parse's own rate in processes); and handed back through blocks made once and
-used again (no fresh pages a batch). Rounds alternate; ns a point = wall time / points.
+used again (no fresh pages a batch), as they are or copied out on N threads (so that the
+block is free again at once, as a loader would do). Rounds alternate; ns a point = wall time / points.
 
     python parse_processes.py FILE [WORKERS...]
 """
 
 import multiprocessing as mp
 import os
+import queue
 import statistics
 import sys
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
+from functools import partial
 from multiprocessing import shared_memory
 
 import numpy as np
@@ -106,10 +110,11 @@ def processes(pool, spans) -> int:
     return sum(_taken(name, layout) for name, layout in pool.imap_unordered(_parse_shared, spans))
 
 
-def kept(pool, spans, blocks: dict) -> int:
+def kept(pool, spans, blocks: dict, copiers: ThreadPoolExecutor | None = None) -> int:
     """Batches handed back in blocks made once and used again once the parent has let go of
-    a batch's arrays (a free list the task generator waits on)."""
-    import queue
+    a batch's arrays (a free list the task generator waits on); with `copiers`, each
+    batch's arrays are copied out of its block on those threads (as parser threads would),
+    which then give the block back at once."""
     free = queue.Queue()
     for name in blocks:
         free.put(name)
@@ -118,13 +123,17 @@ def kept(pool, spans, blocks: dict) -> int:
         for span in spans:
             yield span, free.get()
 
-    points = 0
-    for name, layout in pool.imap_unordered(_parse_into_kept, tasks()):
+    def take(name: str, layout: list) -> int:
         arrays = {n: np.ndarray(shape, np.dtype(dt), buffer=blocks[name].buf, offset=at) for n, shape, dt, at in layout}
-        points += arrays["positions"].shape[0]
-        del arrays
+        if copiers is not None:
+            arrays = {n: a.copy() for n, a in arrays.items()}
         free.put(name)
-    return points
+        return arrays["positions"].shape[0]
+
+    if copiers is None:
+        return sum(take(name, layout) for name, layout in pool.imap_unordered(_parse_into_kept, tasks()))
+    taken = [copiers.submit(take, name, layout) for name, layout in pool.imap_unordered(_parse_into_kept, tasks())]
+    return sum(f.result() for f in taken)
 
 
 def parse_only(pool, spans) -> int:
@@ -145,23 +154,20 @@ def main() -> None:
             block = shared_memory.SharedMemory(create=True, size=BLOCK_BYTES)
             np.ndarray(BLOCK_BYTES, np.uint8, buffer=block.buf)[:] = 0       # its pages mapped here
             blocks[block.name] = block
-        with ctx.Pool(count, initializer=_open, initargs=(path,)) as pool:
+        with ctx.Pool(count, initializer=_open, initargs=(path,)) as pool, ThreadPoolExecutor(count) as copiers:
             processes(pool, spans[:count])      # every worker started and warm
             kept(pool, spans, blocks)           # every block mapped in the workers that use it
-            times = {"threads": [], "processes": [], "processes, kept blocks": [], "processes, parse only": []}
+            ways = {"threads": partial(threads, spans, names, count),
+                    "processes": partial(processes, pool, spans),
+                    "processes, kept blocks": partial(kept, pool, spans, blocks),
+                    "processes, kept blocks, copied out": partial(kept, pool, spans, blocks, copiers),
+                    "processes, parse only": partial(parse_only, pool, spans)}
+            times = {way: [] for way in ways}
             for _ in range(ROUNDS):
-                t = time.perf_counter()
-                assert threads(spans, names, count) == points
-                times["threads"].append((time.perf_counter() - t) * 1e9 / points)
-                t = time.perf_counter()
-                assert processes(pool, spans) == points
-                times["processes"].append((time.perf_counter() - t) * 1e9 / points)
-                t = time.perf_counter()
-                assert kept(pool, spans, blocks) == points
-                times["processes, kept blocks"].append((time.perf_counter() - t) * 1e9 / points)
-                t = time.perf_counter()
-                assert parse_only(pool, spans) == points
-                times["processes, parse only"].append((time.perf_counter() - t) * 1e9 / points)
+                for way, run in ways.items():
+                    t = time.perf_counter()
+                    assert run() == points
+                    times[way].append((time.perf_counter() - t) * 1e9 / points)
         for block in blocks.values():
             block.close()
             block.unlink()
