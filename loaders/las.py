@@ -302,14 +302,9 @@ class LasSource:
         raw = chunk.view(np.uint8).reshape(n, chunk.dtype.itemsize)
         cells = _rows_of(raw, 0, 12).view("<i4").reshape(n, 3)     # X, Y, Z lead every point format
         scales, offsets = self.records.scales, self.records.offsets
-        positions = np.empty((n, 3), np.float32)
-        scaled = np.empty(n)
         least, most = _column_ends(cells)
         with np.errstate(over="ignore", invalid="ignore"):     # overflow is counted, not warned
-            for axis in range(3):       # a column at a time: numpy's loops over rows of 3 are slow
-                np.multiply(cells[:, axis], scales[axis], out=scaled)  # as Records.coordinates (laspy's rule)
-                scaled += offsets[axis]
-                np.subtract(scaled, origin[axis], out=positions[:, axis], casting="same_kind")
+            positions = _positions(cells, scales, offsets, origin)
             # scaling is monotonic: the ends of the integers are the ends of the coordinates
             ends = np.float64([least, most]) * scales + offsets if n else np.float64([[np.inf] * 3, [-np.inf] * 3])
             lo, hi = ends.min(axis=0), ends.max(axis=0)
@@ -352,6 +347,20 @@ class LasSource:
             return bits
         values = np.asarray(chunk[column.dimension])
         return np.ascontiguousarray(values if column.index is None else values[:, column.index])
+
+
+def _positions(cells: np.ndarray, scales: np.ndarray, offsets: np.ndarray, origin: np.ndarray) -> np.ndarray:
+    """(n, 3) float32 positions relative to `origin` of (n, 3) integer cells, each scaled
+    and offset in float64 as laspy computes coordinates (Records.coordinates), so that
+    float32 rounding happens once; a column at a time, as numpy's loops over rows of 3
+    are slow."""
+    positions = np.empty(cells.shape, np.float32)
+    scaled = np.empty(cells.shape[0])
+    for axis in range(3):
+        np.multiply(cells[:, axis], scales[axis], out=scaled)
+        scaled += offsets[axis]
+        np.subtract(scaled, origin[axis], out=positions[:, axis], casting="same_kind")
+    return positions
 
 
 def _bit_field(packed: np.ndarray, mask: int) -> np.ndarray | None:

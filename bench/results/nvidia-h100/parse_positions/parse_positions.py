@@ -1,0 +1,74 @@
+"""A/B in one process: a LAS batch's positions (loaders/las.py _positions) a column at a
+time (9 numpy calls, the loader's) against all three columns at once through transposed
+views (3 calls, each with its inner loop along the points). On one thread the second is
+slower; on many threads each call's return waits for the GIL, so fewer may win. Each
+thread parses every batch (spans, every attribute); rounds alternate; ns a point.
+
+    python parse_positions.py FILE [THREADS...]
+"""
+
+import os
+import statistics
+import sys
+import threading
+import time
+
+import numpy as np
+
+from progressive.loaders import las as L
+from progressive.loaders.allocator import keep_large_blocks
+from progressive.loaders.types import BATCH_POINTS
+
+ROUNDS = int(os.environ.get("ROUNDS", 5))
+
+
+def positions_at_once(cells: np.ndarray, scales: np.ndarray, offsets: np.ndarray, origin: np.ndarray) -> np.ndarray:
+    """The same values as las._positions, three columns a call."""
+    positions = np.empty(cells.shape, np.float32)
+    scaled = np.empty((3, cells.shape[0]))
+    np.multiply(cells.T, scales[:, None], out=scaled)
+    scaled += offsets[:, None]
+    np.subtract(scaled, origin[:, None], out=positions.T, casting="same_kind")
+    return positions
+
+
+def main() -> None:
+    path, threads = sys.argv[1], [int(t) for t in sys.argv[2:]] or [1, 2]
+    keep_large_blocks()
+    src = L.open_las(path)
+    spans = list(src.chunks(BATCH_POINTS))[1:]
+    names = tuple(a.name for a in src.attributes)
+    points = sum(len(s) for s in spans)
+    ways = {"a column a call (9)": L._positions, "three columns a call (3)": positions_at_once}
+    cells = np.random.default_rng(1).integers(-2**31, 2**31 - 1, (100_000, 3), dtype=np.int32)
+    args = (src.records.scales, src.records.offsets, np.float64([1e5 + 0.3, -2e5 + 0.7, 12.25]))
+    with np.errstate(over="ignore", invalid="ignore"):
+        assert np.array_equal(L._positions(cells, *args), positions_at_once(cells, *args))
+
+    def once(count: int) -> float:
+        def work():
+            for span in spans:
+                src.parse(span, span.first, np.zeros(3), names)
+
+        workers = [threading.Thread(target=work) for _ in range(count)]
+        t = time.perf_counter()
+        for w in workers:
+            w.start()
+        for w in workers:
+            w.join()
+        return (time.perf_counter() - t) * 1e9 / (points * count)
+
+    print(f"{path}: {len(spans)} batches, {points:,} points, every attribute, rounds {ROUNDS}")
+    for count in threads:
+        times = {way: [] for way in ways}
+        for _ in range(ROUNDS):
+            for way, fn in ways.items():
+                L._positions = fn
+                times[way].append(once(count))
+        print(f"{count} thread(s): " + "; ".join(
+            f"{way} median {statistics.median(t):.2f} ns/point (best {min(t):.2f})" for way, t in times.items()),
+            flush=True)
+
+
+if __name__ == "__main__":
+    main()
