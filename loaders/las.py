@@ -343,7 +343,7 @@ class LasSource:
             return (np.asarray(chunk["scan_angle"], dtype=np.float64) * SCAN_ANGLE_STEP).astype(np.float32)
         column = self.columns[name]
         composed, field = chunk.sub_fields_dict.get(column.dimension, (None, None))
-        if field is not None and (bits := _bit_field(chunk.array[composed], field.mask)) is not None:
+        if column.index is None and field is not None and (bits := _bit_field(chunk.array[composed], field.mask)) is not None:
             return bits
         values = np.asarray(chunk[column.dimension])
         return np.ascontiguousarray(values if column.index is None else values[:, column.index])

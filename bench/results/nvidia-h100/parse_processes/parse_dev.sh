@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# parse_processes.py on the GPU machine: a 10 M-point tiled LAS, 4, 8 and 16 workers, 3 rounds
+# parse_processes.py on the GPU machine: a 10 M-point tiled LAS, 1, 4, 8 and 16 workers, 3 rounds
 set -uo pipefail
 source .gpu/env.sh >&2
 export PYTHONPATH=".:${PYTHONPATH:-}"

@@ -1,13 +1,19 @@
 """How fast LAS batches parse in processes, against threads, in one run: the headroom of
-a loader whose parse does not wait for the GIL. Threads: each of N threads parses its
-share of the file's batches (LasSource.parse, reading each span itself). Processes: a
-pool of N fresh interpreters (spawn) each open the file once, parse their share of
-batches the same way, and hand each batch's arrays back through one shared-memory block
-(copied in once there; the parent maps it and makes arrays on it, no copy), as a
-loader's batches would come back; and the same pool parsing without handing anything
-back (the parse's own rate in processes); and handed back through blocks made once and
-used again (no fresh pages a batch), as they are or copied out on N threads (so that the
-block is free again at once, as a loader would do). Rounds alternate; ns a point = wall time / points.
+a loader whose parse does not wait for the GIL. N threads or N processes each parse
+every batch of the file (LasSource.parse, reading each span itself), as bench probes of
+the parse in threads do (../parse_calls/), so that no worker idles at the end of a
+round. The processes are a pool of N fresh interpreters (spawn), each of which opens
+the file once; they hand each batch's arrays back
+
+- through a shared-memory block made for the batch (its pages faulted in fresh each
+  time; the parent maps it and makes arrays on it, no copy);
+- through blocks made once, every one mapped and touched in every worker and in the
+  parent at the start, and used again once the parent lets go of a batch's arrays;
+- the same, each batch's arrays copied out on N threads of the parent (so that the
+  block is free again at once, as a loader would do);
+- or not at all (the parse's own rate in processes: the ceiling).
+
+Rounds alternate; ns a point = wall time / (points × N).
 
     python parse_processes.py FILE [WORKERS...]
 """
@@ -32,71 +38,83 @@ from progressive.loaders.types import BATCH_POINTS
 ROUNDS = int(os.environ.get("ROUNDS", 3))
 BLOCK_BYTES = 64 << 20
 """A kept block's size: a batch of 500,000 points with every attribute of point format 3 takes 27 MB."""
+ALIGN = 64
+"""Each array's offset in a block."""
+FREE_WAIT_S = 60
+"""Longest wait for a free block (a worker that failed never frees its block: the run ends, it does not hang)."""
 _source = None
 _attached: dict = {}
 
 
-def _open(path: str) -> None:
+def _open(path: str, blocks: tuple[str, ...] = ()) -> None:
+    """A worker's start: the file opened, every kept block mapped and its pages touched."""
     global _source
     keep_large_blocks()
     _source = L.open_las(path)
+    for name in blocks:
+        block = shared_memory.SharedMemory(name=name)
+        np.ndarray(block.size, np.uint8, buffer=block.buf)[:] = 0
+        _attached[name] = block
+
+
+def _parsed(span: L.Span) -> dict:
+    batch = _source.parse(span, span.first, np.zeros(3), tuple(a.name for a in _source.attributes))
+    return {"positions": batch.positions, "cells": batch.grid.cells, **batch.attributes}
+
+
+def _write(buf, arrays: dict) -> list:
+    """The arrays copied into `buf` back to back (each at an ALIGN boundary): their layout."""
+    layout, at = [], 0
+    for key, a in arrays.items():
+        np.ndarray(a.shape, a.dtype, buffer=buf, offset=at)[...] = a
+        layout.append((key, a.shape, a.dtype.str, at))
+        at += -(-a.nbytes // ALIGN) * ALIGN
+    return layout
+
+
+def _arrays(buf, layout: list) -> dict:
+    return {n: np.ndarray(shape, np.dtype(dt), buffer=buf, offset=at) for n, shape, dt, at in layout}
+
+
+def _size(arrays: dict) -> int:
+    return sum(-(-a.nbytes // ALIGN) * ALIGN for a in arrays.values())
 
 
 def _parse_shared(span: L.Span) -> tuple:
-    """One batch parsed in this worker, its arrays copied into one shared block: (name, layout)."""
-    names = tuple(a.name for a in _source.attributes)
-    batch = _source.parse(span, span.first, np.zeros(3), names)
-    arrays = {"positions": batch.positions, "cells": batch.grid.cells, **batch.attributes}
-    size = sum(a.nbytes for a in arrays.values())
-    block = shared_memory.SharedMemory(create=True, size=max(1, size))
-    layout, at = [], 0
-    for name, a in arrays.items():
-        np.ndarray(a.shape, a.dtype, buffer=block.buf, offset=at)[...] = a
-        layout.append((name, a.shape, a.dtype.str, at))
-        at += a.nbytes
+    """One batch parsed in this worker, its arrays copied into a block made for it: (name, layout)."""
+    arrays = _parsed(span)
+    block = shared_memory.SharedMemory(create=True, size=max(1, _size(arrays)))
+    layout = _write(block.buf, arrays)
     block.close()
     return block.name, layout
 
 
 def _parse_into_kept(task: tuple) -> tuple:
-    """One batch parsed in this worker and copied into the kept block the parent named
-    (its pages already mapped on both sides): (name, layout)."""
+    """One batch parsed in this worker and copied into the kept block the parent named: (name, layout)."""
     span, name = task
-    block = _attached.get(name) or _attached.setdefault(name, shared_memory.SharedMemory(name=name))
-    names = tuple(a.name for a in _source.attributes)
-    batch = _source.parse(span, span.first, np.zeros(3), names)
-    layout, at = [], 0
-    for key, a in {"positions": batch.positions, "cells": batch.grid.cells, **batch.attributes}.items():
-        np.ndarray(a.shape, a.dtype, buffer=block.buf, offset=at)[...] = a
-        layout.append((key, a.shape, a.dtype.str, at))
-        at += a.nbytes
-    return name, layout
+    return name, _write(_attached[name].buf, _parsed(span))
 
 
 def _parse_only(span: L.Span) -> int:
     """One batch parsed in this worker, nothing handed back: the parse's own rate."""
-    names = tuple(a.name for a in _source.attributes)
-    return _source.parse(span, span.first, np.zeros(3), names).count
+    return _parsed(span)["positions"].shape[0]
 
 
 def _taken(name: str, layout: list) -> int:
     """The parent's side: arrays made on the block (no copy); the block unlinked once mapped."""
     block = shared_memory.SharedMemory(name=name)
-    arrays = {n: np.ndarray(shape, np.dtype(dt), buffer=block.buf, offset=at) for n, shape, dt, at in layout}
-    points = arrays["positions"].shape[0]
-    del arrays
+    points = _arrays(block.buf, layout)["positions"].shape[0]
     block.close()
     block.unlink()
     return points
 
 
-def threads(spans, names, count: int) -> int:
-    shares = [spans[k::count] for k in range(count)]
+def threads(spans, count: int) -> int:
     done = [0] * count
 
     def work(k):
-        for span in shares[k]:
-            done[k] += _source.parse(span, span.first, np.zeros(3), names).count
+        for span in spans:
+            done[k] += _parsed(span)["positions"].shape[0]
 
     workers = [threading.Thread(target=work, args=(k,)) for k in range(count)]
     for w in workers:
@@ -106,25 +124,24 @@ def threads(spans, names, count: int) -> int:
     return sum(done)
 
 
-def processes(pool, spans) -> int:
-    return sum(_taken(name, layout) for name, layout in pool.imap_unordered(_parse_shared, spans))
+def processes(pool, spans, count: int) -> int:
+    return sum(_taken(name, layout) for name, layout in pool.imap_unordered(_parse_shared, spans * count))
 
 
-def kept(pool, spans, blocks: dict, copiers: ThreadPoolExecutor | None = None) -> int:
-    """Batches handed back in blocks made once and used again once the parent has let go of
-    a batch's arrays (a free list the task generator waits on); with `copiers`, each
-    batch's arrays are copied out of its block on those threads (as parser threads would),
-    which then give the block back at once."""
+def kept(pool, spans, count: int, blocks: dict, copiers: ThreadPoolExecutor | None = None) -> int:
+    """Batches handed back in the kept blocks, each used again once the parent has let go of
+    its batch's arrays (a free list the task generator waits on); with `copiers`, each
+    batch's arrays are copied out of its block on those threads, which then free it."""
     free = queue.Queue()
     for name in blocks:
         free.put(name)
 
     def tasks():
-        for span in spans:
-            yield span, free.get()
+        for span in spans * count:
+            yield span, free.get(timeout=FREE_WAIT_S)
 
     def take(name: str, layout: list) -> int:
-        arrays = {n: np.ndarray(shape, np.dtype(dt), buffer=blocks[name].buf, offset=at) for n, shape, dt, at in layout}
+        arrays = _arrays(blocks[name].buf, layout)
         if copiers is not None:
             arrays = {n: a.copy() for n, a in arrays.items()}
         free.put(name)
@@ -136,41 +153,45 @@ def kept(pool, spans, blocks: dict, copiers: ThreadPoolExecutor | None = None) -
     return sum(f.result() for f in taken)
 
 
-def parse_only(pool, spans) -> int:
-    return sum(pool.imap_unordered(_parse_only, spans))
+def parse_only(pool, spans, count: int) -> int:
+    return sum(pool.imap_unordered(_parse_only, spans * count))
 
 
 def main() -> None:
     path, counts = sys.argv[1], [int(c) for c in sys.argv[2:]] or [1, 2]
     _open(path)
     spans = list(_source.chunks(BATCH_POINTS))[1:]
-    names = tuple(a.name for a in _source.attributes)
     points = sum(len(s) for s in spans)
     print(f"{path}: {len(spans)} batches, {points:,} points, every attribute, {os.cpu_count()} CPUs, rounds {ROUNDS}")
     ctx = mp.get_context("spawn")
     for count in counts:
         blocks = {}
-        for _ in range(2 * count):
-            block = shared_memory.SharedMemory(create=True, size=BLOCK_BYTES)
-            np.ndarray(BLOCK_BYTES, np.uint8, buffer=block.buf)[:] = 0       # its pages mapped here
-            blocks[block.name] = block
-        with ctx.Pool(count, initializer=_open, initargs=(path,)) as pool, ThreadPoolExecutor(count) as copiers:
-            processes(pool, spans[:count])      # every worker started and warm
-            kept(pool, spans, blocks)           # every block mapped in the workers that use it
-            ways = {"threads": partial(threads, spans, names, count),
-                    "processes": partial(processes, pool, spans),
-                    "processes, kept blocks": partial(kept, pool, spans, blocks),
-                    "processes, kept blocks, copied out": partial(kept, pool, spans, blocks, copiers),
-                    "processes, parse only": partial(parse_only, pool, spans)}
-            times = {way: [] for way in ways}
-            for _ in range(ROUNDS):
-                for way, run in ways.items():
-                    t = time.perf_counter()
-                    assert run() == points
-                    times[way].append((time.perf_counter() - t) * 1e9 / points)
-        for block in blocks.values():
-            block.close()
-            block.unlink()
+        try:
+            for _ in range(2 * count):
+                block = shared_memory.SharedMemory(create=True, size=BLOCK_BYTES)
+                np.ndarray(BLOCK_BYTES, np.uint8, buffer=block.buf)[:] = 0       # its pages mapped here
+                blocks[block.name] = block
+            with (ctx.Pool(count, initializer=_open, initargs=(path, tuple(blocks))) as pool,
+                  ThreadPoolExecutor(count) as copiers):
+                ways = {"threads": partial(threads, spans, count),
+                        "processes": partial(processes, pool, spans, count),
+                        "processes, kept blocks": partial(kept, pool, spans, count, blocks),
+                        "processes, kept blocks, copied out": partial(kept, pool, spans, count, blocks, copiers),
+                        "processes, parse only": partial(parse_only, pool, spans, count)}
+                for run in ways.values():       # warm: every worker started, every way run once
+                    run()
+                times = {way: [] for way in ways}
+                for _ in range(ROUNDS):
+                    for way, run in ways.items():
+                        t = time.perf_counter()
+                        got = run()
+                        times[way].append((time.perf_counter() - t) * 1e9 / (points * count))
+                        if got != points * count:
+                            raise SystemExit(f"{way}: {got:,} points parsed, not {points * count:,}")
+        finally:
+            for block in blocks.values():
+                block.close()
+                block.unlink()
         print(f"{count} worker(s): " + "; ".join(
             f"{way} median {statistics.median(t):.2f} ns/point ({1e3 / statistics.median(t):.0f} M points/s, best {min(t):.2f})"
             for way, t in times.items()), flush=True)
