@@ -10,14 +10,16 @@ thread parses every batch (spans, every attribute); rounds alternate; ns a point
 import os
 import statistics
 import sys
-import threading
-import time
+from pathlib import Path
 
 import numpy as np
 
 from progressive.loaders import las as L
 from progressive.loaders.allocator import keep_large_blocks
 from progressive.loaders.types import BATCH_POINTS
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "parse_calls"))
+from parse_calls import once  # noqa: E402  (the same timing of threads that each parse every batch)
 
 ROUNDS = int(os.environ.get("ROUNDS", 5))
 
@@ -45,26 +47,13 @@ def main() -> None:
     with np.errstate(over="ignore", invalid="ignore"):
         assert np.array_equal(L._positions(cells, *args), positions_at_once(cells, *args))
 
-    def once(count: int) -> float:
-        def work():
-            for span in spans:
-                src.parse(span, span.first, np.zeros(3), names)
-
-        workers = [threading.Thread(target=work) for _ in range(count)]
-        t = time.perf_counter()
-        for w in workers:
-            w.start()
-        for w in workers:
-            w.join()
-        return (time.perf_counter() - t) * 1e9 / (points * count)
-
     print(f"{path}: {len(spans)} batches, {points:,} points, every attribute, rounds {ROUNDS}")
     for count in threads:
         times = {way: [] for way in ways}
         for _ in range(ROUNDS):
             for way, fn in ways.items():
                 L._positions = fn
-                times[way].append(once(count))
+                times[way].append(once(src, spans, names, points, count))
         print(f"{count} thread(s): " + "; ".join(
             f"{way} median {statistics.median(t):.2f} ns/point (best {min(t):.2f})" for way, t in times.items()),
             flush=True)
