@@ -343,9 +343,12 @@ class LasSource:
             return (np.asarray(chunk["scan_angle"], dtype=np.float64) * SCAN_ANGLE_STEP).astype(np.float32)
         column = self.columns[name]
         composed, field = chunk.sub_fields_dict.get(column.dimension, (None, None))
-        if column.index is None and field is not None and (bits := _bit_field(chunk.array[composed], field.mask)) is not None:
+        if column.index is not None and field is not None:
+            values = _extra_bytes(chunk, column.dimension)     # an array named like a bit field, which laspy's name finds
+        elif field is not None and (bits := _bit_field(chunk.array[composed], field.mask)) is not None:
             return bits
-        values = np.asarray(chunk[column.dimension])
+        else:
+            values = np.asarray(chunk[column.dimension])
         return np.ascontiguousarray(values if column.index is None else values[:, column.index])
 
 
@@ -361,6 +364,15 @@ def _positions(cells: np.ndarray, scales: np.ndarray, offsets: np.ndarray, origi
         scaled += offsets[axis]
         np.subtract(scaled, origin[axis], out=positions[:, axis], casting="same_kind")
     return positions
+
+
+def _extra_bytes(chunk: laspy.PackedPointRecord, name: str) -> np.ndarray:
+    """The extra-bytes dimension `name` of the records, scaled as laspy scales it, where
+    laspy's record[name] would give the bit field of that name instead (a file may name
+    its extra bytes so)."""
+    dim = next(d for d in chunk.point_format.extra_dimensions if d.name == name)
+    values = chunk.array[name]
+    return values * dim.scales + dim.offsets if dim.is_scaled else values
 
 
 def _bit_field(packed: np.ndarray, mask: int) -> np.ndarray | None:

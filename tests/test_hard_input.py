@@ -718,3 +718,30 @@ def test_switching_to_and_from_a_nonfinite_attribute(gl, nan_extra_bytes):
         brute.release()
     assert pr.scene.positions_changed
     pr.release()
+
+
+def test_extra_bytes_arrays_named_like_bit_fields(tmp_path):
+    """Extra bytes may carry the name of a bit field of the point format (laspy's
+    record[name] then gives the bit field): their elements are read from the extra bytes,
+    scaled where the file scales them, and the bit field keeps its own values."""
+    path = tmp_path / "named.las"
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.add_extra_dims([laspy.ExtraBytesParams("return_number", "3u1"),
+                           laspy.ExtraBytesParams("synthetic", "2i2", scales=np.array([0.5, 0.25]),
+                                                  offsets=np.array([1.0, -2.0]))])
+    n = 1_000
+    las = laspy.LasData(header)
+    rng = np.random.default_rng(8)
+    las.x, las.y, las.z = (rng.uniform(0, 100, n) for _ in range(3))
+    las.return_number = rng.integers(1, 8, n)
+    raw = las.points.array
+    raw["return_number"] = rng.integers(0, 256, (n, 3))
+    raw["synthetic"] = rng.integers(-1000, 1000, (n, 2))
+    las.write(path)
+    loader, batches = load(path)
+    back = laspy.read(path).points.array
+    np.testing.assert_array_equal(column(batches, "return_number"), np.asarray(laspy.read(path).return_number))
+    for i in range(3):
+        np.testing.assert_array_equal(column(batches, f"return_number[{i}]"), back["return_number"][:, i])
+    for i, (scale, offset) in enumerate(((0.5, 1.0), (0.25, -2.0))):
+        np.testing.assert_array_equal(column(batches, f"synthetic[{i}]"), back["synthetic"][:, i] * scale + offset)
