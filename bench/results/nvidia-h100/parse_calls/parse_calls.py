@@ -72,6 +72,20 @@ def once(src, spans, names, points, count: int) -> float:
     return (time.perf_counter() - t) * 1e9 / (points * count)
 
 
+def alternate(ways: dict, use, src, spans, names, points, threads: list[int]) -> None:
+    """For each count of threads, ROUNDS rounds of every way in turn (`use(way)` puts it in
+    place), each timed by once(); prints a line of medians a count."""
+    for count in threads:
+        times = {label: [] for label in ways}
+        for _ in range(ROUNDS):
+            for label, way in ways.items():
+                use(way)
+                times[label].append(once(src, spans, names, points, count))
+        print(f"{count} thread(s): " + "; ".join(
+            f"{label} median {statistics.median(t):.2f} ns/point (best {min(t):.2f})" for label, t in times.items()),
+            flush=True)
+
+
 def main() -> None:
     path, threads = sys.argv[1], [int(t) for t in sys.argv[2:]] or [1, 2]
     keep_large_blocks()
@@ -89,15 +103,7 @@ def main() -> None:
             assert all(np.array_equal(first.attributes[n], batch.attributes[n]) for n in first.attributes)
             assert first.nonfinite_values == batch.nonfinite_values
     print(f"{path}: {len(spans)} batches, {points:,} points, attributes {names}, rounds {ROUNDS}")
-    for count in threads:
-        times = {way: [] for way in ways}
-        for _ in range(ROUNDS):
-            for label, way in ways.items():
-                use(way)
-                times[label].append(once(src, spans, names, points, count))
-        print(f"{count} thread(s): " + "; ".join(
-            f"{way} median {statistics.median(t):.2f} ns/point (best {min(t):.2f})" for way, t in times.items()),
-            flush=True)
+    alternate(ways, use, src, spans, names, points, threads)
 
 
 if __name__ == "__main__":

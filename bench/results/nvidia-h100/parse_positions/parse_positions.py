@@ -7,9 +7,8 @@ thread parses every batch (spans, every attribute); rounds alternate; ns a point
     python parse_positions.py FILE [THREADS...]
 """
 
-import os
-import statistics
 import sys
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -19,9 +18,8 @@ from progressive.loaders.allocator import keep_large_blocks
 from progressive.loaders.types import BATCH_POINTS
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "parse_calls"))
-from parse_calls import once  # noqa: E402  (the same timing of threads that each parse every batch)
-
-ROUNDS = int(os.environ.get("ROUNDS", 5))
+import parse_calls  # noqa: E402  (the same rounds and timing of threads that each parse every batch)
+from parse_calls import alternate  # noqa: E402
 
 
 def positions_at_once(cells: np.ndarray, scales: np.ndarray, offsets: np.ndarray, origin: np.ndarray) -> np.ndarray:
@@ -47,16 +45,8 @@ def main() -> None:
     with np.errstate(over="ignore", invalid="ignore"):
         assert np.array_equal(L._positions(cells, *args), positions_at_once(cells, *args))
 
-    print(f"{path}: {len(spans)} batches, {points:,} points, every attribute, rounds {ROUNDS}")
-    for count in threads:
-        times = {way: [] for way in ways}
-        for _ in range(ROUNDS):
-            for way, fn in ways.items():
-                L._positions = fn
-                times[way].append(once(src, spans, names, points, count))
-        print(f"{count} thread(s): " + "; ".join(
-            f"{way} median {statistics.median(t):.2f} ns/point (best {min(t):.2f})" for way, t in times.items()),
-            flush=True)
+    print(f"{path}: {len(spans)} batches, {points:,} points, every attribute, rounds {parse_calls.ROUNDS}")
+    alternate(ways, partial(setattr, L, "_positions"), src, spans, names, points, threads)
 
 
 if __name__ == "__main__":
