@@ -120,7 +120,10 @@ case "$chunk" in
     startup-1B)       "${PYTHON:-python3}" -m bench.startup --scaled 1000000000 --laz-only --commands view \
                           --caches "Mesa + program cache" --out "$OUT/$(machine)" "${@:2}" ;;
     # the whole test suite on this machine, compact (dots, one line a failure, the summary: -v made a file too
-    # large to come back); redirect it into $OUT/<machine>/pytest.txt
-    pytest)           "${PYTHON:-python3}" -m pytest -q -p no:cacheprovider --tb=line -rfEs tests "${@:2}" ;;
+    # large to come back); redirect it into $OUT/<machine>/pytest.txt. Each test's time and each failure's
+    # report are written as it ends to $OUT/<machine>/pytest/ (bench/pytest_timing.py), kept if the call's limit kills it
+    pytest)           mkdir -p "$OUT/$(machine)/pytest"
+                      PYTEST_TIMING_DIR="$OUT/$(machine)/pytest" "${PYTHON:-python3}" -m pytest -q -p no:cacheprovider \
+                          -p bench.pytest_timing --tb=line -rfEs tests "${@:2}" ;;
     *) echo "unknown chunk '$chunk'; one of: ${CHUNKS[*]}" >&2; exit 2 ;;
 esac
