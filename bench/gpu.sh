@@ -14,7 +14,7 @@
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
-CHUNKS=(files-100M load-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B winners-1B records-1B accuracy attributes packing upload-100M startup-100M viewer-load-100M mainthread-100M startup-1B convert-1B copc-1B stream-1B stream-200M writes-100M writes-1B pytest)
+CHUNKS=(files-100M load-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B winners-1B records-1B accuracy attributes packing upload-100M startup-100M viewer-load-100M mainthread-100M startup-1B convert-1B copc-1B stream-1B stream-200M writes-100M writes-1B reads-100M reads-1B pytest)
 chunk="${1:-list}"
 if [ "$chunk" = list ]; then
     printf '%s\n' "${CHUNKS[@]}"
@@ -103,6 +103,17 @@ case "$chunk" in
                           | tail -n 1 | cut -d: -f1)"
                       PYTHONPATH=".:${PYTHONPATH:-}" "${PYTHON:-python3}" bench/results/nvidia-h100/stream_writes/write_parts.py \
                           "$copc" 4294967296 1920x1080 20 0.25 ;;
+    # a still streamed overview's time to settle with 1, 2 and 3 node reads in flight per LAZ decoder process
+    # (laz_pool.READS_PER_PROCESS), alternating, 3 rounds: the 100 M-point COPC (1 GiB limit) and the 1 B-point
+    # one (4 GiB; built first as copc-1B, about 250 s), 0.25 px; tables on stdout
+    reads-100M)       copc="$("${PYTHON:-python3}" -m bench.stream --points 100000000 --laz --build-only --scratch /dev/shm \
+                          | tail -n 1 | cut -d: -f1)"
+                      PYTHONPATH=".:${PYTHONPATH:-}" "${PYTHON:-python3}" bench/results/nvidia-h200/stream_reads/stream_reads.py \
+                          "$copc" 1073741824 1920x1080 20 0.25 3 1 2 3 ;;
+    reads-1B)         copc="$("${PYTHON:-python3}" -m bench.stream --points 1000000000 --laz --build-only --scratch /dev/shm \
+                          | tail -n 1 | cut -d: -f1)"
+                      PYTHONPATH=".:${PYTHONPATH:-}" "${PYTHON:-python3}" bench/results/nvidia-h200/stream_reads/stream_reads.py \
+                          "$copc" 4294967296 1920x1080 20 0.25 3 1 2 3 ;;
     # what the window reads against what render reads, at 100M points: the sample (point format 3) and a LAZ of
     # point format 8 tiled as LAS and LAZ, each session warm, 3 repeats (bench.load first_image_table); render's
     # session at 8 and 16 parser threads too, beside the default 4 (do more take the frame loop's core?)

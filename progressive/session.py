@@ -300,12 +300,13 @@ class Session:
         names = tuple(a.name for a in self.info.attributes) if options.switchable else \
             self._needed(self.attribute, class_filter)
         cores = available_cores()
-        # nodes are read and decoded on every core; a URL's range requests (bounded by its file) on as many
+        # nodes are decoded on every core; a URL's range requests (bounded by its file) on as many threads,
+        # a file's reads on READS_PER_PROCESS threads a decoder process
         remote = any(source.remote is not None for source in self.loader.sources)
-        threads = max(cores, options.http.in_flight) if remote else cores
         # as the loader's Decoders.AUTO: on fewer cores the processes' start slows the first image
         processes = laz_pool.available() and cores >= laz_pool.MIN_AUTO_PROCESSES
-        decoders = DecoderPool(min(threads, cores)) if processes else None
+        threads = max(cores, options.http.in_flight) if remote else cores * (laz_pool.READS_PER_PROCESS if processes else 1)
+        decoders = DecoderPool(cores) if processes else None
         reader = NodeReader(self.loader.sources, self.info.origin, names, threads, decoders,
                             on_parsed=encoding.node_runs)
         scene = None
