@@ -238,8 +238,9 @@ class Hold:
 class BatchQueue:
     """Polling and iterating the batches worker threads put on `_results`: what every
     loader shares. A subclass sets `_results` and `_stop`, and defines start(first),
-    resume(), `done`, _take(item, batches) and _raise_failure(). Iterating resumes a
-    loader started with `first`: it waits for every batch."""
+    resume(), `done`, _take(item, batches) and _raise_failure(); `_ended` says when
+    iterating stops without a failure to raise. Iterating resumes a loader started with
+    `first`: it waits for every batch."""
 
     def poll(self, max_batches: int | None = None) -> list[Batch]:
         """The batches ready now, without waiting. A failure is raised by the first poll
@@ -267,7 +268,7 @@ class BatchQueue:
         self.resume()
         while not self.done:
             self._raise_failure()
-            if self._stop.is_set():
+            if self._ended():
                 return
             try:
                 item = self._results.get(timeout=WAIT_S)
@@ -277,6 +278,8 @@ class BatchQueue:
             self._take(item, batches)
             yield from batches
 
+    def _ended(self) -> bool:
+        return self._stop.is_set()
 
 
 class CloudLoader(BatchQueue):
@@ -336,6 +339,11 @@ class CloudLoader(BatchQueue):
         self._tasks: queue.Queue = queue.Queue(maxsize=1)
         self._results = ReadyQueue(maxsize=self.parser_threads)
         self._stop = threading.Event()
+        """No more work: set by close() and by a failure."""
+        self._closed = threading.Event()
+        """Set by close(): batches parsed are dropped."""
+        self._parsing = 0           # parser threads between taking a task and handing its batch over
+        self._parsing_lock = threading.Lock()
         self._error: InputError | None = None
         self._threads: list[threading.Thread] = []
         self._hold = Hold()
@@ -426,6 +434,7 @@ class CloudLoader(BatchQueue):
         may interrupt start() before the last (each start waits for its thread to run, and
         lazrs holds the GIL while the reader decodes), and joining one that never started
         raises."""
+        self._closed.set()
         self._stop.set()
         close_sources(self._sources)
         if self._decoders is not None:
@@ -458,18 +467,25 @@ class CloudLoader(BatchQueue):
             self.nonfinite_values[name] = self.nonfinite_values.get(name, 0) + n
 
     def _raise_failure(self) -> None:
-        if self._error is not None:
+        """The failure, once the batches being parsed when it came are handed over: they
+        were read before it (a fetch that fails while earlier nodes are still being parsed,
+        as on many cores), and a viewer draws them."""
+        if self._error is not None and self._parsing == 0 and (self._results.empty() or self.done):
             self.close()
             raise self._error
+
+    def _ended(self) -> bool:
+        return self._closed.is_set()
 
     def _fail(self, path: str, exc: BaseException) -> None:
         if self._error is None:
             self._error = _as_input_error(path, exc)
         self._stop.set()
 
-    def _put(self, q: queue.Queue, item) -> bool:
-        """Blocking put that gives up once the loader is stopped."""
-        while not self._stop.is_set():
+    def _put(self, q: queue.Queue, item, until: threading.Event | None = None) -> bool:
+        """Blocking put that gives up once `until` is set (the loader stopped)."""
+        until = self._stop if until is None else until
+        while not until.is_set():
             try:
                 q.put(item, timeout=WAIT_S)
                 return True
@@ -527,14 +543,21 @@ class CloudLoader(BatchQueue):
                 if not self._hold.admit(self._stop):
                     return
                 path, make, later = task
+                with self._parsing_lock:
+                    self._parsing += 1
                 try:
-                    batch = make()
-                    if self.on_parsed is not None and not later:
-                        batch = self.on_parsed(batch)
-                except BaseException as exc:
-                    self._fail(path, exc)
-                    return
-                if not self._put(self._results, _Later(batch) if later else batch):
-                    return
+                    try:
+                        batch = make()
+                        if self.on_parsed is not None and not later:
+                            batch = self.on_parsed(batch)
+                    except BaseException as exc:
+                        self._fail(path, exc)
+                        return
+                    # handed over after another task's failure too, dropped only by close()
+                    if not self._put(self._results, _Later(batch) if later else batch, self._closed):
+                        return
+                finally:
+                    with self._parsing_lock:
+                        self._parsing -= 1
         finally:
             self._put(self._results, _END)

@@ -533,10 +533,15 @@ def test_trickling_server_times_out(server, files):
     assert min(int(n) for n in nodes["byte_size"][1:]) > bound / 0.05       # more than a trickle brings by then
 
 
-def test_session_survives_a_failed_fetch(server, files, gl):
+@pytest.mark.parametrize("slow_parse", [False, True])
+def test_session_survives_a_failed_fetch(server, files, gl, monkeypatch, slow_parse):
     """The viewer's loading path: a node that cannot be fetched fails the frame that pumps
     it with an InputError (the viewer shows it and calls stop_loading); the session then
-    keeps drawing the points read before."""
+    keeps drawing the points read before. slow_parse: a parser thread a node, each parse
+    slowed, so that every node is still being parsed when the last one's fetch fails (as
+    on the H100 machine's 16 cores, where the error came before any batch): the failure
+    is raised once they are handed over."""
+    from progressive.loaders.copc import CopcSource
     from progressive.session import Session, SessionOptions
 
     name = "lone-star.copc.laz"        # no RGB: opening it reads its root node only
@@ -546,6 +551,15 @@ def test_session_survives_a_failed_fetch(server, files, gl):
     assert nodes.size > 2
     server.faults.drops = {int(nodes["offset"][-1]): -1}
     options = SessionOptions(width=160, height=120, http=HttpOptions(timeout_s=5))
+    if slow_parse:
+        real = CopcSource.parse
+
+        def slow(self, *args, **kwargs):
+            time.sleep(0.3)
+            return real(self, *args, **kwargs)
+
+        monkeypatch.setattr(CopcSource, "parse", slow)
+        options = dataclasses.replace(options, parser_threads=int(nodes.size))
 
     began = time.monotonic()            # on this thread: the GL context is current here
     with Session([server.url(name)], options, glc=gl) as s:
@@ -593,3 +607,4 @@ def test_streaming_a_url_draws_while_nodes_are_on_their_way():
         fetched = [r for r in server.ranges if r[0] in server.faults.delays]
     assert frames >= 5
     assert len(fetched) == len(set(fetched)) >= kept - 1     # the first node may come within the first bytes read
+
