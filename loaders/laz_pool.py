@@ -65,14 +65,15 @@ more threads contending for the GIL slow the thread that feeds the workers (H200
 cores, 20 M points: 13.7 M points/s with 16 parsing at once, 14.8 with 8, 16.2 with 4
 or 2; lazrs alone 19.7)."""
 MIN_PARSERS = 2
-READS_PER_PROCESS = 1
+READS_PER_PROCESS = 2
 """A streamed local COPC's node reads in flight (reading threads) per decoder process. A
 read holds its process only while the node decodes, then parses (under the parse gate)
 and encodes on its thread, so with one read a process each process idles meanwhile (H200,
 16 cores, the 1 B-point COPC's overview at 0.25 px: 42 ms a node's read, 9.5 of them in
 its parse, mostly waiting for the gate or the GIL: bench/results/nvidia-h200/stream_writes_1B/).
-More is not measured on many cores yet (bench/results/nvidia-h200/stream_reads/); on 2
-cores with 2 processes, 1 and 2 settle alike."""
+With two, the 100 M-point COPC's still overview settled in a median 3.46 s against 5.17
+(H100, 16 processes, 3 rounds: bench/results/nvidia-h100/stream_reads_100M/); on 2 cores
+with 2 processes, 1 and 2 settle alike."""
 WAIT_S = 0.05
 """How long a wait for a worker's answer blocks before it looks at whether the pool closed."""
 GRACE_S = 1.0
