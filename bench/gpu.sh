@@ -14,7 +14,7 @@
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
-CHUNKS=(files-100M load-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B winners-1B records-1B accuracy attributes packing upload-100M startup-100M viewer-load-100M mainthread-100M startup-1B convert-1B copc-1B stream-1B stream-200M writes-100M writes-1B reads-100M reads-1B pytest)
+CHUNKS=(files-100M load-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B winners-1B records-1B accuracy attributes packing upload-100M startup-100M viewer-load-100M mainthread-100M startup-1B convert-1B copc-1B stream-1B stream-200M writes-100M writes-1B reads-100M reads-1B node-decode-100M pytest)
 chunk="${1:-list}"
 if [ "$chunk" = list ]; then
     printf '%s\n' "${CHUNKS[@]}"
@@ -114,6 +114,12 @@ case "$chunk" in
                           | tail -n 1 | cut -d: -f1)"
                       PYTHONPATH=".:${PYTHONPATH:-}" "${PYTHON:-python3}" bench/results/nvidia-h200/stream_reads/stream_reads.py \
                           "$copc" 4294967296 1920x1080 20 0.25 3 1 2 3 ;;
+    # a streamed node's decode in a decoder process against lazrs in the process, one at a time, then 1-16 lanes at
+    # once: the 100 M-point COPC's first 2,000 nodes by level (bench/results/llvmpipe/node_decode/)
+    node-decode-100M) copc="$("${PYTHON:-python3}" -m bench.stream --points 100000000 --laz --build-only --scratch /dev/shm \
+                          | tail -n 1 | cut -d: -f1)"
+                      PYTHONPATH=".:${PYTHONPATH:-}" "${PYTHON:-python3}" bench/results/llvmpipe/node_decode/node_decode.py \
+                          "$copc" 2000 3 1 4 8 16 ;;
     # what the window reads against what render reads, at 100M points: the sample (point format 3) and a LAZ of
     # point format 8 tiled as LAS and LAZ, each session warm, 3 repeats (bench.load first_image_table); render's
     # session at 8 and 16 parser threads too, beside the default 4 (do more take the frame loop's core?)
