@@ -607,4 +607,3 @@ def test_streaming_a_url_draws_while_nodes_are_on_their_way():
         fetched = [r for r in server.ranges if r[0] in server.faults.delays]
     assert frames >= 5
     assert len(fetched) == len(set(fetched)) >= kept - 1     # the first node may come within the first bytes read
-
