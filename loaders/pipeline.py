@@ -339,11 +339,9 @@ class CloudLoader(BatchQueue):
         self._tasks: queue.Queue = queue.Queue(maxsize=1)
         self._results = ReadyQueue(maxsize=self.parser_threads)
         self._stop = threading.Event()
-        """No more work: set by close() and by a failure."""
+        """No more reads: set by close() and by a failure."""
         self._closed = threading.Event()
-        """Set by close(): batches parsed are dropped."""
-        self._parsing = 0           # parser threads between taking a task and handing its batch over
-        self._parsing_lock = threading.Lock()
+        """Set by close(): the tasks queued and the batches parsed are dropped."""
         self._error: InputError | None = None
         self._threads: list[threading.Thread] = []
         self._hold = Hold()
@@ -467,10 +465,11 @@ class CloudLoader(BatchQueue):
             self.nonfinite_values[name] = self.nonfinite_values.get(name, 0) + n
 
     def _raise_failure(self) -> None:
-        """The failure, once the batches being parsed when it came are handed over: they
-        were read before it (a fetch that fails while earlier nodes are still being parsed,
-        as on many cores), and a viewer draws them."""
-        if self._error is not None and self._parsing == 0 and (self._results.empty() or self.done):
+        """The failure, once the tasks read before it are parsed and handed over (the
+        parser threads have ended): a viewer draws them (on many cores a COPC's last node's
+        fetch failed while every earlier node was still being parsed)."""
+        parsing = any(t.is_alive() for t in self._threads[1:])
+        if self._error is not None and not parsing and (self._results.empty() or self.done):
             self.close()
             raise self._error
 
@@ -478,9 +477,11 @@ class CloudLoader(BatchQueue):
         return self._closed.is_set()
 
     def _fail(self, path: str, exc: BaseException) -> None:
+        """Stop reading; the parser threads parse what is queued, held or not, and end."""
         if self._error is None:
             self._error = _as_input_error(path, exc)
         self._stop.set()
+        self._hold.release()
 
     def _put(self, q: queue.Queue, item, until: threading.Event | None = None) -> bool:
         """Blocking put that gives up once `until` is set (the loader stopped)."""
@@ -493,12 +494,14 @@ class CloudLoader(BatchQueue):
                 pass
         return False
 
-    def _get(self, q: queue.Queue):
-        while not self._stop.is_set():
+    def _next_task(self):
+        """The next task queued, _END once none is left after the reads stopped (or at close())."""
+        while not self._closed.is_set():
             try:
-                return q.get(timeout=WAIT_S)
+                return self._tasks.get(timeout=WAIT_S)
             except queue.Empty:
-                pass
+                if self._stop.is_set():
+                    return _END
         return _END
 
     def _read(self) -> None:
@@ -539,25 +542,19 @@ class CloudLoader(BatchQueue):
 
     def _parse(self) -> None:
         try:
-            while (task := self._get(self._tasks)) is not _END:
-                if not self._hold.admit(self._stop):
+            while (task := self._next_task()) is not _END:
+                if not self._hold.admit(self._closed):
                     return
                 path, make, later = task
-                with self._parsing_lock:
-                    self._parsing += 1
                 try:
-                    try:
-                        batch = make()
-                        if self.on_parsed is not None and not later:
-                            batch = self.on_parsed(batch)
-                    except BaseException as exc:
-                        self._fail(path, exc)
-                        return
-                    # handed over after another task's failure too, dropped only by close()
-                    if not self._put(self._results, _Later(batch) if later else batch, self._closed):
-                        return
-                finally:
-                    with self._parsing_lock:
-                        self._parsing -= 1
+                    batch = make()
+                    if self.on_parsed is not None and not later:
+                        batch = self.on_parsed(batch)
+                except BaseException as exc:
+                    self._fail(path, exc)
+                    return
+                # handed over after another task's failure too, dropped only by close()
+                if not self._put(self._results, _Later(batch) if later else batch, self._closed):
+                    return
         finally:
             self._put(self._results, _END)
