@@ -76,15 +76,21 @@ def still(path, limit=None, **kw):
         yield s, camera
 
 
-def converge(s: Session, camera: Camera) -> int:
-    """Frames until the still view is exact (a first frame for the camera, then on):
-    given up after FRAMES frames and READ_BOUND_S seconds both, as a GPU's frames may be
-    far quicker than the nodes' reads (two tests failed so inside the whole suite on the
-    H200 machine, likely: 16 decoder processes to start, and no report came back)."""
+def bounded_frames():
+    """Frame numbers 1, 2, ... for a loop that waits on the nodes' reads, until FRAMES
+    frames and READ_BOUND_S seconds have both passed: a GPU's frames may be far quicker
+    than the reads (two tests failed so inside the whole suite on the H200 machine,
+    likely: 16 decoder processes to start, and no report came back)."""
     deadline = time.monotonic() + READ_BOUND_S
     n = 0
     while n < FRAMES or time.monotonic() < deadline:
         n += 1
+        yield n
+
+
+def converge(s: Session, camera: Camera) -> int:
+    """Frames until the still view is exact (a first frame for the camera, then on)."""
+    for n in bounded_frames():
         s.frame(camera)
         if s.converged:
             return n
@@ -410,14 +416,15 @@ def test_reads_queue_up_only_once_the_first_nodes_are_shown(monkeypatch):
     path = shared_file(LONE_STAR)       # 15 nodes: more than the threads' first reads
     with streamed(path) as s:
         threads = s.streamer.reader._pool._max_workers
-        camera, most, frames = s.auto_camera(), [], 0
-        while s.status().on_gpu == 0 and frames < FRAMES:
+        camera, most = s.auto_camera(), []
+        for _ in bounded_frames():
+            if s.status().on_gpu > 0:
+                break
             s.frame(camera)
             most.append(s.streamer.state.in_flight)
-            frames += 1
         assert s.status().on_gpu > 0 and max(most) <= threads, most
         later = []
-        for _ in range(FRAMES):
+        for _ in bounded_frames():
             s.frame(camera)
             later.append(s.streamer.state.in_flight)
             if s.converged:
@@ -549,7 +556,7 @@ def test_the_detail_still_missing_shrinks_to_nothing_as_a_still_view_settles():
         state = s.streamer.state
         target, errors = state.target(view), state.nodes.errors(view)
         seen = []
-        for _ in range(FRAMES):
+        for _ in bounded_frames():
             s.frame(camera)
             waiting = target[state.status[target] != Status.RESIDENT]
             seen.append(s.status().stream.missing_px)
@@ -639,7 +646,7 @@ def test_switching_with_the_nodes_kept_rewrites_them_without_reading(sample_copc
     with still(sample_copc, limit_for(60_000), color_by="intensity", switchable=True) as (s, camera):
         nodes_read = s.info.files[0].reads.snapshot()[0]
         s.switch_attribute("elevation")
-        for _ in range(FRAMES):
+        for _ in bounded_frames():
             s.frame(camera)
             assert s.covered().any()
             if s.converged:
