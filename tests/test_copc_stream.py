@@ -475,6 +475,41 @@ def test_the_finest_detail_reads_fewer_nodes_and_is_exact_over_them(sample_copc)
         assert s.status().stream.resident_nodes == s.status().stream.nodes
 
 
+def test_a_file_is_read_on_more_threads_than_decoder_processes(monkeypatch):
+    """Where nodes are decoded in processes, a local file's nodes are read on
+    laz_pool.READS_PER_PROCESS threads a process (a read holds its process only while
+    the node decodes): with four processes here, the threads wait their turn for a
+    process, and the still view is exact over the resident nodes."""
+    from progressive import session as session_module
+    from progressive.loaders import laz_pool
+
+    if not laz_pool.available():
+        pytest.skip("no decoder processes on this platform")
+    monkeypatch.setattr(session_module, "available_cores", lambda: 4)
+    decoded, real = [], DecoderPool.decode_run
+
+    def decode_run(self, lane, *args, **kwargs):
+        decoded.append(lane)
+        return real(self, lane, *args, **kwargs)
+
+    monkeypatch.setattr(DecoderPool, "decode_run", decode_run)
+    path = shared_file(LONE_STAR)
+    _, xyz = las_xyz(path)
+    with streamed(path, limit_for(250_000)) as s:
+        pool = s.streamer.reader.decoders
+        assert pool.processes == 4
+        deadline = time.monotonic() + laz_pool.START_S
+        while not pool.ready and time.monotonic() < deadline:       # the nodes then go to the processes
+            time.sleep(0.01)
+        camera = s.auto_camera()
+        converge(s, camera)
+        assert decoded and set(decoded) <= set(range(4)), decoded     # by the processes, a lane each
+        assert s.streamer.reader._pool._max_workers == 4 * laz_pool.READS_PER_PROCESS > 4
+        assert s.status().stream.resident_nodes > 4
+        assert_tree_cut(s)
+        assert_exact(s, camera, xyz)
+
+
 def test_a_streamed_store_stays_within_the_buffers_it_may_have(monkeypatch):
     """Where every node would need more buffers than a store may have (llvmpipe's 128 MiB
     buffers: a 100 M-point COPC streamed with no limit failed to open), a streamed cloud
