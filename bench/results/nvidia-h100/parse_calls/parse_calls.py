@@ -86,13 +86,18 @@ def alternate(ways: dict, use, src, spans, names, points, threads: list[int]) ->
             flush=True)
 
 
-def main() -> None:
-    path, threads = sys.argv[1], [int(t) for t in sys.argv[2:]] or [1, 2]
+def opened(path: str):
+    """The file opened, its spans but the first (small) one, every attribute's name and
+    the spans' points: what alternate() parses."""
     keep_large_blocks()
     src = L.open_las(path)
     spans = list(src.chunks(BATCH_POINTS))[1:]
-    names = tuple(a.name for a in src.attributes)
-    points = sum(len(s) for s in spans)
+    return src, spans, tuple(a.name for a in src.attributes), sum(len(s) for s in spans)
+
+
+def main() -> None:
+    path, threads = sys.argv[1], [int(t) for t in sys.argv[2:]] or [1, 2]
+    src, spans, names, points = opened(path)
     ways = {"fewer calls": NOW, "before": BEFORE}
     for way in ways.values():       # both give the same batch
         use(way)

@@ -14,12 +14,10 @@ from pathlib import Path
 import numpy as np
 
 from progressive.loaders import las as L
-from progressive.loaders.allocator import keep_large_blocks
-from progressive.loaders.types import BATCH_POINTS
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "parse_calls"))
 import parse_calls  # noqa: E402  (the same rounds and timing of threads that each parse every batch)
-from parse_calls import alternate  # noqa: E402
+from parse_calls import alternate, opened  # noqa: E402
 
 
 def positions_at_once(cells: np.ndarray, scales: np.ndarray, offsets: np.ndarray, origin: np.ndarray) -> np.ndarray:
@@ -34,11 +32,7 @@ def positions_at_once(cells: np.ndarray, scales: np.ndarray, offsets: np.ndarray
 
 def main() -> None:
     path, threads = sys.argv[1], [int(t) for t in sys.argv[2:]] or [1, 2]
-    keep_large_blocks()
-    src = L.open_las(path)
-    spans = list(src.chunks(BATCH_POINTS))[1:]
-    names = tuple(a.name for a in src.attributes)
-    points = sum(len(s) for s in spans)
+    src, spans, names, points = opened(path)
     ways = {"a column a call (9)": L._positions, "three columns a call (3)": positions_at_once}
     cells = np.random.default_rng(1).integers(-2**31, 2**31 - 1, (100_000, 3), dtype=np.int32)
     args = (src.records.scales, src.records.offsets, np.float64([1e5 + 0.3, -2e5 + 0.7, 12.25]))
