@@ -36,13 +36,13 @@ def tiled_batches(points: int):
         sample = sorted(loader, key=lambda b: b.start)
     whole = sample[0]
     for b in sample[1:]:
-        whole = dataclasses.replace(whole, positions=np.concatenate([whole.positions, b.positions]),
+        whole = dataclasses.replace(whole, xyz=np.concatenate([whole.positions, b.positions]),
                                     attributes={k: np.concatenate([v, b.attributes[k]]) for k, v in whole.attributes.items()},
                                     records=None, bounds=None, grid=None)
     reps = -(-points // whole.count)
     positions = np.tile(whole.positions, (reps, 1))[:points]
     attributes = {k: np.tile(v, (reps,) + (1,) * (v.ndim - 1))[:points] for k, v in whole.attributes.items()}
-    batches = [dataclasses.replace(whole, start=lo, positions=positions[lo:lo + BATCH_POINTS],
+    batches = [dataclasses.replace(whole, start=lo, xyz=positions[lo:lo + BATCH_POINTS],
                                    attributes={k: v[lo:lo + BATCH_POINTS] for k, v in attributes.items()})
                for lo in range(0, points, BATCH_POINTS)]
     return dataclasses.replace(info, points=points), batches

@@ -140,7 +140,7 @@ def load(glc: GLContext, cloud: TiledCloud, order: Order = Order.FILE, fill: Fil
     scene = Scene(glc, cloud.info, cloud.attribute, order=fill, records=records, position_encoding=position_encoding,
                   batch_order=batch_order)
     for start, rec in cloud.batches(order):
-        scene.add_batch(Batch(start=start, positions=rec[:, :3].view(np.float32), records=rec))
+        scene.add_batch(Batch(start=start, xyz=rec[:, :3].view(np.float32), records=rec))
     glc.ctx.finish()
     return scene, time.perf_counter() - t0
 

@@ -120,7 +120,7 @@ class E57Source:
         counts = {name: n for name, v in attributes.items() if (n := nonfinite_count(v))}
         for name in counts:
             quiet_nans(attributes[name])
-        return Batch(start=start, positions=positions, attributes=attributes,
+        return Batch(start=start, xyz=positions, attributes=attributes,
                      bounds=(finite.min(axis=0), finite.max(axis=0)) if len(finite) else None,
                      nonfinite_positions=nonfinite_rows(positions), nonfinite_values=counts)
 

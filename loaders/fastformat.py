@@ -85,7 +85,7 @@ class FastSource:
         with open_binary(self.info.path) as stream:
             stream.seek(HEADER_BYTES + first * RECORD_BYTES)
             _read_exactly(self.info.path, stream, memoryview(records).cast("B"))
-        return Batch(start=start, positions=records[:, :3].view(np.float32), records=records)
+        return Batch(start=start, xyz=records[:, :3].view(np.float32), records=records)
 
     def read_parsed(self, first: int, count: int, start: int) -> Batch:
         """read() then parse(): a parser thread's task."""

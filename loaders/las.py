@@ -292,19 +292,19 @@ class LasSource:
         return decoders if decoders.takes(self.info.points - sum(n for n, _ in self.laz.chunks[:skip])) else None
 
     def parse(self, chunk: np.ndarray | Span, start: int, origin: np.ndarray, names: tuple[str, ...]) -> Batch:
-        """A Batch of the named attributes; positions are computed in float64 as laspy
-        scales them, so that float32 rounding happens only once. The whole batch in
-        a few large numpy calls: each releases the GIL, and each return to Python waits
-        for it while another thread (the frame loop's) holds it."""
+        """A Batch of the named attributes, its positions kept as the file's integers
+        (Grid: what the word store takes; float32 positions computed only where asked
+        for). The whole batch in a few large numpy calls: each releases the GIL, and each
+        return to Python waits for it while another thread (the frame loop's) holds it."""
         if isinstance(chunk, Span):
             chunk = read_span(self.info.path, self.records, chunk, self.info.points)
         n = len(chunk)
         raw = chunk.view(np.uint8).reshape(n, chunk.dtype.itemsize)
         cells = _rows_of(raw, 0, 12).view("<i4").reshape(n, 3)     # X, Y, Z lead every point format
         scales, offsets = self.records.scales, self.records.offsets
+        grid = Grid(cells, tuple(map(float, scales)), tuple(map(float, offsets)), tuple(map(float, origin)))
         least, most = _column_ends(cells)
         with np.errstate(over="ignore", invalid="ignore"):     # overflow is counted, not warned
-            positions = _positions(cells, scales, offsets, origin)
             # scaling is monotonic: the ends of the integers are the ends of the coordinates
             ends = np.float64([least, most]) * scales + offsets if n else np.float64([[np.inf] * 3, [-np.inf] * 3])
             lo, hi = ends.min(axis=0), ends.max(axis=0)
@@ -316,9 +316,8 @@ class LasSource:
         counts = {name: bad for name, v in attributes.items() if name not in FROM_INTEGERS and (bad := nonfinite_count(v))}
         for name in counts:
             quiet_nans(attributes[name])
-        grid = Grid(cells, tuple(map(float, self.records.scales)), tuple(map(float, self.records.offsets)))
-        return Batch(start=start, positions=positions, attributes=attributes, bounds=(lo, hi),
-                     nonfinite_positions=0 if ends_finite else nonfinite_rows(positions), nonfinite_values=counts,
+        return Batch(start=start, attributes=attributes, bounds=(lo, hi),
+                     nonfinite_positions=0 if ends_finite else nonfinite_rows(grid.positions()), nonfinite_values=counts,
                      grid=grid)
 
     def _values(self, chunk: laspy.PackedPointRecord, raw: np.ndarray, name: str) -> np.ndarray:
@@ -350,20 +349,6 @@ class LasSource:
         else:
             values = np.asarray(chunk[column.dimension])
         return np.ascontiguousarray(values if column.index is None else values[:, column.index])
-
-
-def _positions(cells: np.ndarray, scales: np.ndarray, offsets: np.ndarray, origin: np.ndarray) -> np.ndarray:
-    """(n, 3) float32 positions relative to `origin` of (n, 3) integer cells, each scaled
-    and offset in float64 as laspy computes coordinates (Records.coordinates), so that
-    float32 rounding happens once; a column at a time, as numpy's loops over rows of 3
-    are slow."""
-    positions = np.empty(cells.shape, np.float32)
-    scaled = np.empty(cells.shape[0])
-    for axis in range(3):
-        np.multiply(cells[:, axis], scales[axis], out=scaled)
-        scaled += offsets[axis]
-        np.subtract(scaled, origin[axis], out=positions[:, axis], casting="same_kind")
-    return positions
 
 
 def _extra_bytes(chunk: laspy.PackedPointRecord, name: str) -> np.ndarray:

@@ -84,7 +84,7 @@ class PlySource:
         counts = {name: n for name, v in attributes.items() if (n := nonfinite_count(v))}
         for name in counts:
             quiet_nans(attributes[name])
-        return Batch(start=start, positions=positions, attributes=attributes,
+        return Batch(start=start, xyz=positions, attributes=attributes,
                      bounds=None if lo is None else (lo, hi),
                      nonfinite_positions=nonfinite_rows(positions), nonfinite_values=counts)
 

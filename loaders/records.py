@@ -23,7 +23,7 @@ def attribute_word(batch: Batch, attr: AttributeInfo, origin_z: float) -> np.nda
     """
     n = batch.count
     if attr.name == ELEVATION:
-        z = batch.positions[:, 2].astype(np.float64) + (origin_z - attr.offset)
+        z = batch.z().astype(np.float64) + (origin_z - attr.offset)
         with np.errstate(over="ignore", invalid="ignore"):
             return z.astype(np.float32).view(np.uint32)
     values = batch.attributes[attr.name]

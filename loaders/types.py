@@ -225,14 +225,30 @@ def cell_runs(cells: np.ndarray, start: int, points: int) -> Runs:
 @dataclass(frozen=True)
 class Grid:
     """A LAS batch's coordinates as the file stores them: coordinate = cell · scale +
-    offset, per axis."""
+    offset, per axis; its positions are relative to `origin` (CloudInfo.origin)."""
 
     cells: np.ndarray                   # (n, 3) int32, the records' X, Y, Z
     scale: tuple[float, float, float]
     offset: tuple[float, float, float]
+    origin: tuple[float, float, float]
     runs: Runs | None = None
     """Their least and most by runs of cloud indices, where the loader was asked for
     them (CloudLoader's on_parsed)."""
+
+    def positions(self, axes: tuple[int, ...] = (0, 1, 2)) -> np.ndarray:
+        """(n, len(axes)) float32 positions relative to the origin: each cell scaled and
+        offset in float64 as laspy computes coordinates (las.Records.coordinates), so
+        that float32 rounding happens once; a column at a time, as numpy's loops over
+        rows of 3 are slow."""
+        n = self.cells.shape[0]
+        positions = np.empty((n, len(axes)), np.float32)
+        scaled = np.empty(n)
+        with np.errstate(over="ignore", invalid="ignore"):
+            for column, axis in enumerate(axes):
+                np.multiply(self.cells[:, axis], self.scale[axis], out=scaled)
+                scaled += self.offset[axis]
+                np.subtract(scaled, self.origin[axis], out=positions[:, column], casting="same_kind")
+        return positions
 
 
 @dataclass(frozen=True)
@@ -250,7 +266,10 @@ class Batch:
     """
 
     start: int
-    positions: np.ndarray                       # (n, 3) float32, relative to CloudInfo.origin
+    xyz: np.ndarray | None = None
+    """(n, 3) float32 positions relative to CloudInfo.origin; None where `grid` holds
+    them (a LAS batch: `positions` computes them on each use, so that parsing skips
+    them, a large share of its parse, where the word store takes the integers)."""
     attributes: dict[str, np.ndarray] = field(default_factory=dict)
     records: np.ndarray | None = None
     bounds: tuple[np.ndarray, np.ndarray] | None = None
@@ -259,17 +278,31 @@ class Batch:
     nonfinite_positions: int = 0
     nonfinite_values: dict[str, int] = field(default_factory=dict)
     grid: Grid | None = None
-    """LAS only: the points' own integer coordinates, from which `positions` were
-    scaled; whoever changes `positions` drops it (the word store keeps these integers,
-    so a LAS position on the GPU is lossless)."""
+    """LAS only: the points' own integer coordinates, from which `positions` are
+    scaled; whoever changes the positions drops it (the word store keeps these
+    integers, so a LAS position on the GPU is lossless)."""
     boxes: Runs | None = None
     """Fast format: the least and most of `positions` by runs of cloud indices, where the
     loader was asked for them (CloudLoader's on_parsed); whoever changes `positions`
     drops them."""
 
+    def __post_init__(self):
+        if self.xyz is None and self.grid is None:
+            raise ValueError("a batch needs its positions or its grid")
+
+    @property
+    def positions(self) -> np.ndarray:
+        """(n, 3) float32 positions relative to CloudInfo.origin: `xyz`, else computed
+        from the grid (not kept: a caller on a hot path takes the grid's cells instead)."""
+        return self.xyz if self.xyz is not None else self.grid.positions()
+
+    def z(self) -> np.ndarray:
+        """positions[:, 2], without computing x and y where they come from the grid."""
+        return self.xyz[:, 2] if self.xyz is not None else self.grid.positions((2,))[:, 0]
+
     @property
     def count(self) -> int:
-        return int(self.positions.shape[0])
+        return int((self.xyz if self.xyz is not None else self.grid.cells).shape[0])
 
     def rows(self, lo: int, hi: int) -> Batch:
         """Rows lo..hi as a batch of their own (views; the non-finite counts stay the
@@ -279,19 +312,24 @@ class Batch:
         grid = None if self.grid is None else replace(
             self.grid, cells=self.grid.cells[lo:hi],
             runs=None if self.grid.runs is None else self.grid.runs.rows(lo, hi))
-        return replace(self, start=self.start + lo, positions=self.positions[lo:hi],
-                                   attributes={k: v[lo:hi] for k, v in self.attributes.items()},
-                                   records=None if self.records is None else self.records[lo:hi], bounds=None,
-                                   grid=grid, boxes=None if self.boxes is None else self.boxes.rows(lo, hi))
-
+        return replace(self, start=self.start + lo, xyz=None if self.xyz is None else self.xyz[lo:hi],
+                       attributes={k: v[lo:hi] for k, v in self.attributes.items()},
+                       records=None if self.records is None else self.records[lo:hi], bounds=None,
+                       grid=grid, boxes=None if self.boxes is None else self.boxes.rows(lo, hi))
 
     def reordered(self, lo: int, hi: int, order: np.ndarray) -> Batch:
         """The batch with rows lo..hi in the order `order` (indices into them): every
         per-point array, the same points (bounds and non-finite counts stay)."""
         rows = np.concatenate([np.arange(lo), lo + np.asarray(order, dtype=np.int64), np.arange(hi, self.count)])
         grid = None if self.grid is None else replace(self.grid, cells=self.grid.cells[rows], runs=None)
-        return replace(self, positions=self.positions[rows], attributes={k: v[rows] for k, v in self.attributes.items()},
+        return replace(self, xyz=None if self.xyz is None else self.xyz[rows],
+                       attributes={k: v[rows] for k, v in self.attributes.items()},
                        records=None if self.records is None else self.records[rows], grid=grid, boxes=None)
+
+    def with_positions(self, positions: np.ndarray, **changes) -> Batch:
+        """The batch with other positions (reprojected, moved): its grid and boxes,
+        which were of the old ones, dropped."""
+        return replace(self, xyz=positions, grid=None, boxes=None, **changes)
 
 
 def channel8(values: np.ndarray, sixteen_bit: bool) -> np.ndarray:

@@ -33,7 +33,7 @@ def pack_into(out: np.ndarray, batch: Batch, attr: AttributeInfo, words: np.ndar
         xyz = src[:, :3].view(np.float32)
         hides = bool(batch.nonfinite_values.get(attr.name))
     else:
-        xyz = np.ascontiguousarray(batch.positions[lo:hi], dtype=np.float32)
+        xyz = np.ascontiguousarray(batch.rows(lo, hi).positions, dtype=np.float32)
         out[:, :3] = xyz.view(np.uint32)
         out[:, 3] = w
         hidden = nonfinite_rows(xyz)

@@ -15,7 +15,7 @@ from __future__ import annotations
 import queue
 import re
 import threading
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
@@ -182,6 +182,8 @@ class ReprojectingLoader(BatchQueue):
         """(n, 3) float64 coordinates of a batch of file k, in its CRS (see the module)."""
         loader = self._loaders[k]
         f = loader.info.files[0]
+        if batch.grid is not None:      # the file's own coordinates, as laspy computes them
+            return batch.grid.cells * np.asarray(batch.grid.scale) + np.asarray(batch.grid.offset)
         xyz = batch.positions.astype(np.float64) + loader.info.origin
         if f.format not in SNAPPED_FORMATS or not all(s > 0 for s in f.scale):
             return xyz
@@ -196,10 +198,10 @@ class ReprojectingLoader(BatchQueue):
         with np.errstate(invalid="ignore", over="ignore"):
             positions = (world - self.info.origin).astype(np.float32)
         finite = world[np.isfinite(positions).all(axis=1)]
-        return replace(batch, start=batch.start + self._starts[k], positions=positions,
-                       attributes={n: v for n, v in batch.attributes.items() if n in self._names},
-                       bounds=(finite.min(axis=0), finite.max(axis=0)) if len(finite) else None,
-                       nonfinite_positions=nonfinite_rows(positions), grid=None, boxes=None)
+        return batch.with_positions(positions, start=batch.start + self._starts[k],
+                                    attributes={n: v for n, v in batch.attributes.items() if n in self._names},
+                                    bounds=(finite.min(axis=0), finite.max(axis=0)) if len(finite) else None,
+                                    nonfinite_positions=nonfinite_rows(positions))
 
     @property
     def total(self) -> int:

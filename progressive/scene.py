@@ -17,7 +17,7 @@ from progressive.camera import Returns
 from progressive.colors import DEFAULT_PALETTE, NO_RANGE, Colormap, ColorMode, ColorStyle, Palette
 from progressive.context import GLContext
 from progressive.errors import ProgressiveError
-from progressive.loaders.records import ELEVATION, EXPONENT
+from progressive.loaders.records import ELEVATION, EXPONENT, attribute_word
 from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, CloudInfo, nonfinite_records
 from progressive.packing import batch_words, pack_into
 from progressive.passes.distribute import DistributePass
@@ -179,10 +179,11 @@ class Scene:
         if self.store.has_classes:
             self._upload_flags(batch, batch.start)
         if self.keep_batches:
-            # Without its integers (12 bytes a point of host memory): a kept batch sent
-            # again (hidden points, attribute switching) is encoded from its positions.
+            # With its positions or its integers, not both (12 bytes a point of host
+            # memory each): a kept batch sent again (hidden points, attribute switching)
+            # is encoded from what it keeps.
             bisect.insort(self._by_start, (batch.start, len(self.batches)))
-            self.batches.append(replace(batch, grid=None) if batch.grid is not None else batch)
+            self.batches.append(replace(batch, grid=None) if batch.grid is not None and batch.xyz is not None else batch)
             self.held.append(self.attribute)
         self.loaded += batch.count
         self.upload_seconds += time.perf_counter() - t0
@@ -549,7 +550,7 @@ def _copied_rows(batch: Batch, lo: int, hi: int) -> Batch:
     """Rows lo..hi of a batch with arrays of their own (what the assembler holds)."""
     part = batch.rows(lo, hi)
     grid = None if part.grid is None else replace(part.grid, cells=part.grid.cells.copy())
-    return replace(part, positions=part.positions.copy(), attributes={k: v.copy() for k, v in part.attributes.items()},
+    return replace(part, xyz=None if part.xyz is None else part.xyz.copy(), attributes={k: v.copy() for k, v in part.attributes.items()},
                    records=None if part.records is None else part.records.copy(), grid=grid)
 
 
@@ -629,17 +630,29 @@ def _rgb_bytes(batch: Batch, attribute: AttributeInfo) -> np.ndarray | None:
 def _hidden_points(batch: Batch, attribute: AttributeInfo, origin_z: float) -> int:
     """Points of a batch never drawn, as pack_into counts them: a coordinate not finite,
     or a shown scalar not finite (a fast-format batch's only where it says it has such)."""
-    positions = _positions(batch)
     finite = _all_finite(batch)
     hides = attribute.kind is AttributeKind.SCALAR and (batch.records is None or batch.nonfinite_values.get(attribute.name))
     if hides and batch.records is None and attribute.name != ELEVATION:
         hides = batch.attributes[attribute.name].dtype.kind == "f"     # an integer's word is always finite
+    elif hides and attribute.name == ELEVATION and finite:
+        hides = not _elevation_ends_finite(batch, attribute, origin_z)
     if finite and not hides:
         return 0
-    shown = np.isfinite(positions).all(axis=1) if not finite else np.ones(batch.count, dtype=bool)
+    shown = np.isfinite(_positions(batch)).all(axis=1) if not finite else np.ones(batch.count, dtype=bool)
     if hides:
         shown &= (batch_words(batch, attribute, origin_z) & EXPONENT) != EXPONENT
     return int(batch.count - np.count_nonzero(shown))
+
+
+def _elevation_ends_finite(batch: Batch, attribute: AttributeInfo, origin_z: float) -> bool:
+    """Whether the elevation words of a LAS batch's least and greatest z are finite, and
+    so every one of its words (a word is monotonic in z: scaling, rounding and adding a
+    constant are), without a pass over its points; False without its bounds."""
+    if batch.bounds is None:
+        return False
+    with np.errstate(over="ignore", invalid="ignore"):
+        ends = (np.stack(batch.bounds) - [0.0, 0.0, origin_z]).astype(np.float32)
+    return bool(((attribute_word(Batch(start=0, xyz=ends), attribute, origin_z) & EXPONENT) != EXPONENT).all())
 
 
 def _all_finite(batch: Batch) -> bool:

@@ -462,7 +462,8 @@ class Session:
                 words, finite = batch.records[:, 3], np.isfinite(batch.records[:, :3].view(np.float32)).all(axis=1)
             else:
                 words = attribute_word(batch, self.attribute, float(self.info.origin[2]))
-                finite = np.isfinite(batch.positions).all(axis=1)
+                finite = np.isfinite(batch.positions).all(axis=1) if batch.nonfinite_positions \
+                    else np.ones(batch.count, dtype=bool)
             values = words.view(np.float32)[finite].astype(np.float64) + self.attribute.offset
             counts += np.histogram(values[np.isfinite(values)], bins, (lo, hi))[0]
         return counts

@@ -39,7 +39,7 @@ class WordPacker:
         floats = out.view(np.float32)
         with np.errstate(over="ignore", invalid="ignore"):
             if attr.name == ELEVATION:      # float32(float64(z) + (origin_z - offset))
-                np.add(batch.positions[lo:hi, 2], self.origin_z - attr.offset, out=floats, dtype=np.float64,
+                np.add(batch.rows(lo, hi).z(), self.origin_z - attr.offset, out=floats, dtype=np.float64,
                        casting="same_kind")
                 return
             values = batch.attributes[attr.name][lo:hi]

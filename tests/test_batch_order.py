@@ -55,10 +55,10 @@ def test_points_not_finite_go_last_in_file_order():
 
 def test_reordered_moves_every_array_of_a_row_together():
     n = 10
-    b = Batch(start=5, positions=np.arange(3 * n, dtype=np.float32).reshape(n, 3),
+    b = Batch(start=5, xyz=np.arange(3 * n, dtype=np.float32).reshape(n, 3),
               attributes={"intensity": np.arange(n, dtype=np.uint16), "rgb": np.arange(3 * n, dtype=np.uint8).reshape(n, 3)},
               records=np.arange(4 * n, dtype=np.uint32).reshape(n, 4),
-              grid=Grid(np.arange(3 * n, dtype=np.int32).reshape(n, 3), (1.0, 1.0, 1.0), (0.0, 0.0, 0.0)))
+              grid=Grid(np.arange(3 * n, dtype=np.int32).reshape(n, 3), (1.0, 1.0, 1.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)))
     order = np.array([3, 0, 2, 1])
     r = b.reordered(2, 6, order)
     rows = [0, 1, 5, 2, 4, 3, 6, 7, 8, 9]
@@ -88,7 +88,7 @@ def scrambled(info, parts, seed: int):
     """The file's points in a random order, as one loaded batch: a file whose order
     wanders as far as it can."""
     rng = np.random.default_rng(seed)
-    whole = dataclasses.replace(parts[0], positions=np.concatenate([b.positions for b in parts]), grid=None,
+    whole = dataclasses.replace(parts[0], xyz=np.concatenate([b.positions for b in parts]), grid=None,
                                 attributes={k: np.concatenate([b.attributes[k] for b in parts]) for k in parts[0].attributes},
                                 bounds=None)
     perm = rng.permutation(whole.count)

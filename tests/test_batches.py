@@ -426,7 +426,7 @@ def test_box_runs_of_rows_are_those_of_their_positions():
             np.testing.assert_array_equal(batches.boxes_from_runs(part), expected)
     records = np.zeros((n, 4), dtype=np.uint32)
     records[:, :3] = xyz.view(np.uint32)
-    batch = Batch(start=start, positions=records[:, :3].view(np.float32), records=records, boxes=runs)
+    batch = Batch(start=start, xyz=records[:, :3].view(np.float32), records=records, boxes=runs)
     moved = replace(batch, start=start + 5)
     assert batch.rows(0, n).boxes.of(start, n, BATCH_POINTS) and not moved.boxes.of(moved.start, n, BATCH_POINTS)
 

@@ -72,7 +72,7 @@ def synthetic(gl, xyz: np.ndarray, raster=Raster.COMPUTE):
     attr = AttributeInfo("elevation", AttributeKind.SCALAR, np.dtype("f8"), float((lo[2] + hi[2]) / 2))
     info = CloudInfo(files=(), points=len(xyz), origin=(lo + hi) / 2, bounds_min=lo, bounds_max=hi, attributes=(attr,))
     r = Renderer(gl, info, attr, raster=raster, width=W, height=H)
-    r.add_batch(Batch(start=0, positions=(xyz - info.origin).astype(np.float32)))
+    r.add_batch(Batch(start=0, xyz=(xyz - info.origin).astype(np.float32)))
     return r
 
 
@@ -132,7 +132,7 @@ def test_nonfinite_values_and_positions_are_never_drawn(gl):
     origin = xyz.mean(axis=0)
     positions = (xyz - origin).astype(np.float32)
     positions[4, 0] = np.nan                   # a non-finite coordinate (fast-format style)
-    batch = Batch(start=0, positions=positions, attributes={"reflectance": values}, nonfinite_positions=1,
+    batch = Batch(start=0, xyz=positions, attributes={"reflectance": values}, nonfinite_positions=1,
                   nonfinite_values={"reflectance": 2})      # as a loader counts them
     records = pack_records(batch, attr, float(origin[2]))
     assert nonfinite_records(records)[0] == 3
@@ -156,13 +156,33 @@ def test_fast_format_records_with_nonfinite_shown_values_are_hidden():
     words = np.array([1.0, np.nan, 2.0, np.inf], dtype=np.float32).view(np.uint32)
     records = np.zeros((4, 4), dtype=np.uint32)
     records[:, 3] = words
-    batch = Batch(start=0, positions=records[:, :3].view(np.float32), records=records.copy(),
+    batch = Batch(start=0, xyz=records[:, :3].view(np.float32), records=records.copy(),
                   nonfinite_values={"reflectance": 2})
     packed = pack_records(batch, attr, 0.0)
     assert nonfinite_records(packed)[0] == 2 and nonfinite_records(records)[0] == 0
     other = AttributeInfo("intensity", AttributeKind.SCALAR, np.dtype("f4"))
-    unmasked = pack_records(Batch(start=0, positions=records[:, :3].view(np.float32), records=records.copy()), other, 0.0)
+    unmasked = pack_records(Batch(start=0, xyz=records[:, :3].view(np.float32), records=records.copy()), other, 0.0)
     assert nonfinite_records(unmasked)[0] == 0
+
+
+@pytest.mark.parametrize("offset, hidden", [(0.0, 0), (-1e38, 1), (-3e38, 3)])
+def test_elevation_words_that_overflow_are_hidden_as_pack_records_hides_them(offset, hidden):
+    """A LAS batch's elevation words are checked by the ends of its z alone (their float32
+    is monotonic in z): the count equals that of the reference's records, computed from
+    every point's position."""
+    from progressive.loaders.las import _column_ends
+    from progressive.loaders.records import pack_records
+    from progressive.loaders.types import Grid, nonfinite_records
+    from progressive.scene import _hidden_points
+
+    cells = np.array([[0, 0, 0], [0, 0, 1], [0, 0, 3], [0, 0, 2]], dtype=np.int32)
+    grid = Grid(cells, (1.0, 1.0, 1e38), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    bounds = tuple(np.float64(end) * (1.0, 1.0, 1e38) for end in _column_ends(cells))
+    batch = Batch(start=0, bounds=bounds, grid=grid)
+    attr = AttributeInfo("elevation", AttributeKind.SCALAR, np.dtype("f8"), offset)
+    assert nonfinite_records(pack_records(batch, attr, 0.0))[0] == hidden
+    assert _hidden_points(batch, attr, 0.0) == hidden
+    assert _hidden_points(batch.rows(1, 4), attr, 0.0) == hidden    # without bounds: from every word
 
 
 @pytest.mark.filterwarnings("error")

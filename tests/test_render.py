@@ -142,7 +142,7 @@ def test_float_positions_quantize_to_their_batch_box(gl, order):
     coordinates), within half a cell; sorted by Morton code, the box of the points the
     store placed in the batch."""
     info, batches = sample_parts()
-    r = load_batches(gl, [dataclasses.replace(b, grid=None) for b in batches], info, batch_order=order)
+    r = load_batches(gl, [b.with_positions(b.positions) for b in batches], info, batch_order=order)
     words, batch, files, padding = held_slots(r, info)
     xyz = (file_xyz(SAMPLE) - info.origin).astype(np.float32)[files]
     assert not r.store.integer.any()
@@ -414,7 +414,7 @@ def test_attributes_read_afterwards_join_kept_batches_that_start_elsewhere(gl, s
         whole = {n: np.concatenate([b.attributes[n] for b in batches]) for n in batches[0].attributes}
         positions = np.concatenate([b.positions for b in batches])
         for lo, hi in zip(edges, edges[1:]):
-            part = dataclasses.replace(batches[0], start=lo, positions=positions[lo:hi],
+            part = dataclasses.replace(batches[0], start=lo, xyz=positions[lo:hi],
                                        attributes={n: v[lo:hi] for n, v in whole.items() if n not in first},
                                        nonfinite_values={}, grid=None, bounds=None)
             scene.add_attributes(part)

@@ -44,7 +44,7 @@ def resplit(batches: list[Batch], sizes=(7_001, 13_337, 2_500, 31_000)) -> list[
 
 def concat(batches: list[Batch]) -> Batch:
     ordered = sorted(batches, key=lambda b: b.start)
-    return Batch(start=ordered[0].start, positions=np.concatenate([b.positions for b in ordered]),
+    return Batch(start=ordered[0].start, xyz=np.concatenate([b.positions for b in ordered]),
                  attributes={k: np.concatenate([b.attributes[k] for b in ordered]) for k in ordered[0].attributes})
 
 
@@ -91,7 +91,7 @@ def test_packer_equals_attribute_word_on_hard_values(dtype):
         info = np.iinfo(dtype)
         values = rng.integers(info.min, info.max, n, dtype=dtype, endpoint=True)
     attribute = AttributeInfo("v", AttributeKind.SCALAR, np.dtype(dtype), offset=12345.678)
-    batch = Batch(start=0, positions=rng.standard_normal((n, 3)).astype(np.float32), attributes={"v": values})
+    batch = Batch(start=0, xyz=rng.standard_normal((n, 3)).astype(np.float32), attributes={"v": values})
     out = np.zeros(n - 3, dtype=np.uint32)
     WordPacker(attribute, 0.0).pack(out, batch, 3, n)
     np.testing.assert_array_equal(out, attribute_word(batch, attribute, 0.0)[3:])
@@ -108,7 +108,7 @@ def test_packer_equals_attribute_word_on_rgb(layout, rows):
     values = {"contiguous": np.ascontiguousarray(rgb[:, :3]), "strided": rgb[:, ::2],
               "uint16": rgb[:, :3].astype(np.uint16)}[layout]
     attribute = AttributeInfo("rgb", AttributeKind.RGB, values.dtype)
-    batch = Batch(start=0, positions=np.zeros((n, 3), dtype=np.float32), attributes={"rgb": values})
+    batch = Batch(start=0, xyz=np.zeros((n, 3), dtype=np.float32), attributes={"rgb": values})
     lo, hi = rows
     out = np.zeros(hi - lo, dtype=np.uint32)
     WordPacker(attribute, 0.0).pack(out, batch, lo, hi)

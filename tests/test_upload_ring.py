@@ -62,9 +62,9 @@ def hostile(batches: list[Batch], info, every: int = 97) -> list[Batch]:
         values = b.attributes["intensity"].astype(np.float64)
         values[3::every // 2] = np.inf
         values[::every * 3] = np.nan
-        out.append(dataclasses.replace(b, positions=pos, grid=None, attributes={**b.attributes, "intensity": values},
-                                       nonfinite_positions=int(np.count_nonzero(np.isnan(pos[:, 1]))),
-                                       nonfinite_values={"intensity": int(np.count_nonzero(~np.isfinite(values)))}))
+        out.append(b.with_positions(pos, attributes={**b.attributes, "intensity": values},
+                                    nonfinite_positions=int(np.count_nonzero(np.isnan(pos[:, 1]))),
+                                    nonfinite_values={"intensity": int(np.count_nonzero(~np.isfinite(values)))}))
     return out
 
 
