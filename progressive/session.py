@@ -303,8 +303,10 @@ class Session:
         # nodes are decoded on every core; a URL's range requests (bounded by its file) on as many threads,
         # a file's reads on READS_PER_PROCESS threads a decoder process
         remote = any(source.remote is not None for source in self.loader.sources)
-        # as the loader's Decoders.AUTO: on fewer cores the processes' start slows the first image
-        processes = laz_pool.available() and cores >= laz_pool.MIN_AUTO_PROCESSES
+        # as the loader's Decoders.AUTO: on fewer cores, or for fewer points than pay for it (a small
+        # COPC), the processes' start costs more than they save
+        processes = laz_pool.available() and cores >= laz_pool.MIN_AUTO_PROCESSES \
+            and self.info.points >= laz_pool.MIN_PROCESS_POINTS
         threads = max(cores, options.http.in_flight) if remote else cores * (laz_pool.READS_PER_PROCESS if processes else 1)
         decoders = DecoderPool(cores) if processes else None
         reader = NodeReader(self.loader.sources, self.info.origin, names, threads, decoders,

@@ -486,6 +486,7 @@ def test_a_file_is_read_on_more_threads_than_decoder_processes(monkeypatch):
     if not laz_pool.available():
         pytest.skip("no decoder processes on this platform")
     monkeypatch.setattr(session_module, "available_cores", lambda: 4)
+    monkeypatch.setattr(laz_pool, "MIN_PROCESS_POINTS", 0)     # lone-star is smaller than a pool pays for
     decoded, real = [], DecoderPool.decode_run
 
     def decode_run(self, lane, *args, **kwargs):
@@ -508,6 +509,26 @@ def test_a_file_is_read_on_more_threads_than_decoder_processes(monkeypatch):
         assert s.status().stream.resident_nodes > 4
         assert_tree_cut(s)
         assert_exact(s, camera, xyz)
+
+
+def test_a_copc_smaller_than_a_pool_pays_for_is_decoded_in_the_loaders_process(monkeypatch):
+    """A COPC of fewer points than laz_pool.MIN_PROCESS_POINTS streams without decoder
+    processes whatever the cores (each session of the suite started 16 on the GPU
+    machine), a reading thread a core; from that many points on, with them."""
+    from progressive import session as session_module
+    from progressive.loaders import laz_pool
+
+    monkeypatch.setattr(session_module, "available_cores", lambda: 8)
+    path = shared_file(LONE_STAR)
+    with streamed(path, limit_for(250_000)) as s:
+        points = s.info.points
+        assert s.streamer.reader.decoders is None and s.streamer.reader._pool._max_workers == 8
+    if not laz_pool.available():
+        return
+    monkeypatch.setattr(laz_pool, "MIN_PROCESS_POINTS", points)
+    with streamed(path, limit_for(250_000)) as s:
+        assert s.streamer.reader.decoders.processes == 8
+        assert s.streamer.reader._pool._max_workers == 8 * laz_pool.READS_PER_PROCESS
 
 
 def test_a_streamed_store_stays_within_the_buffers_it_may_have(monkeypatch):
