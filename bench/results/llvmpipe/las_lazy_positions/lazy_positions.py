@@ -7,9 +7,10 @@ Times in ms; `every`: every attribute, `rgb`: RGB alone; 2 parser threads, `1`: 
     PYTHONPATH=. python bench/results/llvmpipe/las_lazy_positions/lazy_positions.py
 """
 import dataclasses
-import time
+import functools
 
 from bench import data
+from bench.compactness import best_of
 from bench.load import laspy_user, pipeline, raw_read
 from progressive.loaders import las
 
@@ -23,19 +24,10 @@ def eager(self, *args, **kwargs):
     return dataclasses.replace(batch, xyz=batch.grid.positions())
 
 
-def best(fn, k=7):
-    times = []
-    for _ in range(k):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return min(times)
-
-
 for _ in range(5):
-    row = [f"laspy {best(lambda: laspy_user(path)) * 1e3:.1f}"]
+    row = [f"laspy {best_of(7, lambda: laspy_user(path)) * 1e3:.1f}"]
     for name, parse in (("eager", eager), ("lazy", lazy)):
         las.LasSource.parse = parse
         for label, threads, names in (("every", 2, None), ("rgb", 2, ("rgb",)), ("every1", 1, None), ("rgb1", 1, ("rgb",))):
-            row.append(f"{name}-{label} {best(lambda: pipeline(path, threads, attributes=names)) * 1e3:.1f}")
+            row.append(f"{name}-{label} {best_of(7, functools.partial(pipeline, path, threads, attributes=names)) * 1e3:.1f}")
     print(" | ".join(row), flush=True)
