@@ -14,7 +14,7 @@
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
-CHUNKS=(files-100M load-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B winners-1B records-1B accuracy attributes packing upload-100M startup-100M viewer-load-100M mainthread-100M startup-1B convert-1B copc-1B stream-1B stream-200M writes-100M writes-1B reads-100M reads-1B node-decode-100M pytest)
+CHUNKS=(files-100M load-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B winners-1B records-1B accuracy attributes packing upload-100M startup-100M viewer-load-100M mainthread-100M startup-1B convert-1B copc-1B stream-1B stream-200M writes-100M writes-1B reads-100M reads-1B node-decode-100M lazy-positions-10M pytest)
 chunk="${1:-list}"
 if [ "$chunk" = list ]; then
     printf '%s\n' "${CHUNKS[@]}"
@@ -120,6 +120,10 @@ case "$chunk" in
                           | tail -n 1 | cut -d: -f1)"
                       PYTHONPATH=".:${PYTHONPATH:-}" "${PYTHON:-python3}" bench/results/llvmpipe/node_decode/node_decode.py \
                           "$copc" 2000 3 1 4 8 16 ;;
+    # the loader on a 10 M-point tiled LAS with the LAS parse as it is (no float32 positions) against the same
+    # parse computing them as before, taking turns (bench/results/llvmpipe/las_lazy_positions/): 1, 8, 16 threads
+    lazy-positions-10M) ROUNDS=3 REPEATS=3 PYTHONPATH=".:${PYTHONPATH:-}" "${PYTHON:-python3}" \
+                          bench/results/llvmpipe/las_lazy_positions/lazy_positions.py 10000000 8 16 1 ;;
     # what the window reads against what render reads, at 100M points: the sample (point format 3) and a LAZ of
     # point format 8 tiled as LAS and LAZ, each session warm, 3 repeats (bench.load first_image_table); render's
     # session at 8 and 16 parser threads too, beside the default 4 (do more take the frame loop's core?)
