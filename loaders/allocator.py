@@ -1,6 +1,6 @@
 """The C allocator's large blocks kept for reuse while a cloud loads.
 
-Each parsed batch allocates arrays of a few MB (positions, integers, attributes) and
+Each parsed batch allocates arrays of a few MB (integers, attributes) and
 frees them once the GPU has them. glibc serves blocks over its mmap threshold (128 KiB
 at first) with fresh mappings and returns them on free, so every batch pays a page
 fault per 4 KiB it touches, and the parser threads' mmap and munmap calls queue on the

@@ -235,8 +235,9 @@ def cell_frames(least: np.ndarray, shift: np.ndarray) -> np.ndarray:
 
 
 def scaled_cells(cells: np.ndarray, scale, offset, origin: np.ndarray) -> np.ndarray:
-    """(k, 3) float64 coordinates less the origin of a LAS file's integers, as the loader
-    scales them (loaders/las.py parse): their float32 is exactly those points' positions."""
+    """(k, 3) float64 coordinates less the origin of a LAS file's integers, as a LAS
+    batch's positions are scaled (Grid.positions): their float32 is exactly those points'
+    positions."""
     v = np.asarray(cells, dtype=np.float64) * np.asarray(scale, dtype=np.float64)
     v += np.asarray(offset, dtype=np.float64)
     v -= np.asarray(origin, dtype=np.float64)

@@ -1,11 +1,10 @@
 """Files in different coordinate systems as one cloud in a target CRS (`--reproject`).
 
-The loaders give float32 positions relative to an origin; two files in different CRSs
-must not share one (its point would be between two places). So each file is loaded
-alone, relative to its own centre, one after the other; each batch's coordinates are
-taken back to float64 — snapped to the file's integer grid (record times scale plus
-offset), which gives laspy's coordinates exactly wherever the scale is coarser than
-float32's step at the file's half extent, as in survey files — transformed with pyproj
+The loaders give positions relative to an origin; two files in different CRSs must
+not share one (its point would be between two places). So each file is loaded alone,
+relative to its own centre, one after the other; each batch's coordinates are taken
+in float64 — a LAS file's exactly as laspy computes them, from its integers (the
+batch's Grid), other formats' from their float32 positions — transformed with pyproj
 in float64, and offset to the cloud's origin. Heights keep their datum: a CRS without
 a vertical axis has heights in its horizontal unit (a metre for geographic CRSs), so
 they are scaled by the ratio of the units only."""
@@ -32,8 +31,6 @@ from progressive.loaders.validate import fail, shown
 from progressive.permutation import LAYOUT, Permutation
 
 AUTHORITY_CODE = re.compile(r"[A-Za-z]+:\d+")
-SNAPPED_FORMATS = ("LAS", "LAZ")
-"""Formats whose coordinates lie on a scale-and-offset grid."""
 DENSIFY = 21
 """Points on each side of a file's bounding box when its bounds are transformed."""
 LONLAT = "EPSG:4326"
@@ -180,18 +177,9 @@ class ReprojectingLoader(BatchQueue):
 
     def file_coordinates(self, k: int, batch: Batch) -> np.ndarray:
         """(n, 3) float64 coordinates of a batch of file k, in its CRS (see the module)."""
-        loader = self._loaders[k]
-        f = loader.info.files[0]
-        if batch.grid is not None:      # the file's own coordinates, as laspy computes them
+        if batch.grid is not None:
             return batch.grid.cells * np.asarray(batch.grid.scale) + np.asarray(batch.grid.offset)
-        xyz = batch.positions.astype(np.float64) + loader.info.origin
-        if f.format not in SNAPPED_FORMATS or not all(s > 0 for s in f.scale):
-            return xyz
-        scale, offset = np.asarray(f.scale), np.asarray(f.offset)
-        with np.errstate(invalid="ignore", over="ignore"):
-            snapped = np.round((xyz - offset) / scale) * scale + offset
-            same = (snapped - loader.info.origin).astype(np.float32) == batch.positions
-        return np.where(same, snapped, xyz)
+        return batch.positions.astype(np.float64) + self._loaders[k].info.origin
 
     def _reprojected(self, k: int, batch: Batch) -> Batch:
         world = self.transforms[k].apply(self.file_coordinates(k, batch))

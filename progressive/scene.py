@@ -18,7 +18,7 @@ from progressive.colors import DEFAULT_PALETTE, NO_RANGE, Colormap, ColorMode, C
 from progressive.context import GLContext
 from progressive.errors import ProgressiveError
 from progressive.loaders.records import ELEVATION, EXPONENT, attribute_word
-from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, CloudInfo, nonfinite_records
+from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, CloudInfo, cell_runs, nonfinite_records
 from progressive.packing import batch_words, pack_into
 from progressive.passes.distribute import DistributePass
 from progressive.passes.percentile import PercentilePass
@@ -585,10 +585,18 @@ def frame_parts(parts: list[Batch], first: int, k: int, origin: np.ndarray) -> t
 def part_boxes(part: Batch) -> tuple[int, np.ndarray]:
     """The first store batch a loaded part touches and the boxes of its points in each
     (batches.boxes_of): those its parser found (encoding.with_runs) where they are of
-    its rows, else from its positions."""
+    its rows, else a LAS part's from the least and most of its integers
+    (encoding.cell_boxes), else from its positions."""
     runs = part.boxes
     if runs is not None and runs.of(part.start, part.count, BATCH_POINTS):
         return runs.first, batch_boxes.boxes_from_runs(runs)
+    if part.grid is not None and part.count and part.nonfinite_positions == 0:      # no positions computed
+        cells = part.grid.runs
+        if cells is None or not cells.of(part.start, part.count, BATCH_POINTS):
+            cells = cell_runs(part.grid.cells, part.start, BATCH_POINTS)
+        boxes = encoding.cell_boxes(cells.least, cells.most, part.grid.scale, part.grid.offset, part.grid.origin)
+        if boxes is not None:
+            return cells.first, boxes
     return batch_boxes.boxes_of(_positions(part), part.start, _all_finite(part))
 
 
@@ -645,9 +653,10 @@ def _hidden_points(batch: Batch, attribute: AttributeInfo, origin_z: float) -> i
 
 
 def _elevation_ends_finite(batch: Batch, attribute: AttributeInfo, origin_z: float) -> bool:
-    """Whether the elevation words of a LAS batch's least and greatest z are finite, and
-    so every one of its words (a word is monotonic in z: scaling, rounding and adding a
-    constant are), without a pass over its points; False without its bounds."""
+    """Whether the elevation words of a batch's least and greatest z (its float64 bounds,
+    which its positions were rounded from: every loader's but the fast format's) are
+    finite, and so every one of its words (a word is monotonic in z: scaling, rounding
+    and adding a constant are), without a pass over its points; False without bounds."""
     if batch.bounds is None:
         return False
     with np.errstate(over="ignore", invalid="ignore"):

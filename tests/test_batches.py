@@ -296,12 +296,15 @@ def test_filtering_whenever_a_filter_can_leave_a_point_out(sample, kind):
 def test_boxes_from_a_las_files_integers_are_the_boxes_of_its_positions(name):
     """encoding.cell_boxes scales each batch's least and most integers as the loader
     scales coordinates: exactly the float32 boxes that boxes_of finds over the positions
-    of real files, batch by batch (loader batches cut store batches anywhere)."""
+    of real files, batch by batch (loader batches cut store batches anywhere); so are
+    scene.part_boxes of a part of a batch, with its parser's runs or without them."""
     from conftest import SAMPLE, shared_file
     from progressive import encoding
     from progressive.loaders import CloudLoader
+    from progressive.scene import part_boxes
 
-    with CloudLoader([SAMPLE if name == "autzen_trim.las" else shared_file(name)], batch_points=37_001) as loader:
+    with CloudLoader([SAMPLE if name == "autzen_trim.las" else shared_file(name)], batch_points=37_001,
+                     on_parsed=encoding.with_runs) as loader:
         origin = loader.info.origin
         for b in loader:
             at, least, most = encoding.cell_range(b.grid, b.start)
@@ -309,6 +312,11 @@ def test_boxes_from_a_las_files_integers_are_the_boxes_of_its_positions(name):
             first, expected = batches.boxes_of(b.positions, b.start)
             assert at == first
             np.testing.assert_array_equal(boxes, expected)
+            for part in (b, b.rows(3, b.count - 5)):
+                assert b.xyz is None and (part.grid.runs is not None) == (part is b)
+                got, want = part_boxes(part), batches.boxes_of(part.positions, part.start)
+                assert got[0] == want[0]
+                np.testing.assert_array_equal(got[1], want[1])
 
 
 def test_boxes_from_integers_with_a_negative_scale_or_out_of_float32_reach():

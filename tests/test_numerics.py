@@ -165,24 +165,29 @@ def test_fast_format_records_with_nonfinite_shown_values_are_hidden():
     assert nonfinite_records(unmasked)[0] == 0
 
 
-@pytest.mark.parametrize("offset, hidden", [(0.0, 0), (-1e38, 1), (-3e38, 3)])
-def test_elevation_words_that_overflow_are_hidden_as_pack_records_hides_them(offset, hidden):
+@pytest.mark.parametrize("origin_z", [0.0, 3e37, -3e37])
+@pytest.mark.parametrize("scale", [1e38, -1e38])
+@pytest.mark.parametrize("offset", [0.0, -1e38, -3e38, 3e38])
+def test_elevation_words_that_overflow_are_hidden_as_pack_records_hides_them(offset, scale, origin_z):
     """A LAS batch's elevation words are checked by the ends of its z alone (their float32
     is monotonic in z): the count equals that of the reference's records, computed from
-    every point's position."""
+    every point's position, whatever the scale's sign and the origin."""
     from progressive.loaders.las import _column_ends
     from progressive.loaders.records import pack_records
     from progressive.loaders.types import Grid, nonfinite_records
     from progressive.scene import _hidden_points
 
     cells = np.array([[0, 0, 0], [0, 0, 1], [0, 0, 3], [0, 0, 2]], dtype=np.int32)
-    grid = Grid(cells, (1.0, 1.0, 1e38), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
-    bounds = tuple(np.float64(end) * (1.0, 1.0, 1e38) for end in _column_ends(cells))
-    batch = Batch(start=0, bounds=bounds, grid=grid)
+    grid = Grid(cells, (1.0, 1.0, scale), (0.0, 0.0, 0.0), (0.0, 0.0, origin_z))
+    ends = np.float64(_column_ends(cells)) * (1.0, 1.0, scale)
+    batch = Batch(start=0, bounds=(ends.min(axis=0), ends.max(axis=0)), grid=grid)
     attr = AttributeInfo("elevation", AttributeKind.SCALAR, np.dtype("f8"), offset)
-    assert nonfinite_records(pack_records(batch, attr, 0.0))[0] == hidden
-    assert _hidden_points(batch, attr, 0.0) == hidden
-    assert _hidden_points(batch.rows(1, 4), attr, 0.0) == hidden    # without bounds: from every word
+    hidden = nonfinite_records(pack_records(batch, attr, origin_z))[0]
+    if (offset, scale, origin_z) in ((0.0, 1e38, 0.0), (-3e38, 1e38, 0.0)):
+        assert hidden == (0 if offset == 0 else 3)
+    assert _hidden_points(batch, attr, origin_z) == hidden
+    assert _hidden_points(batch.rows(1, 4), attr, origin_z) == nonfinite_records(
+        pack_records(batch.rows(1, 4), attr, origin_z))[0]      # without bounds: from every word
 
 
 @pytest.mark.filterwarnings("error")
