@@ -104,7 +104,8 @@ case "$chunk" in
                       PYTHONPATH=".:${PYTHONPATH:-}" "${PYTHON:-python3}" bench/results/nvidia-h100/stream_writes/write_parts.py \
                           "$copc" 4294967296 1920x1080 20 0.25 ;;
     # a still streamed overview's time to settle with 1, 2 and 3 node reads in flight per LAZ decoder process
-    # (laz_pool.READS_PER_PROCESS), alternating, 3 rounds: the 100 M-point COPC (1 GiB limit) and the 1 B-point
+    # (laz_pool.READS_PER_PROCESS), alternating, 3 rounds (at 1 B points 2e too: 2 with each node's float32
+    # positions computed, as the parse did before): the 100 M-point COPC (1 GiB limit) and the 1 B-point
     # one (4 GiB; built first as copc-1B, about 250 s), 0.25 px; tables on stdout
     reads-100M)       copc="$("${PYTHON:-python3}" -m bench.stream --points 100000000 --laz --build-only --scratch /dev/shm \
                           | tail -n 1 | cut -d: -f1)"
@@ -113,7 +114,7 @@ case "$chunk" in
     reads-1B)         copc="$("${PYTHON:-python3}" -m bench.stream --points 1000000000 --laz --build-only --scratch /dev/shm \
                           | tail -n 1 | cut -d: -f1)"
                       PYTHONPATH=".:${PYTHONPATH:-}" "${PYTHON:-python3}" bench/results/nvidia-h200/stream_reads/stream_reads.py \
-                          "$copc" 4294967296 1920x1080 20 0.25 3 1 2 3 ;;
+                          "$copc" 4294967296 1920x1080 20 0.25 3 1 2 3 2e ;;
     # a streamed node's decode in a decoder process against lazrs in the process, one at a time, then 1-16 lanes at
     # once: the 100 M-point COPC's first 2,000 nodes by level (bench/results/llvmpipe/node_decode/)
     node-decode-100M) copc="$("${PYTHON:-python3}" -m bench.stream --points 100000000 --laz --build-only --scratch /dev/shm \
