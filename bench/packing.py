@@ -42,8 +42,8 @@ def tiled_batches(points: int):
     reps = -(-points // whole.count)
     positions = np.tile(whole.positions, (reps, 1))[:points]
     attributes = {k: np.tile(v, (reps,) + (1,) * (v.ndim - 1))[:points] for k, v in whole.attributes.items()}
-    batches = [dataclasses.replace(whole, start=lo, xyz=positions[lo:lo + BATCH_POINTS],
-                                   attributes={k: v[lo:lo + BATCH_POINTS] for k, v in attributes.items()})
+    batches = [whole.with_positions(positions[lo:lo + BATCH_POINTS], start=lo, bounds=None,
+                                    attributes={k: v[lo:lo + BATCH_POINTS] for k, v in attributes.items()})
                for lo in range(0, points, BATCH_POINTS)]
     return dataclasses.replace(info, points=points), batches
 
