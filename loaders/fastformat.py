@@ -228,6 +228,13 @@ def fast_header(count: int, info: CloudInfo, attr: AttributeInfo) -> bytes:
     return head.ljust(HEADER_BYTES, b"\x00")
 
 
+def positioned(batch: Batch) -> Batch:
+    """The batch with its float32 positions, which the fast format stores: a LAS batch's
+    computed from its integers (CloudLoader's on_parsed, so on the parser threads, not on
+    the thread that writes the file)."""
+    return batch if batch.xyz is not None else batch.with_positions(batch.positions)
+
+
 def write_fast_stream(stream: BinaryIO, loader_or_batches: Iterable[Batch], info: CloudInfo,
                       attr: AttributeInfo, name: str) -> int:
     """Write every batch at its offset (they may arrive out of order) into a seekable

@@ -695,7 +695,7 @@ def commit_saying(outputs, message: str) -> None:
 
 def cmd_convert(args) -> int:
     from progressive.attributes import default_attribute, find_attribute
-    from progressive.loaders import write_fast_stream
+    from progressive.loaders import positioned, write_fast_stream
     from progressive.loaders.copc import COPC_SUFFIX
     from progressive.output import Outputs, check_outputs
     from progressive.reproject import open_loader
@@ -703,7 +703,7 @@ def cmd_convert(args) -> int:
     check_outputs([args.output], args.inputs)
     if args.output.lower().endswith(COPC_SUFFIX):
         return _convert_copc(args)
-    with open_loader(args.inputs, partial=args.partial) as loader, Outputs() as outputs:
+    with open_loader(args.inputs, partial=args.partial, on_parsed=positioned) as loader, Outputs() as outputs:
         info = loader.info
         attr = find_attribute(info, args.attribute) if args.attribute else default_attribute(info)
         loader.start()

@@ -75,10 +75,25 @@ def test_info_json(capsys):
     assert "intensity" in d["attributes"]
 
 
-def test_convert_then_render_fast_format_gives_same_ids(tmp_path, capsys):
+def test_convert_then_render_fast_format_gives_same_ids(tmp_path, capsys, monkeypatch):
+    """The fast format stores float32 positions: convert computes a LAS batch's on the
+    loader's parser threads, not on the thread that writes the file."""
+    import threading
+
+    from progressive.loaders.types import Grid
+
+    on_main, real = [], Grid.positions
+
+    def spy(self, *args, **kwargs):
+        on_main.append(threading.current_thread() is threading.main_thread())
+        return real(self, *args, **kwargs)
+
+    monkeypatch.setattr(Grid, "positions", spy)
     fast = tmp_path / "sample.prgs"
     code, _, err = run(capsys, "convert", SAMPLE, fast)
     assert code == 0, err
+    assert on_main and not any(on_main), on_main
+    monkeypatch.undo()
     a, b = tmp_path / "a.npy", tmp_path / "b.npy"
     assert run(capsys, "render", *SMALL, SAMPLE, "--ids", a)[0] == 0
     assert run(capsys, "render", *SMALL, fast, "--ids", b)[0] == 0
