@@ -145,7 +145,8 @@ case "$chunk" in
     # large to come back); redirect it into $OUT/<machine>/pytest.txt. Each test's time and each failure's
     # report are written as it ends to $OUT/<machine>/pytest/ (bench/pytest_timing.py), kept if the call's limit kills it.
     # Test files after the chunk name run those alone (the whole suite took over 330 s on the H200 machine with the
-    # real files: split it over two calls, e.g. tests/test_[a-c]*.py, then tests/test_[d-z]*.py)
+    # real files: split it over two calls, e.g. tests/test_[a-c]*.py, then tests/test_[d-z]*.py; on the 2-core
+    # machine they took 185 and 198 s, bench/results/llvmpipe/pytest_timing_1120226/by_file.tsv)
     pytest)           mkdir -p "$OUT/$(machine)/pytest"
                       tests=("${@:2}"); [ ${#tests[@]} -gt 0 ] || tests=(tests)
                       PYTEST_TIMING_DIR="$OUT/$(machine)/pytest" "${PYTHON:-python3}" -m pytest -q -p no:cacheprovider \
