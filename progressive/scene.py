@@ -18,7 +18,7 @@ from progressive.colors import DEFAULT_PALETTE, NO_RANGE, Colormap, ColorMode, C
 from progressive.context import GLContext
 from progressive.errors import ProgressiveError
 from progressive.loaders.records import ELEVATION, EXPONENT, attribute_word
-from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, CloudInfo, cell_runs, nonfinite_records
+from progressive.loaders.types import AttributeInfo, AttributeKind, Batch, CloudInfo, nonfinite_records
 from progressive.packing import batch_words, pack_into
 from progressive.passes.distribute import DistributePass
 from progressive.passes.percentile import PercentilePass
@@ -591,12 +591,10 @@ def part_boxes(part: Batch) -> tuple[int, np.ndarray]:
     if runs is not None and runs.of(part.start, part.count, BATCH_POINTS):
         return runs.first, batch_boxes.boxes_from_runs(runs)
     if part.grid is not None and part.count and part.nonfinite_positions == 0:      # no positions computed
-        cells = part.grid.runs
-        if cells is None or not cells.of(part.start, part.count, BATCH_POINTS):
-            cells = cell_runs(part.grid.cells, part.start, BATCH_POINTS)
-        boxes = encoding.cell_boxes(cells.least, cells.most, part.grid.scale, part.grid.offset, part.grid.origin)
+        first, least, most = encoding.cell_range(part.grid, part.start)
+        boxes = encoding.cell_boxes(least, most, part.grid.scale, part.grid.offset, part.grid.origin)
         if boxes is not None:
-            return cells.first, boxes
+            return first, boxes
     return batch_boxes.boxes_of(_positions(part), part.start, _all_finite(part))
 
 
