@@ -1,7 +1,8 @@
 """Uploads through the ring of persistently mapped staging slots: the store after a
 load equals the packed records (numpy's placement by the permutation) for whole,
 partial and memory-limited loads, through the ring and through the copy fallback;
-slots are handed out again only once their fence has signalled; packing straight
+slots are handed out again only once their fence has signalled, and each piece
+staged is flushed before its scatter reads it; packing straight
 into staging memory equals pack_records, hidden points included."""
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from progressive.glext import GL_ALREADY_SIGNALED
 from progressive.loaders.records import pack_records
 from progressive.loaders.types import Batch, nonfinite_records
 from progressive.packing import batch_words, pack_into
-from progressive.passes.distribute import DistributePass, Staging, without_buffer_storage
+from progressive.passes.distribute import DistributePass, Staging, StagingRing, without_buffer_storage
 from progressive.permutation import BATCH_POINTS
 from progressive.pointstore import EMPTY_WORD
 from progressive.scene import Scene, point_flags
@@ -293,6 +294,43 @@ def test_real_fences_free_every_slot(gl, sample_batches):
     pieces = sum(-(-b.count // 8_192) for b in batches)
     assert scene.distribute.stats.ring == pieces > 3 and scene.distribute.stats.copied == 0
     assert np.array_equal(scene.store.read_records(), expected_store(scene, batches))
+    scene.release()
+
+
+@pytest.mark.parametrize("encoding", list(Encoding), ids=lambda e: e.name.lower())
+def test_each_piece_is_flushed_before_its_scatter(gl, sample_batches, monkeypatch, encoding):
+    """The ring's mapping is not coherent: every piece staged in a slot, records and a
+    switch's words alike, has exactly the bytes it wrote flushed before the fence after
+    its scatter, and the store is still the reference's."""
+    info, batches = sample_batches
+    flushed = []
+    storage = dataclasses.replace(gl.gl.storage, flush_mapped_named_buffer_range=lambda glo, offset, size: (
+        flushed.append((glo, offset, size)), gl.gl.storage.flush_mapped_named_buffer_range(glo, offset, size)))
+    ctx = dataclasses.replace(gl, gl=dataclasses.replace(gl.gl, storage=storage))
+    staged, view, read = {}, StagingRing.view, StagingRing.read
+
+    def spied_view(ring, slot, count, width):
+        staged[ring.mapped.glo, slot] = count * width * 4
+        return view(ring, slot, count, width)
+
+    def spied_read(ring, slot):
+        assert flushed[-1] == (ring.mapped.glo, slot * ring.slot_bytes, staged.pop((ring.mapped.glo, slot)))
+        read(ring, slot)
+
+    monkeypatch.setattr(StagingRing, "view", spied_view)
+    monkeypatch.setattr(StagingRing, "read", spied_read)
+    scene = Scene(ctx, info, info.attribute("intensity"), keep_batches=True, position_encoding=encoding)
+    scene.distribute.word_piece = 9_000
+    for b in batches:
+        scene.add_batch(b)
+    scene.begin_switch(info.attribute("gps_time"))
+    while not scene.stream(seconds=float("inf")):
+        pass
+    stats = scene.distribute.stats
+    assert len(flushed) == stats.ring > len(batches) and not staged and scene.distribute.word_ring is not None
+    held, expected = scene.store.read_records(), expected_store(scene, batches)
+    columns = slice(None) if encoding is Encoding.FLOAT else 3        # the word store's positions are quantized
+    assert np.array_equal(held[:, columns], expected[:, columns])
     scene.release()
 
 

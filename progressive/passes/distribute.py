@@ -1,8 +1,9 @@
 """Distribute: staged batches scattered to their permuted slots (paper 3.1, 3.3).
 
 Batches are staged in a ring of persistently mapped slots (GL_ARB_buffer_storage):
-the CPU packs a piece straight into a free slot, the scatter reads it there, and a
-fence per slot tells, without waiting, when the GPU is done with it. So no upload
+the CPU packs a piece straight into a free slot and flushes what it wrote, the scatter
+reads it there, and a fence per slot tells, without waiting, when the GPU is done with
+it. So no upload
 waits for the GPU and no Python copy is made. Where the ring is missing (no buffer
 storage) or every slot is still being read, a piece is copied through an orphaned
 buffer, which never waits either."""
@@ -52,9 +53,10 @@ class StagingStats:
 
 
 class StagingRing:
-    """`slots` slots of `slot_bytes` in one persistently mapped, coherent buffer, used
-    in turn; a slot is handed out again only once the fence after its scatter has
-    signalled (glClientWaitSync with timeout 0: asking never blocks)."""
+    """`slots` slots of `slot_bytes` in one persistently mapped buffer, used in turn; a
+    slot is handed out again only once the fence after its scatter has signalled
+    (glClientWaitSync with timeout 0: asking never blocks), and what is written to it
+    is flushed before the scatter reads it (glext.BufferStorage.mapped says why)."""
 
     def __init__(self, glc: GLContext, storage: BufferStorage, slot_bytes: int, slots: int = RING_SLOTS):
         align = max(RECORD_BYTES, glc.gl.integer(GL_SHADER_STORAGE_BUFFER_OFFSET_ALIGNMENT))
@@ -88,6 +90,8 @@ class StagingRing:
         return self.mapped.words[first: first + count * width].reshape(count, width)
 
     def bind(self, slot: int, size: int) -> None:
+        """The first `size` bytes of the slot are written: flush them, bind them for the scatter."""
+        self.storage.flush(self.mapped, slot * self.slot_bytes, size)
         self.buffer.bind_to_storage_buffer(Binding.DISTRIBUTE, offset=slot * self.slot_bytes, size=size)
 
     def read(self, slot: int) -> None:

@@ -54,6 +54,7 @@ def main() -> None:
     prog["u_n"] = size // 16
     src = np.random.default_rng(0).integers(0, 1 << 32, size // 4, dtype=np.uint32)
     mapped.words[:] = src
+    glc.gl.storage.flush(mapped, 0, size)
     device.write(src.tobytes())
 
     def read(buf) -> Callable[[], None]:
