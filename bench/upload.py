@@ -181,7 +181,7 @@ def run(sizes: list[int], repeats: int, startup_repeats: int, size: tuple[int, i
          "add_batch s: Scene.add_batch alone (packing, staging, queuing the scatter). Ring: "
          f"{RING_SLOTS} slots of a batch each in one buffer mapped persistent (glBufferStorage, "
          "glMapNamedBufferRange through ctypes); each piece is packed straight into a free slot and flushed "
-         "(glFlushMappedNamedBufferRange), a fence per slot "
+         "(glFlushMappedNamedBufferRange, then a client-mapped buffer barrier), a fence per slot "
          "(glClientWaitSync, timeout 0) tells when it is free again, a piece finding its slot busy is copied. "
          "Copy: the same context as a driver without buffer storage offers it, each piece packed into host memory "
          "and copied into an orphaned buffer. stage + distribute s: the GPU side of loading alone, after each load: "

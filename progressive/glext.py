@@ -43,6 +43,7 @@ GL_NO_ERROR = 0
 GL_MAP_WRITE_BIT = 0x0002
 GL_MAP_PERSISTENT_BIT = 0x0040
 GL_MAP_FLUSH_EXPLICIT_BIT = 0x0010
+GL_CLIENT_MAPPED_BUFFER_BARRIER_BIT = 0x4000
 GL_SHADER_STORAGE_BUFFER_OFFSET_ALIGNMENT = 0x90DF
 BUFFER_STORAGE_VERSION = 440
 """GL_ARB_buffer_storage is core from OpenGL 4.4."""
@@ -238,12 +239,14 @@ class BufferStorage:
         return version_code >= BUFFER_STORAGE_VERSION or "GL_ARB_buffer_storage" in extensions
 
     def mapped(self, size: int) -> MappedBuffer:
-        """`size` bytes (a multiple of 4), mapped persistent, not coherent: `flush`
-        names each range the CPU wrote to the driver, which makes it visible to the GL
-        commands issued after it. With a coherent mapping on the NVIDIA driver (580,
-        H100), scatters reading a slot rewritten after its fence had signalled at times
-        placed words of other points (tests/test_switch_words.py); a glFinish before each
-        rewrite prevented it (bench/results/nvidia-h100/pytest_64de055/)."""
+        """`size` bytes (a multiple of 4), mapped persistent, not coherent: what the CPU
+        writes is seen by the GL commands issued after `flush` names its range and a
+        glMemoryBarrier(GL_CLIENT_MAPPED_BUFFER_BARRIER_BIT) follows (the specification
+        lets a coherent store's writes reach the server "after an unspecified period of
+        time"). With a coherent mapping on the NVIDIA driver (580, H100), scatters
+        reading a slot rewritten after its fence had signalled at times placed words of
+        other points (tests/test_switch_words.py); a glFinish before each rewrite
+        prevented it (bench/results/nvidia-h100/pytest_64de055/)."""
         name = _u(0)
         self.create_buffers(1, ctypes.byref(name))
         self.named_buffer_storage(name.value, size, None, GL_MAP_WRITE_BIT | GL_MAP_PERSISTENT_BIT)
@@ -256,8 +259,8 @@ class BufferStorage:
         return MappedBuffer(int(name.value), size, words)
 
     def flush(self, buffer: MappedBuffer, offset: int, size: int) -> None:
-        """What the CPU wrote to bytes [offset, offset + size) of the mapping is seen by
-        the GL commands issued after this call."""
+        """The CPU wrote bytes [offset, offset + size) of the mapping (for the commands
+        after the next client-mapped buffer barrier)."""
         self.flush_mapped_named_buffer_range(buffer.glo, offset, size)
 
     def release(self, buffer: MappedBuffer) -> None:

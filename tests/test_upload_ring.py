@@ -15,7 +15,7 @@ import pytest
 from progressive import encoding, stagecopy
 from progressive.attributes import default_attribute
 from progressive.encoding import Encoding
-from progressive.glext import GL_ALREADY_SIGNALED
+from progressive.glext import GL_ALREADY_SIGNALED, GL_CLIENT_MAPPED_BUFFER_BARRIER_BIT
 from progressive.loaders.records import pack_records
 from progressive.loaders.types import Batch, nonfinite_records
 from progressive.packing import batch_words, pack_into
@@ -300,21 +300,25 @@ def test_real_fences_free_every_slot(gl, sample_batches):
 @pytest.mark.parametrize("encoding", list(Encoding), ids=lambda e: e.name.lower())
 def test_each_piece_is_flushed_before_its_scatter(gl, sample_batches, monkeypatch, encoding):
     """The ring's mapping is not coherent: every piece staged in a slot, records and a
-    switch's words alike, has exactly the bytes it wrote flushed before the fence after
-    its scatter, and the store is still the reference's."""
+    switch's words alike, has exactly the bytes it wrote flushed, then a client-mapped
+    buffer barrier, before its scatter; and the store is still the reference's."""
     info, batches = sample_batches
-    flushed = []
+    events = []
     storage = dataclasses.replace(gl.gl.storage, flush_mapped_named_buffer_range=lambda glo, offset, size: (
-        flushed.append((glo, offset, size)), gl.gl.storage.flush_mapped_named_buffer_range(glo, offset, size)))
+        events.append(("flush", glo, offset, size)), gl.gl.storage.flush_mapped_named_buffer_range(glo, offset, size)))
     ctx = dataclasses.replace(gl, gl=dataclasses.replace(gl.gl, storage=storage))
+    barrier = gl.ctx.memory_barrier
+    monkeypatch.setattr(gl.ctx, "memory_barrier", lambda *args, **kwargs: (
+        events.append(("barrier", *args)), barrier(*args, **kwargs)))
     staged, view, read = {}, StagingRing.view, StagingRing.read
 
     def spied_view(ring, slot, count, width):
         staged[ring.mapped.glo, slot] = count * width * 4
         return view(ring, slot, count, width)
 
-    def spied_read(ring, slot):
-        assert flushed[-1] == (ring.mapped.glo, slot * ring.slot_bytes, staged.pop((ring.mapped.glo, slot)))
+    def spied_read(ring, slot):     # called once the scatter is issued
+        assert events[-2:] == [("flush", ring.mapped.glo, slot * ring.slot_bytes, staged.pop((ring.mapped.glo, slot))),
+                               ("barrier", GL_CLIENT_MAPPED_BUFFER_BARRIER_BIT)]
         read(ring, slot)
 
     monkeypatch.setattr(StagingRing, "view", spied_view)
@@ -327,7 +331,8 @@ def test_each_piece_is_flushed_before_its_scatter(gl, sample_batches, monkeypatc
     while not scene.stream(seconds=float("inf")):
         pass
     stats = scene.distribute.stats
-    assert len(flushed) == stats.ring > len(batches) and not staged and scene.distribute.word_ring is not None
+    assert sum(e[0] == "flush" for e in events) == stats.ring > len(batches) and not staged
+    assert scene.distribute.word_ring is not None
     held, expected = scene.store.read_records(), expected_store(scene, batches)
     columns = slice(None) if encoding is Encoding.FLOAT else 3        # the word store's positions are quantized
     assert np.array_equal(held[:, columns], expected[:, columns])

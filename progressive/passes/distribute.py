@@ -19,7 +19,7 @@ import numpy as np
 from progressive import shaderlib
 from progressive.bindings import Binding
 from progressive.context import GLContext
-from progressive.glext import GL_SHADER_STORAGE_BUFFER_OFFSET_ALIGNMENT, BufferStorage
+from progressive.glext import GL_CLIENT_MAPPED_BUFFER_BARRIER_BIT, GL_SHADER_STORAGE_BUFFER_OFFSET_ALIGNMENT, BufferStorage
 from progressive.gpu import grid
 from progressive.loaders.records import RECORD_BYTES
 from progressive.loaders.types import BATCH_POINTS
@@ -90,8 +90,10 @@ class StagingRing:
         return self.mapped.words[first: first + count * width].reshape(count, width)
 
     def bind(self, slot: int, size: int) -> None:
-        """The first `size` bytes of the slot are written: flush them, bind them for the scatter."""
+        """The first `size` bytes of the slot are written: flush them and make them
+        visible to the scatter (glext.BufferStorage.mapped), bind them for it."""
         self.storage.flush(self.mapped, slot * self.slot_bytes, size)
+        self.glc.ctx.memory_barrier(GL_CLIENT_MAPPED_BUFFER_BARRIER_BIT)
         self.buffer.bind_to_storage_buffer(Binding.DISTRIBUTE, offset=slot * self.slot_bytes, size=size)
 
     def read(self, slot: int) -> None:
