@@ -14,7 +14,7 @@
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
-CHUNKS=(files-100M load-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B winners-1B records-1B accuracy attributes packing upload-100M startup-100M viewer-load-100M mainthread-100M startup-1B convert-1B copc-1B stream-1B stream-200M writes-100M writes-1B reads-100M reads-1B node-decode-100M lazy-positions-10M pytest)
+CHUNKS=(files-100M load-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B winners-1B records-1B accuracy attributes packing upload-100M startup-100M viewer-load-100M mainthread-100M startup-1B convert-1B copc-1B stream-1B stream-200M writes-100M writes-1B reads-100M reads-1B node-decode-100M lazy-positions-10M staging-flush pytest)
 chunk="${1:-list}"
 if [ "$chunk" = list ]; then
     printf '%s\n' "${CHUNKS[@]}"
@@ -125,6 +125,22 @@ case "$chunk" in
     # parse computing them as before, taking turns (bench/results/llvmpipe/las_lazy_positions/): 1, 8, 16 threads
     lazy-positions-10M) ROUNDS=3 REPEATS=3 PYTHONPATH=".:${PYTHONPATH:-}" "${PYTHON:-python3}" \
                           bench/results/llvmpipe/las_lazy_positions/lazy_positions.py 10000000 8 16 1 ;;
+    # the staging ring as committed (not coherent: each piece flushed, then a client-mapped buffer barrier) against
+    # the coherent mapping before 14e6b92, taking turns: the two test files that failed on the H100 with the
+    # coherent ring (bench/results/nvidia-h100/pytest_64de055/), 3 rounds, failures counted; then the GPU side
+    # of loading 100M points (bench.upload) with each; bench/results/nvidia-h100/staging_flush/ (about 6 min)
+    staging-flush)    variants="bench/results/nvidia-h100/staging_flush"
+                      for round in 1 2 3; do for v in coherent flushed; do
+                          VARIANT=$v PYTHONPATH="$variants:${PYTHONPATH:-}" "${PYTHON:-python3}" -m pytest -q \
+                              -p no:cacheprovider --tb=no -rf -k "not flushed_before" \
+                              tests/test_switch_words.py tests/test_upload_ring.py > "$OUT/staging_$v.txt" 2>&1 || true
+                          echo "round $round $v: $(tail -n 1 "$OUT/staging_$v.txt")"
+                          grep FAILED "$OUT/staging_$v.txt" | sed 's/ - .*//' || true
+                      done; done
+                      for v in coherent flushed; do
+                          VARIANT=$v PYTHONPATH="$variants:${PYTHONPATH:-}" "${PYTHON:-python3}" -m bench.upload \
+                              --points 100000000 --repeats 1 --startup-repeats 1 --out "$OUT/$(machine)/staging_flush/$v" "${@:2}"
+                      done ;;
     # what the window reads against what render reads, at 100M points: the sample (point format 3) and a LAZ of
     # point format 8 tiled as LAS and LAZ, each session warm, 3 repeats (bench.load first_image_table); render's
     # session at 8 and 16 parser threads too, beside the default 4 (do more take the frame loop's core?)

@@ -1,0 +1,1 @@
+import staging_variants  # noqa: F401  (the variant, in every process: staging_variants.py)
