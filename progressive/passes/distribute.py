@@ -3,10 +3,9 @@
 Batches are staged in a ring of persistently mapped slots (GL_ARB_buffer_storage):
 the CPU packs a piece straight into a free slot and flushes what it wrote, the scatter
 reads it there, and a fence per slot tells, without waiting, when the GPU is done with
-it. So no upload
-waits for the GPU and no Python copy is made. Where the ring is missing (no buffer
-storage) or every slot is still being read, a piece is copied through an orphaned
-buffer, which never waits either."""
+it. So no upload waits for the GPU and no Python copy is made. Where the ring is
+missing (no buffer storage) or every slot is still being read, a piece is copied
+through an orphaned buffer, which never waits either."""
 
 from __future__ import annotations
 
