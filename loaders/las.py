@@ -300,14 +300,11 @@ class LasSource:
             chunk = read_span(self.info.path, self.records, chunk, self.info.points)
         n = len(chunk)
         raw = chunk.view(np.uint8).reshape(n, chunk.dtype.itemsize)
-        cells = _rows_of(raw, 0, 12).view("<i4").reshape(n, 3)     # X, Y, Z lead every point format
+        cells = _cells(raw)
         scales, offsets = self.records.scales, self.records.offsets
         grid = Grid(cells, tuple(map(float, scales)), tuple(map(float, offsets)), tuple(map(float, origin)))
-        least, most = _column_ends(cells)
         with np.errstate(over="ignore", invalid="ignore"):     # overflow is counted, not warned
-            # scaling is monotonic: the ends of the integers are the ends of the coordinates
-            ends = np.float64([least, most]) * scales + offsets if n else np.float64([[np.inf] * 3, [-np.inf] * 3])
-            lo, hi = ends.min(axis=0), ends.max(axis=0)
+            lo, hi = _coordinate_ends(cells, self.records) if n else (np.full(3, np.inf), np.full(3, -np.inf))
             # Rounding is monotonic: where the least and greatest coordinates of each axis
             # are finite as float32 positions, every position is (no pass over them).
             ends_finite = np.isfinite(np.float32([lo - origin, hi - origin])).all()
@@ -371,6 +368,34 @@ def _bit_field(packed: np.ndarray, mask: int) -> np.ndarray | None:
     if mask == ones >> low << low:
         return np.right_shift(packed, packed.dtype.type(low))
     return None
+
+
+def _cells(raw: np.ndarray) -> np.ndarray:
+    """The (n, 3) int32 X, Y, Z of records as (n, record length) bytes (they lead every
+    point format), contiguous."""
+    return _rows_of(raw, 0, 12).view("<i4").reshape(-1, 3)
+
+
+def _coordinate_ends(cells: np.ndarray, records: Records) -> np.ndarray:
+    """(2, 3) least and greatest scaled coordinates of (n > 0, 3) integers, as laspy
+    computes them: scaling is monotonic, so the ends of the integers give them with no
+    pass over the float64 coordinates."""
+    ends = np.float64(_column_ends(cells)) * records.scales + records.offsets
+    return np.array([ends.min(axis=0), ends.max(axis=0)])
+
+
+def _first_ends(chunk: np.ndarray, records: Records) -> np.ndarray:
+    """_coordinate_ends of (n > 0) structured records."""
+    return _coordinate_ends(_cells(chunk.view(np.uint8).reshape(-1, chunk.dtype.itemsize)), records)
+
+
+def _rgb_max(chunk: np.ndarray) -> int:
+    """The greatest of the records' red, green and blue (consecutive 16-bit fields in
+    every point format), over one contiguous copy of them rather than three strided
+    reductions (with _first_ends, a quarter off opening a LAS:
+    bench/results/llvmpipe/las_open/)."""
+    raw = chunk.view(np.uint8).reshape(len(chunk), chunk.dtype.itemsize)
+    return int(_rows_of(raw, chunk.dtype.fields["red"][1], 6).view("<u2").max())
 
 
 def _rows_of(raw: np.ndarray, at: int, size: int) -> np.ndarray:
@@ -651,14 +676,13 @@ def _probe(path: str, laz: LazLayout | None, records: Records, count: int, has_r
             if first is None:
                 first = chunk[:1].copy()
                 with np.errstate(over="ignore", invalid="ignore"):
-                    coords = [records.coordinates(chunk[:head], axis) for axis in range(3)]
-                    seen = np.array([[c.min() for c in coords], [c.max() for c in coords]])
+                    seen = _first_ends(chunk[:head], records)
             keeping = keeping and held + chunk.nbytes <= KEPT_BYTES
             if keeping:
                 parts.append(chunk)
                 held += chunk.nbytes
             if has_rgb:
-                max_rgb = max(max_rgb, *(int(np.max(chunk[c])) for c in ("red", "green", "blue")))
+                max_rgb = max(max_rgb, _rgb_max(chunk))
                 if max_rgb > RGB8_MAX:
                     break
     except TruncatedInput as exc:
