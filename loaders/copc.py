@@ -696,20 +696,18 @@ def _probe(source: CopcSource, has_rgb: bool, partial: bool) -> tuple[int, np.nd
     count = source.info.points
     wanted = min(count, BATCH_POINTS if has_rgb else las.BOUNDS_SAMPLE)
     piece = min(wanted, las.PROBE_PIECE)
-    rgb = ("red", "green", "blue")
     first_nodes = _leading(source, piece)
     _hold(source, first_nodes)
     head = _node_records(source, first_nodes, partial)
     records = [head]
-    if has_rgb and wanted > len(head) and max(int(head[c].max()) for c in rgb) <= RGB8_MAX:
+    if has_rgb and wanted > len(head) and las.rgb_max(head) <= RGB8_MAX:
         rest = _leading(source, wanted)[first_nodes.size:]
         _hold(source, rest)
         records.append(_node_records(source, rest, partial))
     first = np.concatenate(records)[:wanted]
-    max_rgb = max(int(first[c].max()) for c in rgb) if has_rgb else 0
+    max_rgb = las.rgb_max(first) if has_rgb else 0
     with np.errstate(over="ignore", invalid="ignore"):
-        coords = [source.records.coordinates(first[:piece], axis) for axis in range(3)]
-    seen = np.array([[c.min() for c in coords], [c.max() for c in coords]])
+        seen = las.record_ends(first[:piece], source.records)
     return max_rgb, first[:1].copy(), seen
 
 
@@ -763,9 +761,9 @@ def _node_bounds(source: CopcSource, partial: bool) -> tuple[tuple[float, ...], 
     try:
         for chunk in source._node_chunks(np.arange(source.hierarchy.nodes.size), BATCH_POINTS, None, partial):
             records = chunk.records if isinstance(chunk, AfterGap) else chunk
-            for axis in range(3):
-                coords = source.records.coordinates(records, axis)
-                lo[axis], hi[axis] = min(lo[axis], coords.min()), max(hi[axis], coords.max())
+            if len(records):
+                ends = las.record_ends(records, source.records)
+                lo, hi = np.minimum(lo, ends[0]), np.maximum(hi, ends[1])
     except TruncatedInput:
         pass
     return tuple(map(float, lo)), tuple(map(float, hi))
