@@ -224,3 +224,27 @@ def test_bit_fields_equal_laspys():
                 assert got.dtype == np.uint8 and got.flags.c_contiguous
                 np.testing.assert_array_equal(got, np.asarray(record[name]), err_msg=name)
         assert one_call <= taken, point_format
+
+
+@pytest.mark.parametrize("point_format", [2, 3, 7, 8])
+@pytest.mark.parametrize(("scales", "loud"), [((0.01, 0.001, 0.25), "red"), ((-0.01, 0.5, -1e-3), "green"),
+                                              ((1.0, -1.0, 1.0), "blue")])
+def test_record_ends_and_rgb_max_equal_numpy(point_format, scales, loud):
+    """The open's probe takes the coordinate ends from the integers' ends and the colours'
+    maximum from one copy of R, G, B: both equal numpy over laspy's scaled coordinates and
+    fields, for either sign of a scale and whichever channel holds the greatest value, on
+    whole record arrays and strided slices."""
+    from progressive.loaders.las import Records, record_ends, rgb_max
+
+    pf = laspy.PointFormat(point_format)
+    rng = np.random.default_rng(point_format)
+    array = np.zeros(5_000, dtype=pf.dtype())
+    for axis in "XYZ":
+        array[axis] = rng.integers(-2**31, 2**31, array.size, dtype=np.int64)
+    for channel in ("red", "green", "blue"):
+        array[channel] = rng.integers(0, 2**16 if channel == loud else 256, array.size)
+    records = Records(pf, 0, np.float64(scales), np.float64([1e6, -2.5e5, 12.0]))
+    for chunk in (array, array[1::3]):
+        coords = np.stack([records.coordinates(chunk, axis) for axis in range(3)], axis=1)
+        np.testing.assert_array_equal(record_ends(chunk, records), [coords.min(axis=0), coords.max(axis=0)])
+        assert rgb_max(chunk) == max(int(chunk[c].max()) for c in ("red", "green", "blue"))
