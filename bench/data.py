@@ -34,14 +34,14 @@ class ScaledFiles:
         return (("LAS", self.las), ("LAZ", self.laz), ("fast", self.fast))
 
 
-def scaled(points: int, cache: Path = CACHE, source: Path = SAMPLE, fast: bool = True) -> ScaledFiles:
-    """`source` tiled to `points` as LAS, LAZ and (with `fast`) fast format, cached by
-    name and size."""
+def scaled(points: int, cache: Path = CACHE, source: Path = SAMPLE, fast: bool = True, laz: bool = True) -> ScaledFiles:
+    """`source` tiled to `points` as LAS, (with `laz`) LAZ and (with `fast`) fast
+    format, cached by name and size."""
     cache.mkdir(parents=True, exist_ok=True)
     stem = cache / f"{source.stem}_x{points}"
     files = ScaledFiles(points, stem.with_suffix(".las"), stem.with_suffix(".laz"), stem.with_suffix(".prg"))
     for path, compress in ((files.las, False), (files.laz, True)):
-        if not path.exists():
+        if not path.exists() and (laz or not compress):
             write_tiled(source, path, points, compress)
     if fast and not files.fast.exists():
         tmp = files.fast.with_suffix(".prg.tmp")

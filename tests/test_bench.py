@@ -41,6 +41,16 @@ def test_bench_writes_every_section(tmp_path):
     assert "Progressive, 30,000 points, adaptive" in text       # a small store's rows have gathers only
 
 
+def test_load_section_reads_only_the_formats_named(tmp_path):
+    out = tmp_path / "results"
+    assert main(["--smoke", "--sections", "load", "--load-formats", "LAS", "--out", str(out),
+                 "--cache", str(tmp_path / "cache")]) == 0
+    rows = json.loads((out / "load.json").read_text())["raw"]["rows"]
+    assert rows and {r["format"] for r in rows} == {"LAS"}
+    assert not list((tmp_path / "cache").glob("*.laz")) and not list((tmp_path / "cache").glob("*.prg"))
+    assert all(r["laspy_seconds"] > 0 and r["raw_seconds"] > 0 for r in rows)
+
+
 def test_headline_goes_between_markers(tmp_path):
     readme = tmp_path / "README.md"
     readme.write_text("a\n<!-- bench:headline:m -->\nold\n<!-- /bench:headline:m -->\nb\n")
