@@ -14,7 +14,7 @@
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
-CHUNKS=(files-100M load-100M load-las-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B winners-1B records-1B accuracy attributes packing upload-100M startup-100M viewer-load-100M mainthread-100M startup-1B convert-1B copc-1B stream-1B stream-200M writes-100M writes-1B reads-100M reads-1B node-decode-100M lazy-positions-10M staging-flush pytest)
+CHUNKS=(files-100M load-100M load-las-fast-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B winners-1B records-1B accuracy attributes packing upload-100M startup-100M viewer-load-100M mainthread-100M startup-1B convert-1B copc-1B stream-1B stream-200M writes-100M writes-1B reads-100M reads-1B node-decode-100M lazy-positions-10M staging-flush pytest)
 chunk="${1:-list}"
 if [ "$chunk" = list ]; then
     printf '%s\n' "${CHUNKS[@]}"
@@ -35,9 +35,10 @@ case "$chunk" in
     # beside laspy.read, the raw read and (LAZ) lazrs's own all-core decode in the same run; then the time
     # to first image and to every point on the GPU (issue 11's targets)
     load-100M)        "${bench[@]}" --sections load --max-points 100000000 "${@:2}" ;;
-    # the LAS rows of load-100M alone (the tiled LAS made here, no LAZ or fast file): 8 and 16 parser threads,
-    # warm and cold, beside laspy.read and the raw read, and the first image (issue 11's LAS target)
-    load-las-100M)    "${bench[@]}" --sections load --max-points 100000000 --load-formats LAS --load-threads 16 "${@:2}" ;;
+    # the LAS and fast-format rows of load-100M alone (their files made here, no LAZ): the default parser threads
+    # and every core, warm and cold, beside laspy.read and the raw read, and the first image (issue 11's LAS and
+    # fast targets; about 3 min)
+    load-las-fast-100M) "${bench[@]}" --sections load --max-points 100000000 --load-formats LAS fast --load-threads 16 "${@:2}" ;;
     kernel-100M)      "${PYTHON:-python3}" -m bench.kernel --points 100000000 --out-root "$OUT" "${@:2}" ;;
     # the batched layouts side by side at 100M (word store, float records, scan order, scan order with batches
     # sorted by Morton code), 1920x1080 only: the four-word walk, --batch-order morton's culling and the
