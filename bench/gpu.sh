@@ -14,7 +14,7 @@
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
-CHUNKS=(files-100M load-100M load-las-fast-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B winners-1B records-1B accuracy attributes packing upload-100M startup-100M viewer-load-100M mainthread-100M startup-1B convert-1B copc-1B stream-1B stream-200M writes-100M writes-1B reads-100M reads-1B node-decode-100M lazy-positions-10M staging-flush staging-race pytest)
+CHUNKS=(files-100M load-100M load-las-fast-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B winners-1B records-1B accuracy attributes packing upload-100M startup-100M viewer-load-100M mainthread-100M startup-1B convert-1B copc-1B stream-1B stream-200M writes-100M writes-1B reads-100M reads-1B node-decode-100M lazy-positions-10M staging-flush staging-race staging-fixes pytest)
 chunk="${1:-list}"
 if [ "$chunk" = list ]; then
     printf '%s\n' "${CHUNKS[@]}"
@@ -157,6 +157,12 @@ case "$chunk" in
                           grep FAILED "$OUT/race_${v}_$round.txt" | sed 's/ - .*//' || true
                       done; done
                       rm -f tests/test_zz_probe_race.py ;;
+    # which change ends the wrong words the flushed ring still gave: ways of staging taking turns in one
+    # process for SECONDS (default 150), failures counted (bench/results/nvidia-h100/staging_race/)
+    staging-fixes)    cp bench/results/nvidia-h100/staging_race/race_fixes_test.py tests/test_zz_race_fixes.py
+                      PROBE_SECONDS="${2:-150}" PROBE_OUT="$OUT/race_fixes.json" "${PYTHON:-python3}" -m pytest -q -s \
+                          -p no:cacheprovider tests/test_zz_race_fixes.py 2>&1 | tail -n 30 || true
+                      rm -f tests/test_zz_race_fixes.py ;;
     # what the window reads against what render reads, at 100M points: the sample (point format 3) and a LAZ of
     # point format 8 tiled as LAS and LAZ, each session warm, 3 repeats (bench.load first_image_table); render's
     # session at 8 and 16 parser threads too, beside the default 4 (do more take the frame loop's core?)

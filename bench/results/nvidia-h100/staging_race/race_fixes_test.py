@@ -1,0 +1,130 @@
+"""Probe: which change to the staging ring ends the wrong words the H100 gave with the
+flushed ring too (../pytest_<commit>/ d-z, test_interrupted_switches_and_switching_while_loading[words]).
+The two tests that failed are repeated in one process, the ways of staging taking turns
+rep after rep, until PROBE_SECONDS have passed; failures are counted, nothing asserted.
+bench/gpu.sh staging-fixes copies it into tests/ (it takes the suite's fixtures):
+
+    PROBE_SECONDS=150 PROBE_OUT=$OUT/race_fixes.json python -m pytest -q -s tests/test_zz_race_fixes.py
+
+Ways: `committed` (flushed ring, 640bf08); `gl_flush` (glFlush after each piece's
+barrier, before its scatter: the scatter starts a new submission); `read_bit` (the ring
+mapped with GL_MAP_READ_BIT too: another kind of host memory); `own_buffers` (each slot
+a buffer of its own, 1 MiB apart at least); `finish_before_acquire` (glFinish before a
+slot is handed out: no failure in ../pytest_64de055/race_probe.txt); `fence_after_barrier`
+(each slot's fence placed after the memory barrier that follows its scatter, not
+before); `wait_previous` (a blocking wait for the last piece's fence before a slot is
+handed out: the scatters done, later commands not); `copy` (no ring).
+"""
+import contextlib
+import ctypes
+import json
+import os
+import time
+
+import numpy as np
+import pytest
+
+from progressive import glext
+from progressive.bindings import Binding
+from progressive.encoding import Encoding
+from progressive.passes import distribute
+from tests import test_switch_words as t
+
+WAYS = ("committed", "gl_flush", "read_bit", "own_buffers", "fence_after_barrier", "wait_previous",
+        "finish_before_acquire", "copy")
+
+
+def _mapped_with_read(self, size):
+    name = glext._u(0)
+    self.create_buffers(1, ctypes.byref(name))
+    flags = glext.GL_MAP_WRITE_BIT | glext.GL_MAP_PERSISTENT_BIT
+    self.named_buffer_storage(name.value, size, None, flags | 0x0001)          # GL_MAP_READ_BIT
+    address = self.map_named_buffer_range(name.value, 0, size, flags | 0x0001 | glext.GL_MAP_FLUSH_EXPLICIT_BIT)
+    if not address:
+        raise RuntimeError("could not map")
+    words = np.ctypeslib.as_array(ctypes.cast(address, ctypes.POINTER(ctypes.c_uint32)), shape=(size // 4,))
+    return glext.MappedBuffer(int(name.value), size, words)
+
+
+def _apply(mp, gl, way, gl_flush):
+    if way == "gl_flush":
+        bind = distribute.StagingRing.bind
+        mp.setattr(distribute.StagingRing, "bind", lambda self, slot, size: (bind(self, slot, size), gl_flush())[0])
+    elif way == "read_bit":
+        mp.setattr(glext.BufferStorage, "mapped", _mapped_with_read)
+    elif way == "own_buffers":
+        init = distribute.StagingRing.__init__
+
+        def own(self, glc, storage, slot_bytes, slots=distribute.RING_SLOTS):
+            init(self, glc, storage, slot_bytes, 1)
+            self.rings = [self] + [OneSlot(glc, storage, slot_bytes) for _ in range(slots - 1)]
+            self.fences = [None] * slots
+
+        class OneSlot:
+            def __init__(self, glc, storage, slot_bytes):
+                self.inner = distribute.StagingRing.__new__(distribute.StagingRing)
+                init(self.inner, glc, storage, max(slot_bytes, 1 << 20), 1)
+
+        def view(self, slot, count, width):
+            r = self if slot == 0 else self.rings[slot].inner
+            return r.mapped.words[: count * width].reshape(count, width)
+
+        def bind(self, slot, size):
+            r = self if slot == 0 else self.rings[slot].inner
+            r.storage.flush(r.mapped, 0, size)
+            r.glc.ctx.memory_barrier(glext.GL_CLIENT_MAPPED_BUFFER_BARRIER_BIT)
+            r.buffer.bind_to_storage_buffer(Binding.DISTRIBUTE, offset=0, size=size)
+
+        mp.setattr(distribute.StagingRing, "__init__", own)
+        mp.setattr(distribute.StagingRing, "view", view)
+        mp.setattr(distribute.StagingRing, "bind", bind)
+    elif way == "fence_after_barrier":
+        def read(self, slot):
+            self.glc.ctx.memory_barrier()
+            self.fences[slot] = self.glc.gl.fence()
+        mp.setattr(distribute.StagingRing, "read", read)
+    elif way == "wait_previous":
+        acquire = distribute.StagingRing.acquire
+
+        def waiting(self):
+            last = self.fences[(self.next - 1) % self.slots]
+            if last is not None:
+                self.glc.gl.wait(last)
+            return acquire(self)
+        mp.setattr(distribute.StagingRing, "acquire", waiting)
+    elif way == "finish_before_acquire":
+        acquire = distribute.StagingRing.acquire
+        mp.setattr(distribute.StagingRing, "acquire", lambda self: (gl.ctx.finish(), acquire(self))[1])
+    elif way == "copy":
+        mp.setattr(distribute.BufferStorage, "offered", staticmethod(lambda *a: False))
+
+
+def test_probe(gl, sample_batches):
+    gl_flush = glext._entry(glext.egl_proc_loader(), "glFlush")
+    seconds = float(os.environ.get("PROBE_SECONDS", "20"))
+    counts = {w: {"runs": 0, "failed": 0, "failures": []} for w in WAYS}
+    cases = [("interrupted", lambda: t.test_interrupted_switches_and_switching_while_loading(
+                  gl, sample_batches, Encoding.WORDS)),
+             ("switch elevation", lambda: t.test_switched_words_equal_the_reference(
+                  gl, sample_batches, Encoding.WORDS, "elevation")),
+             ("switch gps_time", lambda: t.test_switched_words_equal_the_reference(
+                  gl, sample_batches, Encoding.WORDS, "gps_time"))]
+    t0, rep = time.perf_counter(), 0
+    while time.perf_counter() - t0 < seconds:
+        for i in range(len(WAYS)):
+            way = WAYS[(i + rep) % len(WAYS)]
+            for name, case in cases:
+                with pytest.MonkeyPatch.context() as mp:
+                    _apply(mp, gl, way, gl_flush)
+                    try:
+                        case()
+                    except AssertionError as exc:
+                        counts[way]["failed"] += 1
+                        counts[way]["failures"].append(f"rep {rep} {name}: {str(exc).splitlines()[3:4]}")
+                    counts[way]["runs"] += 1
+        rep += 1
+    summary = {w: f"{c['failed']} of {c['runs']} failed" for w, c in counts.items()}
+    print(json.dumps(summary, indent=1))
+    if os.environ.get("PROBE_OUT"):
+        with open(os.environ["PROBE_OUT"], "w") as f:
+            json.dump({"seconds": seconds, "reps": rep, "counts": counts}, f, indent=1)
