@@ -13,7 +13,9 @@ a buffer of its own, 1 MiB apart at least); `finish_before_acquire` (glFinish be
 slot is handed out: no failure in ../pytest_64de055/race_probe.txt); `fence_after_barrier`
 (each slot's fence placed after the memory barrier that follows its scatter, not
 before); `wait_previous` (a blocking wait for the last piece's fence before a slot is
-handed out: the scatters done, later commands not); `copy` (no ring).
+handed out: the scatters done, later commands not); `device_copy` (each flushed piece
+copied by glCopyNamedBufferSubData into a buffer in GPU memory, which the scatter
+reads: the GPU's shaders never read the mapped memory); `copy` (no ring).
 """
 import contextlib
 import ctypes
@@ -31,7 +33,7 @@ from progressive.passes import distribute
 from tests import test_switch_words as t
 
 WAYS = ("committed", "gl_flush", "read_bit", "own_buffers", "fence_after_barrier", "wait_previous",
-        "finish_before_acquire", "copy")
+        "device_copy", "finish_before_acquire", "copy")
 
 
 def _mapped_with_read(self, size):
@@ -92,6 +94,17 @@ def _apply(mp, gl, way, gl_flush):
                 self.glc.gl.wait(last)
             return acquire(self)
         mp.setattr(distribute.StagingRing, "acquire", waiting)
+    elif way == "device_copy":
+        bind = distribute.StagingRing.bind
+
+        def copied(self, slot, size):
+            bind(self, slot, size)
+            if getattr(self, "device", None) is None:
+                self.device = self.glc.ctx.buffer(reserve=self.slot_bytes)
+            self.glc.gl.copy_named_buffer_sub_data(self.mapped.glo, self.device.glo, slot * self.slot_bytes, 0, size)
+            self.glc.ctx.memory_barrier()
+            self.device.bind_to_storage_buffer(Binding.DISTRIBUTE, offset=0, size=size)
+        mp.setattr(distribute.StagingRing, "bind", copied)
     elif way == "finish_before_acquire":
         acquire = distribute.StagingRing.acquire
         mp.setattr(distribute.StagingRing, "acquire", lambda self: (gl.ctx.finish(), acquire(self))[1])
