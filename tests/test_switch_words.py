@@ -17,7 +17,7 @@ import pytest
 from progressive.encoding import Encoding
 from progressive.loaders.records import attribute_word
 from progressive.loaders.types import AttributeInfo, AttributeKind, Batch
-from progressive.passes.distribute import Staging, without_buffer_storage
+from progressive.passes.distribute import DistributePass, Staging, StagingRing, without_buffer_storage
 from progressive.permutation import BATCH_POINTS, FillOrder
 from progressive.pointstore import EMPTY_WORD
 from progressive.scene import Scene
@@ -194,6 +194,33 @@ def test_rgb_switch_staged_as_bytes_through_the_ring_and_copied(gl, sample_batch
     np.testing.assert_array_equal(scene.store.read_words()[:, 3], expected_words(scene, loaded, attribute))
     assert scene.distribute.rgb_words is not None
     assert (stats.ring - ring > 0) == (staging is Staging.RING) and (stats.copied - copied > 0) == (staging is Staging.COPY)
+    scene.release()
+
+
+@pytest.mark.parametrize("name", ["gps_time", "rgb"])
+def test_a_switch_piece_copied_for_want_of_a_free_slot_may_outgrow_a_records_piece(gl, sample_batches,
+                                                                                  monkeypatch, name):
+    """A switch's piece of words finding its ring slot busy is copied through the copy
+    path's buffer, which holds a piece of records: a piece of more words than that (a
+    large cloud's, by default 64 MiB against 8 MB) is copied whole, equal to the reference."""
+    info, batches = sample_batches
+    loaded = resplit(batches)
+    scene = Scene(gl, info, info.attribute("intensity"), keep_batches=True)
+    scene.distribute.release()
+    scene.distribute = DistributePass(gl, scene.store, batch_points=2_000, word_piece=30_000)
+    for b in loaded:
+        scene.add_batch(b)
+    stage = scene.distribute.stage.size
+    acquire = StagingRing.acquire
+    monkeypatch.setattr(StagingRing, "acquire",
+                        lambda ring: None if ring is scene.distribute.word_ring else acquire(ring))
+    copied = scene.distribute.stats.copied
+    attribute = info.attribute(name)
+    switch(scene, attribute)
+    gl.check()
+    assert scene.distribute.stats.copied - copied == -(-info.points // 30_000)
+    assert scene.distribute.stage.size > stage
+    np.testing.assert_array_equal(scene.store.read_words()[:, 3], expected_words(scene, loaded, attribute))
     scene.release()
 
 

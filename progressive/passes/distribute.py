@@ -160,6 +160,7 @@ class DistributePass:
 
     @property
     def stage(self):
+        """The copy path's buffer: a piece of records (grown for a larger piece)."""
         if self._stage is None:
             self._stage = self.glc.ctx.buffer(reserve=self.piece_bytes)
             self._stage.label = "distribute stage"
@@ -254,7 +255,9 @@ class DistributePass:
             else:
                 part = np.empty(words, dtype=np.uint32)
                 total += fill(_items(part, hi - lo, width, item_bytes), lo, hi)
-                self.stage.orphan()   # fresh storage: no wait for the previous scatter to finish reading
+                # fresh storage: no wait for the previous scatter to finish reading; as large as
+                # a switch's piece of words, which may exceed a slot of records
+                self.stage.orphan(max(part.nbytes, self.stage.size))
                 self.stage.write(part)
                 self.stage.bind_to_storage_buffer(Binding.DISTRIBUTE)
                 self.stats.copied += 1

@@ -17,7 +17,6 @@ handed out: the scatters done, later commands not); `device_copy` (each flushed 
 copied by glCopyNamedBufferSubData into a buffer in GPU memory, which the scatter
 reads: the GPU's shaders never read the mapped memory); `copy` (no ring).
 """
-import contextlib
 import ctypes
 import json
 import os
