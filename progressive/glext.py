@@ -243,10 +243,12 @@ class BufferStorage:
         writes is seen by the GL commands issued after `flush` names its range and a
         glMemoryBarrier(GL_CLIENT_MAPPED_BUFFER_BARRIER_BIT) follows (the specification
         lets a coherent store's writes reach the server "after an unspecified period of
-        time"). With a coherent mapping on the NVIDIA driver (580, H100), scatters
-        reading a slot rewritten after its fence had signalled at times placed words of
-        other points (tests/test_switch_words.py); a glFinish before each rewrite
-        prevented it (bench/results/nvidia-h100/pytest_64de055/)."""
+        time"). On the NVIDIA driver (580, H100), scatters reading a slot rewritten after
+        its fence had signalled at times placed words of other points
+        (tests/test_switch_words.py), with a coherent mapping
+        (bench/results/nvidia-h100/pytest_64de055/) and with this one too
+        (pytest_2b32179/); a glFinish before each rewrite prevented it in a short probe.
+        bench/results/nvidia-h100/staging_race/ tries other ways."""
         name = _u(0)
         self.create_buffers(1, ctypes.byref(name))
         self.named_buffer_storage(name.value, size, None, GL_MAP_WRITE_BIT | GL_MAP_PERSISTENT_BIT)
