@@ -82,7 +82,7 @@ class FastSource:
         Each parser thread reads its own batches (the GIL released through the read), so
         the reads run on every parser thread at once."""
         records = np.empty((count, 4), dtype=np.uint32)
-        with open_binary(self.info.path, in_order=True) as stream:
+        with open_binary(self.info.path) as stream:
             stream.seek(HEADER_BYTES + first * RECORD_BYTES)
             _read_exactly(self.info.path, stream, memoryview(records).cast("B"))
         return Batch(start=start, xyz=records[:, :3].view(np.float32), records=records)

@@ -459,7 +459,7 @@ def _batches(parts: list[np.ndarray], head: int, piece: int) -> Iterator[np.ndar
 def read_span(path: str, records: Records, span: Span, count: int) -> np.ndarray:
     """The records of `span` of an uncompressed file, in one read; TruncatedInput where the
     file ends first (it was cut after it was opened: its size was checked then)."""
-    with open_binary(path, in_order=True) as stream:
+    with open_binary(path) as stream:
         return _read_records(stream, path, records, span, count)
 
 
@@ -488,7 +488,7 @@ def _pieces(path: str, laz: LazLayout | None, records: Records, count: int, piec
             yield from decode_chunks(path, laz, count, head, records.dtype, available_cores(),
                                      None if layers is None else layers.to_lazrs(), skip)
     elif laz is None:
-        with open_binary(path, in_order=True) as stream:
+        with open_binary(path) as stream:
             for first in [0, *range(head, count, piece)]:
                 yield _read_records(stream, path, records, Span(first, min(head if first == 0 else piece, count - first)),
                                     count)

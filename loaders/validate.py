@@ -9,7 +9,6 @@ before anything is read.
 
 from __future__ import annotations
 
-import contextlib
 import os
 import stat
 import struct
@@ -61,13 +60,9 @@ def fail(path: str | os.PathLike, problem: object) -> InputError:
     return InputError(f"{shown(path)}: {one_line(problem)}")
 
 
-def open_binary(path: str | os.PathLike, in_order: bool = False):
+def open_binary(path: str | os.PathLike):
     """The file opened for reading, refused in one line unless it is a regular file. The
-    open does not block (O_NONBLOCK), so a FIFO without a writer is refused, not waited on.
-    in_order: what is read is read front to back (a span of records in one read), and the
-    kernel is told so (POSIX_FADV_SEQUENTIAL: a larger read-ahead), where it can be: a
-    cold 2 M-point LAS loaded about 9 % sooner on the 2-core machine
-    (bench/results/llvmpipe/las_readahead/)."""
+    open does not block (O_NONBLOCK), so a FIFO without a writer is refused, not waited on."""
     try:
         stream = open(path, "rb", opener=_nonblocking)
     except IsADirectoryError:
@@ -80,9 +75,6 @@ def open_binary(path: str | os.PathLike, in_order: bool = False):
             kind = NOT_REGULAR.get(stat.S_IFMT(mode), "not a regular file")
             raise fail(path, f"is {kind}, not a point-cloud file")
         os.set_blocking(stream.fileno(), True)
-        if in_order and hasattr(os, "posix_fadvise"):
-            with contextlib.suppress(OSError):      # advice only
-                os.posix_fadvise(stream.fileno(), 0, 0, os.POSIX_FADV_SEQUENTIAL)
         return stream
     except BaseException:
         stream.close()
