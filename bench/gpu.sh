@@ -14,7 +14,7 @@
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
-CHUNKS=(files-100M load-100M load-las-fast-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B winners-1B records-1B accuracy attributes packing upload-100M startup-100M viewer-load-100M mainthread-100M startup-1B convert-1B copc-1B stream-1B stream-200M writes-100M writes-1B reads-100M reads-1B node-decode-100M lazy-positions-10M staging-flush staging-race staging-fixes pytest)
+CHUNKS=(files-100M load-100M load-las-fast-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B winners-1B records-1B accuracy attributes packing upload-100M startup-100M viewer-load-100M mainthread-100M startup-1B convert-1B copc-1B stream-1B stream-200M writes-100M writes-1B reads-100M reads-1B node-decode-100M lazy-positions-10M staging-flush staging-fixes pytest)
 chunk="${1:-list}"
 if [ "$chunk" = list ]; then
     printf '%s\n' "${CHUNKS[@]}"
@@ -145,18 +145,6 @@ case "$chunk" in
                           VARIANT=$v PYTHONPATH="$variants:${PYTHONPATH:-}" "${PYTHON:-python3}" -m bench.upload \
                               --points 100000000 --repeats 1 --startup-repeats 1 --out "$OUT/$(machine)/staging_flush/$v" "${@:2}"
                       done ;;
-    # the same two files after the two tests that failed, repeated in the same process (race_variants_test.py
-    # copied into tests/ for the run), each ring in turn, 3 rounds, failures counted (about 2 min)
-    staging-race)     variants="bench/results/nvidia-h100/staging_flush"
-                      cp "$variants/race_variants_test.py" tests/test_zz_probe_race.py
-                      for round in 1 2 3; do for v in coherent flushed; do
-                          VARIANT=$v PYTHONPATH="$variants:${PYTHONPATH:-}" "${PYTHON:-python3}" -m pytest -q \
-                              -p no:cacheprovider --tb=no -rf -k "not flushed_before" tests/test_zz_probe_race.py \
-                              tests/test_switch_words.py tests/test_upload_ring.py > "$OUT/race_${v}_$round.txt" 2>&1 || true
-                          echo "round $round $v: $(tail -n 1 "$OUT/race_${v}_$round.txt")"
-                          grep FAILED "$OUT/race_${v}_$round.txt" | sed 's/ - .*//' || true
-                      done; done
-                      rm -f tests/test_zz_probe_race.py ;;
     # which change ends the wrong words the flushed ring still gave: ways of staging taking turns in one
     # process for SECONDS (default 150), failures counted (bench/results/nvidia-h100/staging_race/)
     staging-fixes)    cp bench/results/nvidia-h100/staging_race/race_fixes_test.py tests/test_zz_race_fixes.py
