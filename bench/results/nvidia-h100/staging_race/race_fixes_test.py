@@ -2,6 +2,7 @@
 flushed ring too (../pytest_<commit>/ d-z, test_interrupted_switches_and_switching_while_loading[words]).
 The two tests that failed are repeated in one process, the ways of staging taking turns
 rep after rep, until PROBE_SECONDS have passed; failures are counted, nothing asserted.
+Then each way uploads THROUGHPUT_POINTS float records (median of 3), for its cost.
 bench/gpu.sh staging-fixes copies it into tests/ (it takes the suite's fixtures):
 
     PROBE_SECONDS=150 PROBE_OUT=$OUT/race_fixes.json python -m pytest -q -s tests/test_zz_race_fixes.py
@@ -29,7 +30,11 @@ from progressive import glext
 from progressive.bindings import Binding
 from progressive.encoding import Encoding
 from progressive.passes import distribute
+from progressive.pointstore import PointStore
 from tests import test_switch_words as t
+
+THROUGHPUT_POINTS = 20_000_000
+"""Float records each way scatters, in loader-sized pieces, for what it costs."""
 
 WAYS = ("committed", "gl_flush", "read_bit", "own_buffers", "fence_after_barrier", "wait_previous",
         "device_copy", "finish_before_acquire", "copy")
@@ -111,6 +116,36 @@ def _apply(mp, gl, way, gl_flush):
         mp.setattr(distribute.BufferStorage, "offered", staticmethod(lambda *a: False))
 
 
+def _records() -> np.ndarray:
+    """THROUGHPUT_POINTS float records: positions in the unit cube, any attribute word."""
+    rng = np.random.default_rng(0)
+    records = np.empty((THROUGHPUT_POINTS, 4), dtype=np.uint32)
+    records[:, :3] = rng.random((THROUGHPUT_POINTS, 3), dtype=np.float32).view(np.uint32)
+    records[:, 3] = rng.integers(0, 2**32, THROUGHPUT_POINTS, dtype=np.uint32)
+    return records
+
+
+def _throughput(gl, way, gl_flush, records, repeats=3) -> float:
+    """Median M points/s of the records uploaded (staged and scattered into a
+    float-record store, to glFinish) the way given."""
+    with pytest.MonkeyPatch.context() as mp:
+        _apply(mp, gl, way, gl_flush)
+        store = PointStore(gl, THROUGHPUT_POINTS, position_encoding=Encoding.FLOAT)
+        d = distribute.DistributePass(gl, store)
+        times = []
+        for k in range(repeats + 1):
+            gl.ctx.finish()
+            t0 = time.perf_counter()
+            for lo in range(0, THROUGHPUT_POINTS, d.batch_points):
+                d.upload(records[lo: lo + d.batch_points], lo)
+            gl.ctx.finish()
+            if k:
+                times.append(time.perf_counter() - t0)
+        d.release()
+        store.release()
+    return THROUGHPUT_POINTS / sorted(times)[len(times) // 2] / 1e6
+
+
 def test_probe(gl, sample_batches):
     gl_flush = glext._entry(glext.egl_proc_loader(), "glFlush")
     seconds = float(os.environ.get("PROBE_SECONDS", "20"))
@@ -135,7 +170,11 @@ def test_probe(gl, sample_batches):
                         counts[way]["failures"].append(f"rep {rep} {name}: {str(exc).splitlines()[3:4]}")
                     counts[way]["runs"] += 1
         rep += 1
-    summary = {w: f"{c['failed']} of {c['runs']} failed" for w, c in counts.items()}
+    records = _records()
+    for w in WAYS:
+        counts[w]["upload_mpoints_s"] = _throughput(gl, w, gl_flush, records)
+    summary = {w: f"{c['failed']} of {c['runs']} failed, upload {c['upload_mpoints_s']:.0f} M points/s"
+               for w, c in counts.items()}
     print(json.dumps(summary, indent=1))
     if os.environ.get("PROBE_OUT"):
         with open(os.environ["PROBE_OUT"], "w") as f:
