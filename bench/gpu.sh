@@ -143,7 +143,7 @@ case "$chunk" in
                       done; done
                       for v in coherent flushed; do
                           VARIANT=$v PYTHONPATH="$variants:${PYTHONPATH:-}" "${PYTHON:-python3}" -m bench.upload \
-                              --points 100000000 --repeats 1 --startup-repeats 1 --out "$OUT/$(machine)/staging_flush/$v" "${@:2}"
+                              --points 100000000 --repeats 1 --startup-repeats 1 --out "$OUT/staging_flush_$v" "${@:2}"
                       done ;;
     # which change ends the wrong words the flushed ring still gave: ways of staging taking turns in one
     # process for SECONDS (default 150), failures counted (bench/results/nvidia-h100/staging_race/)
