@@ -16,7 +16,11 @@ slot is handed out: no failure in ../pytest_64de055/race_probe.txt); `fence_afte
 before); `wait_previous` (a blocking wait for the last piece's fence before a slot is
 handed out: the scatters done, later commands not); `device_copy` (each flushed piece
 copied by glCopyNamedBufferSubData into a buffer in GPU memory, which the scatter
-reads: the GPU's shaders never read the mapped memory); `copy` (no ring).
+reads: the GPU's shaders never read the mapped memory); `kept_buffers` (a released ring's
+mapping kept and handed to the next ring of its size, never deleted: if the driver gives a
+new mapping host pages whose lines the GPU still caches from a deleted one, and its
+barrier skips a buffer it has not read yet, only fresh rings would read stale words, which
+fits the failures coming late in a process); `copy` (no ring).
 """
 import ctypes
 import json
@@ -37,7 +41,10 @@ THROUGHPUT_POINTS = 20_000_000
 """Float records each way scatters, in loader-sized pieces, for what it costs."""
 
 WAYS = ("committed", "gl_flush", "read_bit", "own_buffers", "fence_after_barrier", "wait_previous",
-        "device_copy", "finish_before_acquire", "copy")
+        "device_copy", "kept_buffers", "finish_before_acquire", "copy")
+
+_KEPT: dict[int, list] = {}
+"""kept_buffers: released mappings by size, handed out again instead of new ones."""
 
 
 def _mapped_with_read(self, size):
@@ -109,6 +116,22 @@ def _apply(mp, gl, way, gl_flush):
             self.glc.ctx.memory_barrier()
             self.device.bind_to_storage_buffer(Binding.DISTRIBUTE, offset=0, size=size)
         mp.setattr(distribute.StagingRing, "bind", copied)
+    elif way == "kept_buffers":
+        mapped = glext.BufferStorage.mapped
+
+        def kept_or_new(self, size):
+            free = _KEPT.get(size)
+            return free.pop() if free else mapped(self, size)
+        ring_release = distribute.StagingRing.release
+
+        def release_when_read(self):
+            for fence in self.fences:       # a kept mapping is written again at once: its last reads must be done
+                if fence is not None:
+                    self.glc.gl.wait(fence)
+            ring_release(self)
+        mp.setattr(glext.BufferStorage, "mapped", kept_or_new)
+        mp.setattr(glext.BufferStorage, "release", lambda self, buffer: _KEPT.setdefault(buffer.size, []).append(buffer))
+        mp.setattr(distribute.StagingRing, "release", release_when_read)
     elif way == "finish_before_acquire":
         acquire = distribute.StagingRing.acquire
         mp.setattr(distribute.StagingRing, "acquire", lambda self: (gl.ctx.finish(), acquire(self))[1])
