@@ -155,6 +155,7 @@ def main(argv=None) -> int:
     ap.add_argument("--progressive-points", type=int, nargs="+", help="override the progressive section's counts")
     ap.add_argument("--load-threads", type=int, nargs="+",
                     help="override the load section's parser threads (the default and every core are always run)")
+    ap.add_argument("--load-repeats", type=int, help="override the load section's repeats a row (median)")
     ap.add_argument("--load-formats", nargs="+", choices=LOAD_FORMATS, default=LOAD_FORMATS,
                     help="the load section's formats (default: all; LAS alone fits a device call at 100M points)")
     ap.add_argument("--cache", type=Path, default=data.CACHE, help="where generated files are kept")
@@ -167,6 +168,8 @@ def main(argv=None) -> int:
         scale = dataclasses.replace(scale, progressive_points=tuple(args.progressive_points))
     if args.load_threads:
         scale = dataclasses.replace(scale, threads=tuple(args.load_threads))
+    if args.load_repeats:
+        scale = dataclasses.replace(scale, load_repeats=args.load_repeats)
     glc = create_context()
     out = args.out or (args.out_root or RESULTS) / RunInfo.from_caps(glc.caps, "").machine
     run = RunInfo.from_caps(glc.caps, scale.mode + (f", ≤ {args.max_points:,} points" if args.max_points else ""))

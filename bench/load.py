@@ -270,12 +270,13 @@ def run(glc: GLContext, cases: list[LoadCase], threads: tuple[int, ...], repeats
         "share of it = lazrs seconds / loader seconds: the decoding ceiling, without parsing. lazrs one core = "
         f"`lazrs.LasZipDecompressor` (sequential) over the first {ONE_CORE_POINTS:,} points, warm, once a file: "
         f"times the {cores} cores, the most any decoding spread over them could reach (perfect scaling)."),
+        f"Each row's seconds: the median of {repeats} runs. "
         "Cold = `posix_fadvise(POSIX_FADV_DONTNEED)` after `fsync` before each run; it counts as forced only where "
         f"the cold raw read was ≥ {COLD_MIN_SLOWDOWN}× slower than the warm one (slowdown per file: "
         + ", ".join(f"{k} {v:.2f}×" for k, v in cold_forced.items()) + "). Where not forced, the cold rows "
         "measure a cached file: the page cache could not be dropped here (e.g. a virtual disk cached by the host).",
     ]
-    load.raw = {"rows": rows, "cold_slowdown_raw": cold_forced, "default_threads": default}
+    load.raw = {"rows": rows, "cold_slowdown_raw": cold_forced, "default_threads": default, "repeats": repeats}
 
     return load, first_image_table(glc, cases, size, max_frames)
 

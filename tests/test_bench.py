@@ -43,10 +43,11 @@ def test_bench_writes_every_section(tmp_path):
 
 def test_load_section_reads_only_the_formats_named(tmp_path):
     out = tmp_path / "results"
-    assert main(["--smoke", "--sections", "load", "--load-formats", "LAS", "--out", str(out),
+    assert main(["--smoke", "--sections", "load", "--load-formats", "LAS", "--load-repeats", "2", "--out", str(out),
                  "--cache", str(tmp_path / "cache")]) == 0
-    rows = json.loads((out / "load.json").read_text())["raw"]["rows"]
-    assert rows and {r["format"] for r in rows} == {"LAS"}
+    raw = json.loads((out / "load.json").read_text())["raw"]
+    rows = raw["rows"]
+    assert rows and {r["format"] for r in rows} == {"LAS"} and raw["repeats"] == 2
     assert not list((tmp_path / "cache").glob("*.laz")) and not list((tmp_path / "cache").glob("*.prg"))
     assert all(r["laspy_seconds"] > 0 and r["raw_seconds"] > 0 for r in rows)
 
