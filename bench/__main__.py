@@ -90,11 +90,7 @@ SMOKE = Scale("smoke", load_points=30_000, threads=(1, 2), load_repeats=1, first
               accuracy_fixed=(0.25,), accuracy_max_frames=12, real_files=False)
 
 
-LOAD_FORMATS = ("LAS", "LAZ", "fast")
-"""The formats the load section reads (data.ScaledFiles.formats)."""
-
-
-def section_load(glc: GLContext, s: Scale, cache: Path, formats: tuple[str, ...] = LOAD_FORMATS) -> list[Table]:
+def section_load(glc: GLContext, s: Scale, cache: Path, formats: tuple[str, ...] = data.FORMATS) -> list[Table]:
     """The load tables of the tiled sample and the real files, in the formats named."""
     files = data.scaled(s.load_points, cache, fast="fast" in formats, laz="LAZ" in formats)
     n = f"{s.load_points:,} (scaled files); real files as they are"
@@ -156,7 +152,7 @@ def main(argv=None) -> int:
     ap.add_argument("--load-threads", type=int, nargs="+",
                     help="override the load section's parser threads (the default and every core are always run)")
     ap.add_argument("--load-repeats", type=int, help="override the load section's repeats a row (median)")
-    ap.add_argument("--load-formats", nargs="+", choices=LOAD_FORMATS, default=LOAD_FORMATS,
+    ap.add_argument("--load-formats", nargs="+", choices=data.FORMATS, default=data.FORMATS,
                     help="the load section's formats (default: all; LAS alone fits a device call at 100M points)")
     ap.add_argument("--cache", type=Path, default=data.CACHE, help="where generated files are kept")
     ap.add_argument("--readme", action="store_true", help="insert headline.md into README.md")

@@ -20,6 +20,8 @@ from progressive import cli
 CACHE = Path(__file__).resolve().parent / ".cache"
 WRITE_POINTS = 2_000_000
 """Points per write: large writes let lazrs compress chunks in parallel."""
+FORMATS = ("LAS", "LAZ", "fast")
+"""The formats a cloud is tiled to (ScaledFiles.formats), in that order."""
 SHARED = Path(os.environ.get("PROGRESSIVE_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
 
 
@@ -31,7 +33,7 @@ class ScaledFiles:
     fast: Path
 
     def formats(self) -> tuple[tuple[str, Path], ...]:
-        return (("LAS", self.las), ("LAZ", self.laz), ("fast", self.fast))
+        return tuple(zip(FORMATS, (self.las, self.laz, self.fast), strict=True))
 
 
 def scaled(points: int, cache: Path = CACHE, source: Path = SAMPLE, fast: bool = True, laz: bool = True) -> ScaledFiles:
