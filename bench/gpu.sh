@@ -148,9 +148,12 @@ case "$chunk" in
                       done ;;
     # which change ends the wrong words the flushed ring still gave: ways of staging taking turns in one
     # process for SECONDS (default 150), failures counted (bench/results/nvidia-h100/staging_race/)
+    # staging-fixes SECONDS [TEST_FILES...]: the files given run first in the same process (the
+    # failures came late in a process), their output in $OUT/pytest_before_probe.txt
     staging-fixes)    cp bench/results/nvidia-h100/staging_race/race_fixes_test.py tests/test_zz_race_fixes.py
                       PROBE_SECONDS="${2:-150}" PROBE_OUT="$OUT/race_fixes.json" "${PYTHON:-python3}" -m pytest -q -s \
-                          -p no:cacheprovider tests/test_zz_race_fixes.py 2>&1 | tail -n 30 || true
+                          -p no:cacheprovider -rf --durations=0 "${@:3}" tests/test_zz_race_fixes.py > "$OUT/pytest_before_probe.txt" 2>&1 || true
+                      tail -n 40 "$OUT/pytest_before_probe.txt"
                       rm -f tests/test_zz_race_fixes.py ;;
     # what the window reads against what render reads, at 100M points: the sample (point format 3) and a LAZ of
     # point format 8 tiled as LAS and LAZ, each session warm, 3 repeats (bench.load first_image_table); render's

@@ -21,11 +21,21 @@ mapping kept and handed to the next ring of its size, never deleted: if the driv
 new mapping host pages whose lines the GPU still caches from a deleted one, and its
 barrier skips a buffer it has not read yet, only fresh rings would read stale words, which
 fits the failures coming late in a process); `copy` (no ring).
+
+Each failure is also traced back (`_Trace`): every piece the case staged is kept as the
+CPU left it at its bind (ring) or write (copy), and each wrong word of the failed check
+(the first WRONG_TRACED) is looked for among them: a word the same ring slot held at
+the same offset for an earlier piece than the right word's (the GPU read the slot as it
+was before the CPU rewrote it), a word of the same piece at another offset, of another
+piece, or one never staged.
 """
 import ctypes
 import json
 import os
 import time
+from collections import Counter
+
+import moderngl
 
 import numpy as np
 import pytest
@@ -42,6 +52,9 @@ THROUGHPUT_POINTS = 20_000_000
 
 WAYS = ("committed", "gl_flush", "read_bit", "own_buffers", "fence_after_barrier", "wait_previous",
         "device_copy", "kept_buffers", "finish_before_acquire", "copy")
+
+WRONG_TRACED = 512
+"""Wrong words of a failed check traced back to the pieces staged."""
 
 _KEPT: dict[int, list] = {}
 """kept_buffers: released mappings by size, handed out again instead of new ones."""
@@ -139,6 +152,71 @@ def _apply(mp, gl, way, gl_flush):
         mp.setattr(distribute.BufferStorage, "offered", staticmethod(lambda *a: False))
 
 
+class _Trace:
+    """The pieces a case stages, in order: (ring id, or 0 for the copy path; slot; the
+    words as the CPU left them), and the arrays of the first check that failed."""
+
+    def __init__(self):
+        self.pieces: list[tuple[int, int, np.ndarray]] = []
+        self.failed: tuple[np.ndarray, np.ndarray] | None = None
+
+    def patch(self, mp) -> None:
+        """After _apply: the way's bind and view are the ones traced."""
+        trace, bind, write, check = self, distribute.StagingRing.bind, moderngl.Buffer.write, np.testing.assert_array_equal
+
+        def traced_bind(ring, slot, size):
+            trace.pieces.append((id(ring), slot, ring.view(slot, size // 4, 1).reshape(-1).copy()))
+            return bind(ring, slot, size)
+
+        def traced_write(buffer, data, offset=0):
+            if getattr(buffer, "label", "") == "distribute stage":
+                trace.pieces.append((0, 0, np.frombuffer(bytes(data), dtype=np.uint32).copy()))
+            return write(buffer, data, offset)
+
+        def kept_check(actual, desired, *args, **kwargs):
+            try:
+                check(actual, desired, *args, **kwargs)
+            except AssertionError:
+                if trace.failed is None:
+                    trace.failed = (np.asarray(actual).copy(), np.asarray(desired).copy())
+                raise
+
+        mp.setattr(distribute.StagingRing, "bind", traced_bind)
+        mp.setattr(moderngl.Buffer, "write", traced_write)
+        mp.setattr(np.testing, "assert_array_equal", kept_check)
+
+    def explain(self) -> dict:
+        """Where the wrong words of the failed check were staged (module docstring)."""
+        actual, desired = self.failed
+        wrong = np.flatnonzero(actual != desired)
+        traced = wrong[:WRONG_TRACED]
+        needed = np.unique(np.concatenate([actual[traced], desired[traced]]))
+        where: dict[int, list[tuple[int, int, int, int]]] = {}
+        for seq, (ring, slot, words) in enumerate(self.pieces):
+            for o in np.flatnonzero(np.isin(words, needed)).tolist():
+                where.setdefault(int(words[o]), []).append((seq, ring, slot, o))
+        kinds, gaps = Counter(), Counter()
+        for i in traced.tolist():
+            right, got = where.get(int(desired[i]), []), where.get(int(actual[i]), [])
+            if not right or not got:
+                kinds["right word never staged" if not right else "wrong word never staged"] += 1
+                continue
+            seq, ring, slot, offset = right[-1]
+            stale = [q for q, r, s, o in got if (r, s, o) == (ring, slot, offset) and q < seq and r]
+            if stale:
+                kinds["stale: the same ring slot and offset held it for an earlier piece"] += 1
+                gaps[seq - stale[-1]] += 1
+            elif any(q == seq for q, *_ in got):
+                kinds["the same piece, another offset"] += 1
+            elif any((r, s) == (ring, slot) for _, r, s, _ in got):
+                kinds["the same slot, another piece and offset"] += 1
+            else:
+                kinds["another piece elsewhere"] += 1
+        return {"wrong": int(wrong.size), "of": int(actual.size), "traced": int(traced.size),
+                "pieces": len(self.pieces), "copied pieces": sum(1 for r, *_ in self.pieces if r == 0),
+                "kinds": dict(kinds), "pieces between stale and right": {str(k): v for k, v in sorted(gaps.items())}}
+
+
 def _records() -> np.ndarray:
     """THROUGHPUT_POINTS float records: positions in the unit cube, any attribute word."""
     rng = np.random.default_rng(0)
@@ -172,7 +250,7 @@ def _throughput(gl, way, gl_flush, records, repeats=3) -> float:
 def test_probe(gl, sample_batches):
     gl_flush = glext._entry(glext.egl_proc_loader(), "glFlush")
     seconds = float(os.environ.get("PROBE_SECONDS", "20"))
-    counts = {w: {"runs": 0, "failed": 0, "failures": []} for w in WAYS}
+    counts = {w: {"runs": 0, "failed": 0, "failures": [], "traced": []} for w in WAYS}
     cases = [("interrupted", lambda: t.test_interrupted_switches_and_switching_while_loading(
                   gl, sample_batches, Encoding.WORDS)),
              ("switch elevation", lambda: t.test_switched_words_equal_the_reference(
@@ -184,13 +262,17 @@ def test_probe(gl, sample_batches):
         for i in range(len(WAYS)):
             way = WAYS[(i + rep) % len(WAYS)]
             for name, case in cases:
+                trace = _Trace()
                 with pytest.MonkeyPatch.context() as mp:
                     _apply(mp, gl, way, gl_flush)
+                    trace.patch(mp)
                     try:
                         case()
                     except AssertionError as exc:
                         counts[way]["failed"] += 1
                         counts[way]["failures"].append(f"rep {rep} {name}: {str(exc).splitlines()[3:4]}")
+                        if trace.failed is not None:
+                            counts[way]["traced"].append(trace.explain())
                     counts[way]["runs"] += 1
         rep += 1
     records = _records()
