@@ -14,7 +14,7 @@
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
-CHUNKS=(files-100M load-100M load-las-fast-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B winners-1B records-1B accuracy attributes packing upload-100M startup-100M viewer-load-100M mainthread-100M startup-1B convert-1B copc-1B stream-1B stream-200M writes-100M writes-1B reads-100M reads-1B node-decode-100M lazy-positions-10M staging-flush staging-fixes pytest)
+CHUNKS=(files-100M load-100M load-las-fast-100M kernel-100M layouts-100M raster-100M raster-1B progressive-100M progressive-1B stores-1B winners-1B records-1B accuracy attributes packing upload-100M startup-100M viewer-load-100M mainthread-100M startup-1B convert-1B copc-1B stream-1B stream-gaps-1B stream-200M writes-100M writes-1B reads-100M reads-1B node-decode-100M lazy-positions-10M staging-flush staging-fixes pytest)
 chunk="${1:-list}"
 if [ "$chunk" = list ]; then
     printf '%s\n' "${CHUNKS[@]}"
@@ -86,6 +86,13 @@ case "$chunk" in
     # the next one only converts); its 46 GB of scratch in /dev/shm, as convert-1B's. On the H200 machine the
     # LAZ took 104-127 s and the convert 184-203 s (bench/results/nvidia-h200/copc_1B/README.md)
     copc-1B)          "${PYTHON:-python3}" -m bench.stream --points 1000000000 --laz --build-only --scratch /dev/shm "${@:2}" ;;
+    # where a still streamed overview of the 1 B-point COPC spends the seconds outside its frames (about 0.45 s
+    # in bench/results/nvidia-h100/stream_detail_1B/), under switch intervals of 5 and 0.5 ms taking turns
+    # (bench/results/llvmpipe/stream_gaps/): the COPC built as copc-1B where absent (about 250 s), then 2 rounds
+    stream-gaps-1B)   "${PYTHON:-python3}" -m bench.stream --points 1000000000 --laz --build-only --scratch /dev/shm
+                      PYTHONPATH=".:${PYTHONPATH:-}" "${PYTHON:-python3}" bench/results/llvmpipe/stream_gaps/gaps.py \
+                          1000000000 4G 1920x1080 "$OUT/gaps_1B.json" 2 > "$OUT/gaps_1B.txt" 2>&1 || true
+                      head -n 12 "$OUT/gaps_1B.txt" ;;
     # issue 15's targets: the 1 B-point COPC streamed with a 4 GB GPU limit, from the file and over HTTP; a
     # machine without the file builds it first, as copc-1B (about 300 s, then 130 s of streaming: one call)
     stream-1B)        "${PYTHON:-python3}" -m bench.stream --points 1000000000 --laz --limit 4G --size 1920x1080 --still-seconds 20 \
