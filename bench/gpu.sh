@@ -88,11 +88,15 @@ case "$chunk" in
     copc-1B)          "${PYTHON:-python3}" -m bench.stream --points 1000000000 --laz --build-only --scratch /dev/shm "${@:2}" ;;
     # where a still streamed overview of the 1 B-point COPC spends the seconds outside its frames (about 0.45 s
     # in bench/results/nvidia-h100/stream_detail_1B/), under switch intervals of 5 and 0.5 ms taking turns
-    # (bench/results/llvmpipe/stream_gaps/): the COPC built as copc-1B where absent (about 250 s), then 2 rounds
+    # (bench/results/llvmpipe/stream_gaps/): the COPC built as copc-1B where absent (about 250 s), then 2 rounds;
+    # then the first reads at the open against at the first frame, 3 rounds taking turns
     stream-gaps-1B)   "${PYTHON:-python3}" -m bench.stream --points 1000000000 --laz --build-only --scratch /dev/shm
                       PYTHONPATH=".:${PYTHONPATH:-}" "${PYTHON:-python3}" bench/results/llvmpipe/stream_gaps/gaps.py \
                           1000000000 4G 1920x1080 "$OUT/gaps_1B.json" 2 > "$OUT/gaps_1B.txt" 2>&1 || true
-                      head -n 12 "$OUT/gaps_1B.txt" ;;
+                      head -n 12 "$OUT/gaps_1B.txt"
+                      # the first reads asked for at the open against at the first frame (bench/results/llvmpipe/first_reads/)
+                      PYTHONPATH=".:${PYTHONPATH:-}" "${PYTHON:-python3}" bench/results/llvmpipe/first_reads/first_reads.py \
+                          1000000000 3 "$OUT/first_reads_1B.json" 4G:1920x1080 2>&1 | tail -n 4 ;;
     # issue 15's targets: the 1 B-point COPC streamed with a 4 GB GPU limit, from the file and over HTTP; a
     # machine without the file builds it first, as copc-1B (about 300 s, then 130 s of streaming: one call)
     stream-1B)        "${PYTHON:-python3}" -m bench.stream --points 1000000000 --laz --limit 4G --size 1920x1080 --still-seconds 20 \

@@ -70,7 +70,7 @@ class NodeReader:
         self._pool = ThreadPoolExecutor(max(1, threads), thread_name_prefix="copc nodes")
         self.decoders = decoders
         if decoders is not None:
-            decoders.start_soon()       # nodes read before the processes are there are decoded here
+            decoders.start_soon()       # reads wait for them: the session's first reads come at once
         self._lanes: queue.SimpleQueue = queue.SimpleQueue()     # a process's answers are for one read at a time
         for lane in range(decoders.processes if decoders is not None else 0):
             self._lanes.put(lane)
@@ -110,7 +110,7 @@ class NodeReader:
 
     def _read(self, row: int) -> None:
         source = self.sources[int(self._file[row])]
-        ready = self.decoders is not None and self.decoders.ready
+        ready = self.decoders is not None and self.decoders.wait_started()
         try:
             got: Batch | str = source.node_batch(int(self._local[row]), self.first_index(row), self.origin, self.names,
                                                  self.decoders if ready else None, self._lane)

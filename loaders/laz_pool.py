@@ -183,6 +183,7 @@ class DecoderPool:
         self._active = False
         self._failed = False
         self._ids = itertools.count()
+        self._start_ended = threading.Event()       # start_soon's start has ended (or the pool closed)
 
     @classmethod
     def chosen(cls, options: LazOptions) -> DecoderPool | None:
@@ -279,15 +280,26 @@ class DecoderPool:
                     _close_sockets(workers)
 
     def start_soon(self) -> None:
-        """Start the workers on a thread of their own, so that a caller decodes in its own
-        process meanwhile (`ready` says when they are there) instead of waiting."""
+        """Start the workers on a thread of their own, while the caller goes on
+        (`wait_started` waits for them, `ready` says whether they are there)."""
         def start() -> None:
-            with self._start_lock:
-                if not self._workers and not self._failed and not self._closed:
-                    with contextlib.suppress(PoolClosed):
-                        self._started()
+            try:
+                with self._start_lock:
+                    if not self._workers and not self._failed and not self._closed:
+                        with contextlib.suppress(PoolClosed):
+                            self._started()
+            finally:
+                self._start_ended.set()
 
         threading.Thread(target=start, name="start LAZ decoders", daemon=True).start()
+
+    def wait_started(self, timeout: float = START_S) -> bool:
+        """After start_soon: wait at most `timeout` seconds for its start to end; whether
+        the workers are ready. Waiting is cheap (they are ready within about 0.13 s for 8
+        on 2 cores) beside decoding in the caller's process meanwhile, where lazrs holds
+        the GIL through each decode."""
+        self._start_ended.wait(timeout)
+        return self.ready
 
     @property
     def ready(self) -> bool:
@@ -433,6 +445,7 @@ class DecoderPool:
         """End the workers: their sockets are shut, so that they end (and a decode
         waiting on them wakes); one that has not within GRACE_S is killed. Safe to call
         again."""
+        self._start_ended.set()
         with self._lock:
             self._closed = True
             workers, self._workers = self._workers, []

@@ -311,6 +311,7 @@ class Session:
         decoders = DecoderPool(cores) if processes else None
         reader = NodeReader(self.loader.sources, self.info.origin, names, threads, decoders,
                             on_parsed=encoding.node_runs)
+        plan_options = replace(PLAN, max_in_flight=READS_QUEUED * threads)
         scene = None
         try:
             need = int(batch_cost(reader.nodes.points, BATCH_POINTS).sum())     # every node, in whole batches
@@ -319,6 +320,10 @@ class Session:
                                       default_bytes=memory.stream_bytes(self.glc.caps))
             state = Streamer.residency(reader, self.memory.capacity * BATCH_POINTS // BATCH_SLOTS,
                                        options.stream_detail_px)
+            camera = options.camera if options.camera is not None else auto_camera(
+                self.info.bounds_min, self.info.bounds_max, options.width / options.height)
+            first = Streamer.request_first(reader, state, node_view(camera, options.width, options.height),
+                                           plan_options, first_in_flight=threads)
             info = replace(self.info, points=state.capacity * BATCH_POINTS)
             scene = Scene(self.glc, info, self.attribute, chunk_points=options.chunk_points,
                           class_filter=class_filter, streamed=True, records=options.progressive.records)
@@ -330,8 +335,8 @@ class Session:
             if scene is not None:
                 scene.release()
             raise
-        self.streamer = Streamer(scene, reader, state, replace(PLAN, max_in_flight=READS_QUEUED * threads),
-                                 keep=options.switchable, first_in_flight=threads)
+        self.streamer = Streamer(scene, reader, state, plan_options, keep=options.switchable, first_in_flight=threads,
+                                 first=first)
 
     def _open_renderer(self, options: SessionOptions, class_filter: bool) -> None:
         """The renderer of a cloud loaded in order (a uniform random subset where it does

@@ -94,6 +94,15 @@ class StreamStatus:
         return dict(self.__dict__)
 
 
+@dataclass(frozen=True)
+class FirstReads:
+    """The plan of a session's first view, its reads requested before the store and the
+    passes are made (Streamer.request_first), which the Streamer goes on from."""
+
+    view: View
+    part: ViewPart
+
+
 class Streamer:
     """Keeps a Scene's batches holding the nodes a view needs (the Scene was made
     streamed, with the state's capacity in whole batches). With `keep`, the resident
@@ -101,15 +110,16 @@ class Streamer:
     is written from them, node by node, instead of read again."""
 
     def __init__(self, scene: Scene, reader: NodeReader, state: Residency, options: PlanOptions = PLAN,
-                 keep: bool = False, first_in_flight: int | None = None):
+                 keep: bool = False, first_in_flight: int | None = None, first: FirstReads | None = None):
         """first_in_flight: reads requested at once until a frame has shown points (then
         options.max_in_flight): one a reader thread, so that no reads queue behind the
         first nodes while the first image is made (with READS_QUEUED from the start, as
         since 86e7d3d, the H200's first image of the 1 B-point COPC took 1.22 s at
-        40ce040 against 0.86 s at c0f0c82: bench/results/nvidia-h200/stream_c0f0c82/)."""
+        40ce040 against 0.86 s at c0f0c82: bench/results/nvidia-h200/stream_c0f0c82/).
+        first: the first view's plan, made and requested by request_first with the same
+        reader, state, options and first_in_flight."""
         self.scene, self.reader, self.state, self.options = scene, reader, state, options
-        self._first_options = options if first_in_flight is None else \
-            replace(options, max_in_flight=max(1, min(options.max_in_flight, first_in_flight)))
+        self._first_options = self.first_options(options, first_in_flight)
         self.keep = keep
         self._arrived: dict[int, Batch] = {}
         self._kept: dict[int, Batch] = {}           # keep: each resident node's points
@@ -124,6 +134,29 @@ class Streamer:
         self.warnings: list[str] = []
         self.written: list[int] = []
         """The batches the last update wrote (into empty ones, where it emptied none)."""
+        if first is not None:       # the first frame's view, where it is another, is planned at once
+            self._view, self._part, self._events = first.view, first.part, False
+
+    @staticmethod
+    def first_options(options: PlanOptions, first_in_flight: int | None) -> PlanOptions:
+        """The plan's options until a frame has shown points (__init__'s first_in_flight)."""
+        if first_in_flight is None:
+            return options
+        return replace(options, max_in_flight=max(1, min(options.max_in_flight, first_in_flight)))
+
+    @classmethod
+    def request_first(cls, reader: NodeReader, state: Residency, view: View, options: PlanOptions = PLAN,
+                      first_in_flight: int | None = None) -> FirstReads:
+        """Plan `view` and request its first reads before the Scene exists, so that they
+        decode while the session makes its store and passes (on the H100 0.3 s of a 1 B-point
+        COPC's open, before its first node was asked for: bench/results/llvmpipe/first_reads/).
+        Nothing is resident yet, so the plan evicts nothing."""
+        part = ViewPart.of(state, view)
+        p = plan(state, view, cls.first_options(options, first_in_flight), part)
+        state.begin(p)
+        for r in p.request:
+            reader.request(r.row)
+        return FirstReads(view, part)
 
     def _plan_due(self) -> float:
         """Seconds until the last view asked for may be planned (inf: it was planned)."""

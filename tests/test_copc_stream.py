@@ -11,6 +11,7 @@ import contextlib
 import json
 import os
 import signal
+import threading
 import time
 
 import laspy
@@ -173,10 +174,7 @@ def assert_every_node_is_laspys(reader: NodeReader, got: dict, las: laspy.LasDat
 def ready_pool() -> DecoderPool:
     pool = DecoderPool(2)
     pool.start_soon()
-    deadline = time.monotonic() + READ_BOUND_S
-    while not pool.ready and time.monotonic() < deadline:
-        time.sleep(0.01)
-    assert pool.ready
+    assert pool.wait_started(READ_BOUND_S)
     return pool
 
 
@@ -499,9 +497,7 @@ def test_a_file_is_read_on_more_threads_than_decoder_processes(monkeypatch):
     with streamed(path, limit_for(250_000)) as s:
         pool = s.streamer.reader.decoders
         assert pool.processes == 4
-        deadline = time.monotonic() + laz_pool.START_S
-        while not pool.ready and time.monotonic() < deadline:       # the nodes then go to the processes
-            time.sleep(0.01)
+        assert pool.wait_started()          # the reads wait for the processes, the first ones too
         camera = s.auto_camera()
         converge(s, camera)
         assert decoded and set(decoded) <= set(range(4)), decoded     # by the processes, a lane each
@@ -601,10 +597,38 @@ def test_limit_keeps_a_tree_cut_renders_it_exactly_and_picks_the_files_points():
         assert (picked["x"], picked["y"], picked["z"]) == pytest.approx(tuple(xyz[ids[row, col]]), abs=1e-6)
 
 
-def test_the_detail_still_missing_shrinks_to_nothing_as_a_still_view_settles():
+def test_the_open_asks_for_the_first_views_nodes_before_it_makes_the_store(monkeypatch):
+    """The session plans the first view (its camera, else the auto camera) and requests
+    its first reads before it makes the store and the passes, so they decode meanwhile
+    (Streamer.request_first); the Streamer goes on from that plan, and the still view
+    converges exact over the resident nodes."""
+    from progressive import session as session_module
+
+    events, request, make_scene = [], NodeReader.request, session_module.Scene
+    monkeypatch.setattr(NodeReader, "request", lambda self, row: (events.append(("read", row)), request(self, row))[1])
+    monkeypatch.setattr(session_module, "Scene", lambda *a, **k: (events.append(("store", None)), make_scene(*a, **k))[1])
+    path = shared_file(LONE_STAR)
+    _, xyz = las_xyz(path)
+    with streamed(path, limit_for(250_000)) as s:
+        state = s.streamer.state
+        early = [row for kind, row in events[:events.index(("store", None))] if kind == "read"]
+        assert early and set(early) == set(np.flatnonzero(state.status == Status.LOADING).tolist())
+        assert int(np.flatnonzero(state.parent < 0)[0]) in early          # the root
+        camera = s.auto_camera()
+        converge(s, camera)
+        assert set(early) <= set(np.flatnonzero(state.status == Status.RESIDENT).tolist())
+        assert_tree_cut(s)
+        assert_exact(s, camera, xyz)
+
+
+def test_the_detail_still_missing_shrinks_to_nothing_as_a_still_view_settles(monkeypatch):
     """StreamStatus.missing_px, frame by frame of a still overview: the largest
     screen-space error (copc_choice's, in pixels) among the view's kept nodes not yet
-    shown; it never grows while the camera holds, and is 0 once the view has settled."""
+    shown; it never grows while the camera holds, and is 0 once the view has settled.
+    The reads wait for the first frame (the session asks for them at its open, and this
+    small file's could all have come by then)."""
+    gate, read = threading.Event(), NodeReader._read
+    monkeypatch.setattr(NodeReader, "_read", lambda self, row: (gate.wait(READ_BOUND_S), read(self, row))[1])
     path = shared_file(LONE_STAR)
     with streamed(path, limit_for(250_000)) as s:
         camera = s.auto_camera()
@@ -614,6 +638,7 @@ def test_the_detail_still_missing_shrinks_to_nothing_as_a_still_view_settles():
         seen = []
         for _ in bounded_frames():
             s.frame(camera)
+            gate.set()
             waiting = target[state.status[target] != Status.RESIDENT]
             seen.append(s.status().stream.missing_px)
             assert seen[-1] == (errors[waiting].max() if waiting.size else 0.0)

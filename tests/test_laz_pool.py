@@ -118,6 +118,22 @@ def test_workers_yield_the_cores_to_the_loaders_process():
     assert ours == os.getpriority(os.PRIO_PROCESS, 0)
 
 
+def test_waiting_for_the_workers_ends_with_their_start_or_the_pool():
+    """wait_started returns once start_soon's start has ended (the workers ready), and at
+    once, not ready, for a closed pool: a streaming read never waits out the timeout."""
+    pool = DecoderPool(2)
+    pool.start_soon()
+    assert pool.wait_started(laz_pool.START_S) and pool.ready
+    pool.close()
+    t0 = time.monotonic()
+    assert not pool.wait_started(laz_pool.START_S)
+    closed = DecoderPool(2)
+    closed.close()
+    closed.start_soon()
+    assert not closed.wait_started(laz_pool.START_S)
+    assert time.monotonic() - t0 < 1.0
+
+
 def test_jobs_are_runs_of_whole_chunks():
     chunks = tuple((n, 10) for n in (50, 50, 50, 50, 30, 200, 50))
     assert runs(chunks, 60, 100) == [(0, 1), (1, 3), (3, 5), (5, 6), (6, 7)]

@@ -1193,8 +1193,9 @@ def test_a_copc_file_streams_in_the_window_and_a_node_that_fails_is_said(display
 
 def test_the_panel_sets_a_streamed_clouds_finest_detail(display, tmp_path):
     """The finest detail set in the window (the panel's control calls set_stream_detail)
-    reaches the session's plan: the still view keeps only nodes whose points lie that far
-    apart, exactly; back at 0 it reads on until the memory is full; a cloud opened next
+    reaches the session's plan: the still view reads only nodes whose points lie that far
+    apart (but for the first reads, which the open asked for before any setting: those
+    stay), exactly; back at 0 it reads on until the memory is full; a cloud opened next
     starts with the detail set."""
     from test_copc_stream import assert_exact, las_xyz
 
@@ -1209,12 +1210,14 @@ def test_the_panel_sets_a_streamed_clouds_finest_detail(display, tmp_path):
     v = open_viewer([copc], stream=Streaming.AUTO, gpu_memory_limit=memory.bytes_for(len(xyz) // 2, W * H))
     try:
         v.act(Action.PANEL)
+        state = v.session.streamer.state
+        asked = set(np.nonzero(state.status != Status.ABSENT)[0].tolist())
         v.set_stream_detail(2.0)
         settle(v)
-        state = v.session.streamer.state
         rows = np.nonzero(state.status == Status.RESIDENT)[0]
+        later = np.array(sorted(set(rows.tolist()) - asked), dtype=np.int64)
         errors = state.nodes.errors(node_view(v.camera, *v.session.size))
-        assert rows.size > 0 and (errors[rows][state.nodes.level[rows] > 0] >= 2.0).all()
+        assert rows.size > 0 and (errors[later][state.nodes.level[later] > 0] >= 2.0).all()
         assert_exact(v.session, v.camera, xyz)
         v.set_stream_detail(float("inf"))       # typed in the panel: nothing changes
         assert v.settings.stream_detail_px == 2.0

@@ -36,7 +36,6 @@ import time
 from collections import Counter
 
 import moderngl
-
 import numpy as np
 import pytest
 
