@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import lzma
 import re
 from pathlib import Path
 
@@ -17,15 +18,19 @@ README = Path(__file__).resolve().parents[1] / "README.md"
 
 
 def _load(folder: Path, stem: str) -> dict | None:
-    path = folder / f"{stem}.json"
-    return json.loads(path.read_text()) if path.exists() else None
+    """A table's JSON, as the bench wrote it or xz-compressed as committed where large
+    (STEM.json.xz: bench/carry_gpu.sh says why)."""
+    for path in (folder / f"{stem}.json", folder / f"{stem}.json.xz"):
+        if path.exists():
+            text = lzma.decompress(path.read_bytes()).decode() if path.suffix == ".xz" else path.read_text()
+            return json.loads(text)
+    return None
 
 
 def _largest(folder: Path, prefix: str) -> dict | None:
     """The table of that section with the most points (chunked GPU runs write one per N)."""
-    files = sorted(folder.glob(f"{prefix}_*.json"), key=lambda p: int(re.sub(r"\D", "", p.stem) or 0))
-    files = [f for f in files if re.fullmatch(rf"{prefix}_\d+", f.stem)]
-    return json.loads(files[-1].read_text()) if files else None
+    points = [int(m.group(1)) for p in folder.iterdir() if (m := re.fullmatch(rf"{prefix}_(\d+)\.json(\.xz)?", p.name))]
+    return _load(folder, f"{prefix}_{max(points)}") if points else None
 
 
 def _x(v: float) -> str:

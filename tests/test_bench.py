@@ -267,3 +267,17 @@ def test_detail_bench_runs(tmp_path):
     for r in rows:
         assert r["covered"] > 0 and 0 <= r["empty"] + r["other"] <= 1 and 0 <= r["rgb"] <= 255
     assert len(table.rows) == 2
+
+
+def test_committed_headlines_are_built_from_their_folders_json():
+    """Each committed results folder's headline.md, and the README's copy of it, is what
+    bench.headline builds from that folder's tables, whose JSON is committed plain or,
+    where large, xz-compressed (NAME.json.xz)."""
+    results = Path(__file__).resolve().parents[1] / "bench" / "results"
+    readme = headline.README.read_text()
+    folders = [f for f in sorted(results.iterdir()) if (f / "headline.md").exists()]
+    assert any(f.glob("*.json.xz") for f in folders)
+    for folder in folders:
+        text = headline.build(folder)
+        assert text == (folder / "headline.md").read_text(), folder.name
+        assert f"<!-- bench:headline:{folder.name} -->\n{text.rstrip()}\n<!-- /bench:headline:{folder.name} -->" in readme
