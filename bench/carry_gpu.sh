@@ -9,7 +9,7 @@
 # the data leaves out autzen_trim.las and bunnyDouble.e57 (the tests read the bundled copies) and the wheels PyOpenGL (only the
 # windowed viewer imports it, and that machine has no display); the benches write their JSON compact
 # (bench/report.py), and a result folder's JSON over 100 kB is committed xz-compressed (NAME.json.xz; `xz -dk` it to read).
-# With that: tracked files 16.6 MB, .gpu without the data 31.5 MB, the data 17.1 MB (65.2 MB of the 67.1); the last
+# With that (2026-12-08): tracked files 13.2 MB, .gpu without the data 31.5 MB, the data 17.1 MB (61.8 MB of the 67.1); the last
 # lines below print the sum.
 # Run here, then `run` with carry [".gpu"] and `source .gpu/env.sh` there.
 #   bash bench/carry_gpu.sh
