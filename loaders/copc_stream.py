@@ -111,6 +111,8 @@ class NodeReader:
     def _read(self, row: int) -> None:
         source = self.sources[int(self._file[row])]
         ready = self.decoders is not None and self.decoders.wait_started()
+        if self._closed:        # closed while it waited for the processes: nothing to decode here
+            return
         try:
             got: Batch | str = source.node_batch(int(self._local[row]), self.first_index(row), self.origin, self.names,
                                                  self.decoders if ready else None, self._lane)
