@@ -320,10 +320,12 @@ class Session:
                                       default_bytes=memory.stream_bytes(self.glc.caps))
             state = Streamer.residency(reader, self.memory.capacity * BATCH_POINTS // BATCH_SLOTS,
                                        options.stream_detail_px)
-            camera = options.camera if options.camera is not None else auto_camera(
-                self.info.bounds_min, self.info.bounds_max, options.width / options.height)
-            first = Streamer.request_first(reader, state, node_view(camera, options.width, options.height),
-                                           plan_options, first_in_flight=threads)
+            first = None
+            if decoders is not None:    # decoded in this process, early reads would hold the GIL through the open
+                camera = options.camera if options.camera is not None else auto_camera(
+                    self.info.bounds_min, self.info.bounds_max, options.width / options.height)
+                first = Streamer.request_first(reader, state, node_view(camera, options.width, options.height),
+                                               plan_options, first_in_flight=threads)
             info = replace(self.info, points=state.capacity * BATCH_POINTS)
             scene = Scene(self.glc, info, self.attribute, chunk_points=options.chunk_points,
                           class_filter=class_filter, streamed=True, records=options.progressive.records)

@@ -147,10 +147,13 @@ class Streamer:
     @classmethod
     def request_first(cls, reader: NodeReader, state: Residency, view: View, options: PlanOptions = PLAN,
                       first_in_flight: int | None = None) -> FirstReads:
-        """Plan `view` and request its first reads before the Scene exists, so that they
-        decode while the session makes its store and passes (on the H100 0.3 s of a 1 B-point
-        COPC's open, before its first node was asked for: bench/results/llvmpipe/first_reads/).
-        Nothing is resident yet, so the plan evicts nothing."""
+        """Plan `view` and request its first reads before the Scene exists, so that decoder
+        processes decode them while the session makes its store and passes (on the H100 0.3 s
+        of a 1 B-point COPC's open, before its first node was asked for). Where the nodes
+        are decoded in the session's process, lazrs would hold the GIL through the open
+        instead: over HTTP on 2 cores the open took 0.03-0.04 s longer and the first image
+        came no sooner (bench/results/llvmpipe/first_reads/), so the session asks only
+        where it has decoder processes. Nothing is resident yet: the plan evicts nothing."""
         part = ViewPart.of(state, view)
         p = plan(state, view, cls.first_options(options, first_in_flight), part)
         state.begin(p)

@@ -597,23 +597,31 @@ def test_limit_keeps_a_tree_cut_renders_it_exactly_and_picks_the_files_points():
         assert (picked["x"], picked["y"], picked["z"]) == pytest.approx(tuple(xyz[ids[row, col]]), abs=1e-6)
 
 
-def test_the_open_asks_for_the_first_views_nodes_before_it_makes_the_store(monkeypatch):
-    """The session plans the first view (its camera, else the auto camera) and requests
-    its first reads before it makes the store and the passes, so they decode meanwhile
-    (Streamer.request_first); the Streamer goes on from that plan, and the still view
-    converges exact over the resident nodes."""
+@pytest.mark.parametrize("processes", [pytest.param(True, marks=pytest.mark.skipif(
+    not laz_pool.available(), reason="decoder processes are for Linux")), False], ids=["decoder processes", "in this process"])
+def test_the_open_asks_for_the_first_views_nodes_before_it_makes_the_store(monkeypatch, processes):
+    """Where decoder processes decode the nodes, the session plans the first view (its
+    camera, else the auto camera) and requests its first reads before it makes the store
+    and the passes, so they decode meanwhile (Streamer.request_first); the Streamer goes
+    on from that plan, and the still view converges exact over the resident nodes.
+    Decoded in its own process (fewer than 4 cores), it asks at the first frame."""
     from progressive import session as session_module
 
+    monkeypatch.setattr(session_module, "available_cores", lambda: 4 if processes else 2)
+    monkeypatch.setattr(laz_pool, "MIN_PROCESS_POINTS", 0)     # lone-star is smaller than a pool pays for
     events, request, make_scene = [], NodeReader.request, session_module.Scene
     monkeypatch.setattr(NodeReader, "request", lambda self, row: (events.append(("read", row)), request(self, row))[1])
     monkeypatch.setattr(session_module, "Scene", lambda *a, **k: (events.append(("store", None)), make_scene(*a, **k))[1])
     path = shared_file(LONE_STAR)
     _, xyz = las_xyz(path)
     with streamed(path, limit_for(250_000)) as s:
+        assert (s.streamer.reader.decoders is not None) == processes
         state = s.streamer.state
         early = [row for kind, row in events[:events.index(("store", None))] if kind == "read"]
-        assert early and set(early) == set(np.flatnonzero(state.status == Status.LOADING).tolist())
-        assert int(np.flatnonzero(state.parent < 0)[0]) in early          # the root
+        assert set(early) == set(np.flatnonzero(state.status == Status.LOADING).tolist())
+        assert bool(early) == processes
+        if processes:
+            assert int(np.flatnonzero(state.parent < 0)[0]) in early          # the root
         camera = s.auto_camera()
         converge(s, camera)
         assert set(early) <= set(np.flatnonzero(state.status == Status.RESIDENT).tolist())
@@ -625,8 +633,8 @@ def test_the_detail_still_missing_shrinks_to_nothing_as_a_still_view_settles(mon
     """StreamStatus.missing_px, frame by frame of a still overview: the largest
     screen-space error (copc_choice's, in pixels) among the view's kept nodes not yet
     shown; it never grows while the camera holds, and is 0 once the view has settled.
-    The reads wait for the first frame (the session asks for them at its open, and this
-    small file's could all have come by then)."""
+    The reads wait for the first frame (with decoder processes the session asks for them
+    at its open, and this small file's could all have come by then)."""
     gate, read = threading.Event(), NodeReader._read
     monkeypatch.setattr(NodeReader, "_read", lambda self, row: (gate.wait(READ_BOUND_S), read(self, row))[1])
     path = shared_file(LONE_STAR)

@@ -1194,8 +1194,7 @@ def test_a_copc_file_streams_in_the_window_and_a_node_that_fails_is_said(display
 def test_the_panel_sets_a_streamed_clouds_finest_detail(display, tmp_path):
     """The finest detail set in the window (the panel's control calls set_stream_detail)
     reaches the session's plan: the still view reads only nodes whose points lie that far
-    apart (but for the first reads, which the open asked for before any setting: those
-    stay), exactly; back at 0 it reads on until the memory is full; a cloud opened next
+    apart (but for the reads asked for before the setting: those stay), exactly; back at 0 it reads on until the memory is full; a cloud opened next
     starts with the detail set."""
     from test_copc_stream import assert_exact, las_xyz
 
