@@ -757,16 +757,13 @@ def _node_records(source: CopcSource, kept: np.ndarray, partial: bool) -> np.nda
 
 def _node_bounds(source: CopcSource, partial: bool) -> tuple[tuple[float, ...], tuple[float, ...]]:
     """las._data_bounds from every node: exact min and max of the file coordinates."""
-    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    ends = las.CoordinateEnds(source.records)
     try:
         for chunk in source._node_chunks(np.arange(source.hierarchy.nodes.size), BATCH_POINTS, None, partial):
-            records = chunk.records if isinstance(chunk, AfterGap) else chunk
-            if len(records):
-                ends = las.record_ends(records, source.records)
-                lo, hi = np.minimum(lo, ends[0]), np.maximum(hi, ends[1])
+            ends.add(chunk.records if isinstance(chunk, AfterGap) else chunk)
     except TruncatedInput:
         pass
-    return tuple(map(float, lo)), tuple(map(float, hi))
+    return ends.bounds()
 
 
 def keep_levels(sources: tuple, point_budget: int | None, view: View | Callable[..., View] | None = None) -> tuple:

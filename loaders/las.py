@@ -396,6 +396,23 @@ def record_ends(chunk: np.ndarray, records: Records) -> np.ndarray:
     return _coordinate_ends(_cells(_record_bytes(chunk)), records)
 
 
+class CoordinateEnds:
+    """record_ends over chunks of records as they come (a bounds pass over a file or
+    its nodes), kept so far where a chunk fails to decode."""
+
+    def __init__(self, records: Records):
+        self.records = records
+        self.lo, self.hi = np.full(3, np.inf), np.full(3, -np.inf)
+
+    def add(self, chunk: np.ndarray) -> None:
+        if len(chunk):
+            ends = record_ends(chunk, self.records)
+            self.lo, self.hi = np.minimum(self.lo, ends[0]), np.maximum(self.hi, ends[1])
+
+    def bounds(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        return tuple(map(float, self.lo)), tuple(map(float, self.hi))
+
+
 def rgb_max(chunk: np.ndarray) -> int:
     """The greatest of the records' red, green and blue (consecutive 16-bit fields in
     every point format), over one contiguous copy of them rather than three strided
@@ -629,16 +646,14 @@ def _data_bounds(path: str, laz: LazLayout | None, records: Records, count: int,
                  partial: bool) -> tuple[tuple[float, ...], tuple[float, ...]]:
     """Exact min and max of the file coordinates, computed as LasSource.parse computes them;
     with partial, of the points that can be read. One extra pass over the file."""
-    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    ends = CoordinateEnds(records)
     try:
         for chunk in decode(path, laz, records, count, BATCH_POINTS, salvage=partial):
-            if len(chunk):
-                ends = record_ends(chunk, records)
-                lo, hi = np.minimum(lo, ends[0]), np.maximum(hi, ends[1])
+            ends.add(chunk)
     except TruncatedInput as exc:
         if not (partial and exc.read):
             raise fail(path, f"point data is truncated or corrupt ({one_line(exc.__cause__ or exc)})") from exc
-    return tuple(map(float, lo)), tuple(map(float, hi))
+    return ends.bounds()
 
 
 def attribute_kind(name: str) -> AttributeKind:
